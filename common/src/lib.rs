@@ -1,0 +1,18 @@
+//! What coordinator and worker must agree on.
+//!
+//! # Layout
+//! - [`scene`]: the scene model (plain data, f64 placements).
+//! - [`gltf`]: glTF 2.0 loading and validation into a [`scene::Scene`].
+//! - [`settings`]: render settings (the JSON of PRODUCT.md) with validation.
+//! - [`film`]: per-pixel partial sums that merge exactly, variance and error estimates.
+//! - [`protocol`]: task specifications and results.
+//!
+//! No networking, no threads, no rendering here.
+
+#![warn(missing_docs)]
+
+pub mod film;
+pub mod gltf;
+pub mod protocol;
+pub mod scene;
+pub mod settings;

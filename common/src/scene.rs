@@ -1,0 +1,274 @@
+//! The scene model: plain data that the glTF loader produces and the renderer prepares.
+//!
+//! Geometry stays in each mesh's local space (f32, as glTF stores it) and every placement of a
+//! mesh carries its world transform in f64, so that the renderer can move the world next to the
+//! camera before rounding to f32 (a scene 1e6 units from the origin renders like one at it).
+//! Nothing here knows about rays, BVHs or sampling.
+
+use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
+
+/// A loaded scene: meshes, where they are placed, materials, textures, cameras and lights.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    /// Triangle meshes in their local space; one per glTF primitive that has triangles.
+    pub meshes: Vec<Mesh>,
+    /// Placements of meshes in the world (a glTF node that references a mesh).
+    pub instances: Vec<Instance>,
+    /// Materials referenced by `Mesh::material`. Always ends with nothing special: a mesh without
+    /// a material points at `Scene::default_material()` which the loader appends when needed.
+    pub materials: Vec<Material>,
+    /// Decoded textures referenced by `TextureRef::texture`.
+    pub textures: Vec<Texture>,
+    /// Cameras in scene order (the first is the default camera).
+    pub cameras: Vec<Camera>,
+    /// `KHR_lights_punctual` lights, placed in the world.
+    pub lights: Vec<PunctualLight>,
+}
+
+/// One glTF primitive's triangles in local space.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    /// `mesh name/primitive index`, for messages.
+    pub name: String,
+    /// Vertex positions (POSITION).
+    pub positions: Vec<Vec3>,
+    /// Vertex normals (NORMAL); `None` means flat shading from the geometric normal.
+    pub normals: Option<Vec<Vec3>>,
+    /// Vertex tangents with handedness in `w` (TANGENT), used by normal maps.
+    pub tangents: Option<Vec<Vec4>>,
+    /// Texture coordinates TEXCOORD_0 and TEXCOORD_1, when present.
+    pub uvs: [Option<Vec<Vec2>>; 2],
+    /// Vertex colours (COLOR_0) as linear RGBA; multiplies the base colour.
+    pub colors: Option<Vec<Vec4>>,
+    /// Triangles as vertex indices, counter-clockwise = front face. All indices are in range.
+    pub indices: Vec<[u32; 3]>,
+    /// Index into `Scene::materials`.
+    pub material: usize,
+}
+
+/// A mesh placed in the world by a node.
+#[derive(Clone, Debug)]
+pub struct Instance {
+    /// Index into `Scene::meshes`.
+    pub mesh: usize,
+    /// Index of the glTF node that places it.
+    pub node: usize,
+    /// Local-to-world transform, in f64 so that large translations survive.
+    pub transform: DMat4,
+}
+
+/// How alpha is interpreted (`alphaMode`).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum AlphaMode {
+    /// Alpha is ignored.
+    #[default]
+    Opaque,
+    /// Alpha below the cutoff makes the surface invisible.
+    Mask {
+        /// `alphaCutoff`.
+        cutoff: f32,
+    },
+    /// Alpha blending; rendered as stochastic transparency (coverage = alpha).
+    Blend,
+}
+
+/// A `KHR_texture_transform`: uv' = offset + R(rotation) * (scale * uv).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TexTransform {
+    /// `offset`.
+    pub offset: Vec2,
+    /// `rotation` in radians.
+    pub rotation: f32,
+    /// `scale`.
+    pub scale: Vec2,
+}
+
+/// A reference from a material to a texture.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TextureRef {
+    /// Index into `Scene::textures`.
+    pub texture: usize,
+    /// Which TEXCOORD set (0 or 1).
+    pub tex_coord: u32,
+    /// `KHR_texture_transform`, if any.
+    pub transform: Option<TexTransform>,
+}
+
+/// The glTF metallic-roughness material with the extensions the renderer honours.
+#[derive(Clone, Debug)]
+pub struct Material {
+    /// Name for messages.
+    pub name: String,
+    /// `baseColorFactor`, linear RGBA.
+    pub base_color: Vec4,
+    /// `baseColorTexture` (sRGB encoded).
+    pub base_color_texture: Option<TextureRef>,
+    /// `metallicFactor`.
+    pub metallic: f32,
+    /// `roughnessFactor` (perceptual; GGX alpha = roughness²).
+    pub roughness: f32,
+    /// `metallicRoughnessTexture` (B = metallic, G = roughness, linear).
+    pub metallic_roughness_texture: Option<TextureRef>,
+    /// `normalTexture` and its `scale`.
+    pub normal_texture: Option<(TextureRef, f32)>,
+    /// `emissiveFactor` x `KHR_materials_emissive_strength.emissiveStrength`: emitted radiance.
+    pub emissive: Vec3,
+    /// `emissiveTexture` (sRGB encoded).
+    pub emissive_texture: Option<TextureRef>,
+    /// `KHR_materials_specular.specularFactor` (1 without the extension; 0 = pure Lambert).
+    pub specular: f32,
+    /// `KHR_materials_specular.specularColorFactor`.
+    pub specular_color: Vec3,
+    /// `KHR_materials_ior.ior` (1.5 without the extension).
+    pub ior: f32,
+    /// `KHR_materials_transmission.transmissionFactor` (0 without the extension).
+    pub transmission: f32,
+    /// `alphaMode` and `alphaCutoff`.
+    pub alpha_mode: AlphaMode,
+    /// `doubleSided`: emission leaves both faces when true, the front face only otherwise.
+    pub double_sided: bool,
+}
+
+impl Default for Material {
+    /// The glTF default material (spec 3.9.6): white, fully metallic, fully rough.
+    fn default() -> Self {
+        Material {
+            name: "default".into(),
+            base_color: Vec4::ONE,
+            base_color_texture: None,
+            metallic: 1.0,
+            roughness: 1.0,
+            metallic_roughness_texture: None,
+            normal_texture: None,
+            emissive: Vec3::ZERO,
+            emissive_texture: None,
+            specular: 1.0,
+            specular_color: Vec3::ONE,
+            ior: 1.5,
+            transmission: 0.0,
+            alpha_mode: AlphaMode::Opaque,
+            double_sided: false,
+        }
+    }
+}
+
+/// How a texture repeats outside [0, 1] (glTF sampler `wrapS`/`wrapT`).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum Wrap {
+    /// 10497
+    #[default]
+    Repeat,
+    /// 33071
+    ClampToEdge,
+    /// 33648
+    MirroredRepeat,
+}
+
+/// A decoded texture: RGBA8 texels as stored in the file (colour textures are sRGB encoded; the
+/// renderer decodes at lookup), row 0 at the top (v = 0).
+#[derive(Clone, Debug)]
+pub struct Texture {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// `width * height` RGBA8 texels, row-major from the top row.
+    pub texels: Vec<[u8; 4]>,
+    /// Wrap mode along u.
+    pub wrap_s: Wrap,
+    /// Wrap mode along v.
+    pub wrap_t: Wrap,
+    /// Nearest filtering (magFilter 9728); bilinear otherwise.
+    pub nearest: bool,
+}
+
+/// A camera's projection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// Perspective with a vertical field of view in radians.
+    Perspective {
+        /// `yfov`.
+        yfov: f32,
+    },
+    /// Orthographic with half extents of the view volume.
+    Orthographic {
+        /// `xmag`.
+        xmag: f32,
+        /// `ymag`.
+        ymag: f32,
+    },
+}
+
+/// A camera placed in the world. It looks down its local -z axis with +y up.
+#[derive(Clone, Debug)]
+pub struct Camera {
+    /// Name of the camera node (falls back to the camera's name).
+    pub name: String,
+    /// Index of the node that holds it, if it came from the file.
+    pub node: Option<usize>,
+    /// Camera-to-world transform, rigid (scale removed by the loader).
+    pub transform: DMat4,
+    /// Projection.
+    pub projection: Projection,
+}
+
+impl Camera {
+    /// The camera's position in the world.
+    pub fn position(&self) -> DVec3 {
+        self.transform.w_axis.truncate()
+    }
+}
+
+/// The kinds of `KHR_lights_punctual` light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PunctualKind {
+    /// `intensity` is irradiance (W/m² in RGB units) on a surface facing the light.
+    Directional,
+    /// `intensity` is radiant intensity (W/sr).
+    Point,
+    /// A point light limited to a cone, smooth between the two angles (radians).
+    Spot {
+        /// `innerConeAngle`.
+        inner_cone: f32,
+        /// `outerConeAngle`.
+        outer_cone: f32,
+    },
+}
+
+/// A punctual light placed in the world.
+#[derive(Clone, Debug)]
+pub struct PunctualLight {
+    /// Name for messages.
+    pub name: String,
+    /// Its kind.
+    pub kind: PunctualKind,
+    /// `color` x `intensity`.
+    pub intensity: Vec3,
+    /// World position (ignored for directional lights).
+    pub position: DVec3,
+    /// World direction the light points to (its node's -z), unit length.
+    pub direction: DVec3,
+    /// `range`, if given (the renderer ignores it, as the spec allows for physically based renderers).
+    pub range: Option<f32>,
+}
+
+impl Scene {
+    /// World-space bounds of all instanced geometry, or `None` for an empty scene.
+    pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for inst in &self.instances {
+            for &p in &self.meshes[inst.mesh].positions {
+                let w = inst.transform.transform_point3(p.as_dvec3());
+                lo = lo.min(w);
+                hi = hi.max(w);
+            }
+        }
+        (lo.x <= hi.x).then_some((lo, hi))
+    }
+
+    /// Number of triangles over all instances.
+    pub fn triangle_count(&self) -> usize {
+        self.instances.iter().map(|i| self.meshes[i.mesh].indices.len()).sum()
+    }
+}

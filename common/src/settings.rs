@@ -1,0 +1,283 @@
+//! Render settings: the JSON object of PRODUCT.md, with defaults and validation.
+//!
+//! Every key is optional; unknown keys are refused so that a typo never silently renders the
+//! wrong thing. `validate` turns absurd values into a message naming the key.
+
+use serde::{Deserialize, Serialize};
+
+/// Upper bound on image width and height accepted by `validate`.
+pub const MAX_RESOLUTION: u32 = 16384;
+/// Upper bound on samples per pixel accepted by `validate`.
+pub const MAX_SPP: u32 = 1 << 20;
+
+/// Everything that decides what a job renders. Part of the determinism key: the same settings,
+/// scene and seed give the same image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderSettings {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel (upper bound when stopping adaptively).
+    pub spp: u32,
+    /// Adaptive stopping: estimated relative RMSE to reach.
+    pub target_rel_error: Option<f64>,
+    /// Adaptive stopping: wall-clock budget in seconds.
+    pub time_limit_s: Option<f64>,
+    /// Path length limit in bounces: 0 = emitters seen directly, 1 = direct light only.
+    pub max_depth: u32,
+    /// Seed of the sample sequences.
+    pub seed: u64,
+    /// Name of the camera node (or camera) to render; default: the scene's first camera.
+    pub camera: Option<String>,
+    /// Thin lens.
+    pub lens: Lens,
+    /// Shutter interval as fractions of the frame interval.
+    pub shutter: Shutter,
+    /// Frame range.
+    pub frames: Frames,
+    /// The environment around the scene.
+    pub environment: Option<Environment>,
+    /// Edge of a square tile in pixels.
+    pub tile_size: u32,
+    /// Samples per pixel in one task.
+    pub samples_per_task: u32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings {
+            width: 640,
+            height: 480,
+            spp: 256,
+            target_rel_error: None,
+            time_limit_s: None,
+            max_depth: 64,
+            seed: 0,
+            camera: None,
+            lens: Lens::default(),
+            shutter: Shutter::default(),
+            frames: Frames::default(),
+            environment: None,
+            tile_size: 32,
+            samples_per_task: 64,
+        }
+    }
+}
+
+/// Thin-lens parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Lens {
+    /// Radius of the lens disk in scene units; 0 is a pinhole.
+    pub aperture_radius: f64,
+    /// Distance from the lens to the plane in focus, along the view axis.
+    pub focus_distance: f64,
+}
+
+impl Default for Lens {
+    fn default() -> Self {
+        Lens { aperture_radius: 0.0, focus_distance: 1.0 }
+    }
+}
+
+/// Shutter interval in fractions of the frame interval.
+#[derive(Clone, Copy, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Shutter {
+    /// Opening time.
+    pub open: f64,
+    /// Closing time; equal to `open` means no motion blur.
+    pub close: f64,
+}
+
+/// Frames to render; `end` is inclusive.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Frames {
+    /// First frame.
+    pub start: i64,
+    /// Last frame (inclusive).
+    pub end: i64,
+    /// Frames per second: frame f is at time f / fps.
+    pub fps: f64,
+}
+
+impl Default for Frames {
+    fn default() -> Self {
+        Frames { start: 0, end: 0, fps: 24.0 }
+    }
+}
+
+/// The environment: a uniform colour or an equirectangular map.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, untagged)]
+pub enum Environment {
+    /// Uniform radiance in every direction.
+    Color {
+        /// Linear RGB radiance.
+        color: [f32; 3],
+    },
+    /// An equirectangular EXR/HDR map.
+    Map {
+        /// Path or bundle name of the map.
+        map: String,
+        /// Multiplier.
+        #[serde(default = "one")]
+        intensity: f32,
+        /// Rotation about the up axis in degrees.
+        #[serde(default)]
+        rotation_deg: f32,
+        /// Whether camera rays see it.
+        #[serde(default = "yes")]
+        visible: bool,
+    },
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// A setting that cannot be rendered, with the key that is wrong.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("invalid setting `{key}`: {reason}")]
+pub struct SettingsError {
+    /// The offending key, dotted for nested ones (`lens.focus_distance`).
+    pub key: &'static str,
+    /// What is wrong with its value.
+    pub reason: String,
+}
+
+fn err(key: &'static str, reason: impl Into<String>) -> SettingsError {
+    SettingsError { key, reason: reason.into() }
+}
+
+impl RenderSettings {
+    /// Parses settings from JSON, refusing unknown keys.
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        let settings: RenderSettings =
+            serde_json::from_str(text).map_err(|e| format!("settings: {e}"))?;
+        settings.validate().map_err(|e| e.to_string())?;
+        Ok(settings)
+    }
+
+    /// Checks every value for sense.
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        if self.width == 0 || self.width > MAX_RESOLUTION {
+            return Err(err("width", format!("{} is not in 1..={MAX_RESOLUTION}", self.width)));
+        }
+        if self.height == 0 || self.height > MAX_RESOLUTION {
+            return Err(err("height", format!("{} is not in 1..={MAX_RESOLUTION}", self.height)));
+        }
+        if self.spp == 0 || self.spp > MAX_SPP {
+            return Err(err("spp", format!("{} is not in 1..={MAX_SPP}", self.spp)));
+        }
+        if let Some(e) = self.target_rel_error {
+            if !(e.is_finite() && e > 0.0) {
+                return Err(err("target_rel_error", format!("{e} is not a positive number")));
+            }
+        }
+        if let Some(t) = self.time_limit_s {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(err("time_limit_s", format!("{t} is not a positive number")));
+            }
+        }
+        if self.max_depth > 1024 {
+            return Err(err("max_depth", format!("{} is over 1024", self.max_depth)));
+        }
+        let lens = self.lens;
+        if !(lens.aperture_radius.is_finite() && lens.aperture_radius >= 0.0) {
+            return Err(err("lens.aperture_radius", "must be a finite number >= 0"));
+        }
+        if !(lens.focus_distance.is_finite() && lens.focus_distance > 0.0) {
+            return Err(err("lens.focus_distance", "must be a finite number > 0"));
+        }
+        let shutter = self.shutter;
+        if !(shutter.open.is_finite() && shutter.close.is_finite() && shutter.open <= shutter.close)
+        {
+            return Err(err("shutter", "needs finite open <= close"));
+        }
+        if self.frames.end < self.frames.start {
+            return Err(err("frames", "end is before start"));
+        }
+        if !(self.frames.fps.is_finite() && self.frames.fps > 0.0) {
+            return Err(err("frames.fps", "must be a finite number > 0"));
+        }
+        match &self.environment {
+            Some(Environment::Color { color }) => {
+                if color.iter().any(|c| !c.is_finite() || *c < 0.0) {
+                    return Err(err("environment.color", "components must be finite and >= 0"));
+                }
+            }
+            Some(Environment::Map { intensity, rotation_deg, .. }) => {
+                if !(intensity.is_finite() && *intensity >= 0.0 && rotation_deg.is_finite()) {
+                    return Err(err("environment", "intensity and rotation must be finite"));
+                }
+            }
+            None => {}
+        }
+        if self.tile_size == 0 || self.tile_size > 4096 {
+            return Err(err("tile_size", format!("{} is not in 1..=4096", self.tile_size)));
+        }
+        if self.samples_per_task == 0 {
+            return Err(err("samples_per_task", "must be at least 1"));
+        }
+        Ok(())
+    }
+
+    /// Whether samples need a time dimension (a shutter of non-zero length).
+    pub fn has_motion_blur(&self) -> bool {
+        self.shutter.close > self.shutter.open
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_match_product_contract() {
+        let s = RenderSettings::from_json("{}").unwrap();
+        assert_eq!((s.width, s.height, s.spp, s.max_depth, s.tile_size), (640, 480, 256, 64, 32));
+        assert_eq!(s.environment, None);
+    }
+
+    #[test]
+    fn unknown_key_is_refused_by_name() {
+        let e = RenderSettings::from_json(r#"{"sp": 4}"#).unwrap_err();
+        assert!(e.contains("unknown field `sp`"), "{e}");
+        let e = RenderSettings::from_json(r#"{"lens": {"radius": 1}}"#).unwrap_err();
+        assert!(e.contains("radius"), "{e}");
+    }
+
+    #[test]
+    fn environment_forms_parse() {
+        let s = RenderSettings::from_json(r#"{"environment": {"color": [1, 0.5, 0]}}"#).unwrap();
+        assert_eq!(s.environment, Some(Environment::Color { color: [1.0, 0.5, 0.0] }));
+        let s = RenderSettings::from_json(r#"{"environment": {"map": "sky.exr"}}"#).unwrap();
+        assert!(
+            matches!(s.environment, Some(Environment::Map { intensity, visible: true, .. }) if intensity == 1.0)
+        );
+    }
+
+    #[test]
+    fn absurd_values_name_their_key() {
+        for (json, key) in [
+            (r#"{"width": 0}"#, "width"),
+            (r#"{"height": 100000}"#, "height"),
+            (r#"{"spp": 0}"#, "spp"),
+            (r#"{"lens": {"focus_distance": 0}}"#, "lens.focus_distance"),
+            (r#"{"shutter": {"open": 0.5, "close": 0.1}}"#, "shutter"),
+            (r#"{"environment": {"color": [-1, 0, 0]}}"#, "environment.color"),
+            (r#"{"tile_size": 0}"#, "tile_size"),
+        ] {
+            let e = RenderSettings::from_json(json).unwrap_err();
+            assert!(e.contains(&format!("`{key}`")), "{json}: {e}");
+        }
+    }
+}
