@@ -1,0 +1,338 @@
+//! Materials, textures, samplers and images: the metallic-roughness model with the extensions
+//! the renderer honours (emissive strength, specular, ior, transmission, texture transform), and
+//! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
+
+use std::io::Cursor;
+
+use ::gltf::json;
+use glam::{Vec2, Vec3, Vec4};
+use json::texture::{MagFilter, WrappingMode};
+use json::validation::Checked;
+use serde_json::Value;
+
+use super::{fail, Context, Image, Loader, SceneError};
+use crate::scene::{AlphaMode, Material, TexTransform, Texture, TextureRef, Wrap};
+
+impl Loader<'_> {
+    /// The materials of the scene: every glTF material a loaded mesh uses, in file order, then
+    /// the default material if a mesh has none. Sets `Mesh::material` accordingly.
+    pub(crate) fn load_materials(&mut self) -> Result<Vec<Material>, SceneError> {
+        let mut used: Vec<usize> = self.mesh_materials.iter().flatten().copied().collect();
+        used.sort_unstable();
+        used.dedup();
+        let mut materials = Vec::with_capacity(used.len() + 1);
+        for &m in &used {
+            materials.push(self.material(m).context(|| format!("material {m}"))?);
+        }
+        let default_index = materials.len();
+        if self.mesh_materials.iter().any(Option::is_none) {
+            materials.push(Material::default());
+        }
+        for (mesh, gltf_material) in self.meshes.iter_mut().zip(&self.mesh_materials) {
+            mesh.material = match gltf_material {
+                Some(m) => used.binary_search(m).unwrap_or(default_index),
+                None => default_index,
+            };
+        }
+        Ok(materials)
+    }
+
+    fn material(&mut self, index: usize) -> Result<Material, SceneError> {
+        let root = self.root;
+        let m = &root.materials[index];
+        let pbr = &m.pbr_metallic_roughness;
+        let ext = m.extensions.as_ref();
+
+        let base_color = Vec4::from_array(pbr.base_color_factor.0);
+        let metallic = pbr.metallic_factor.0;
+        let roughness = pbr.roughness_factor.0;
+        let mut emissive = Vec3::from_array(m.emissive_factor.0);
+        if let Some(s) = ext.and_then(|e| e.emissive_strength.as_ref()) {
+            let strength = s.emissive_strength.0;
+            if !(strength >= 0.0 && strength.is_finite()) {
+                return fail(format!(
+                    "KHR_materials_emissive_strength: invalid emissiveStrength {strength}"
+                ));
+            }
+            emissive *= strength;
+        }
+        let (specular, specular_color) = match ext.and_then(|e| e.specular.as_ref()) {
+            Some(s) => (s.specular_factor.0, Vec3::from_array(s.specular_color_factor.0)),
+            None => (1.0, Vec3::ONE),
+        };
+        let ior = ext.and_then(|e| e.ior.as_ref()).map_or(1.5, |i| i.ior.0);
+        let transmission =
+            ext.and_then(|e| e.transmission.as_ref()).map_or(0.0, |t| t.transmission_factor.0);
+        let alpha_mode = match m.alpha_mode {
+            Checked::Valid(json::material::AlphaMode::Opaque) => AlphaMode::Opaque,
+            Checked::Valid(json::material::AlphaMode::Mask) => {
+                AlphaMode::Mask { cutoff: m.alpha_cutoff.as_ref().map_or(0.5, |c| c.0) }
+            }
+            Checked::Valid(json::material::AlphaMode::Blend) => AlphaMode::Blend,
+            Checked::Invalid => return fail("invalid alphaMode"),
+        };
+
+        let checks: [(&str, &[f32]); 8] = [
+            ("baseColorFactor", &base_color.to_array()),
+            ("metallicFactor", &[metallic]),
+            ("roughnessFactor", &[roughness]),
+            ("emissiveFactor", &emissive.to_array()),
+            ("specularFactor", &[specular]),
+            ("specularColorFactor", &specular_color.to_array()),
+            ("transmissionFactor", &[transmission]),
+            ("ior", &[ior]),
+        ];
+        for (name, values) in checks {
+            if values.iter().any(|v| !v.is_finite() || *v < 0.0) {
+                return fail(format!("{name} {values:?} must be finite and not negative"));
+            }
+        }
+        if ior != 0.0 && ior < 1.0 {
+            return fail(format!("KHR_materials_ior: ior {ior} must be 0 or at least 1"));
+        }
+        if let AlphaMode::Mask { cutoff } = alpha_mode {
+            if !cutoff.is_finite() || cutoff < 0.0 {
+                return fail(format!("invalid alphaCutoff {cutoff}"));
+            }
+        }
+
+        let base_color_texture =
+            self.texture_info(pbr.base_color_texture.as_ref(), "baseColorTexture")?;
+        let metallic_roughness_texture =
+            self.texture_info(pbr.metallic_roughness_texture.as_ref(), "metallicRoughnessTexture")?;
+        let emissive_texture = self.texture_info(m.emissive_texture.as_ref(), "emissiveTexture")?;
+        let normal_texture = match &m.normal_texture {
+            Some(n) => {
+                let transform =
+                    n.extensions.as_ref().and_then(|e| e.others.get("KHR_texture_transform"));
+                let transform = transform
+                    .map(parse_transform)
+                    .transpose()
+                    .context(|| "normalTexture".into())?;
+                let r = self
+                    .texture_ref(n.index.value(), n.tex_coord, transform)
+                    .context(|| "normalTexture".into())?;
+                if !n.scale.is_finite() {
+                    return fail(format!("normalTexture: invalid scale {}", n.scale));
+                }
+                r.map(|r| (r, n.scale))
+            }
+            None => None,
+        };
+
+        Ok(Material {
+            name: m.name.clone().unwrap_or_else(|| format!("material {index}")),
+            base_color: base_color.min(Vec4::ONE),
+            base_color_texture,
+            metallic: metallic.min(1.0),
+            roughness: roughness.min(1.0),
+            metallic_roughness_texture,
+            normal_texture,
+            emissive,
+            emissive_texture,
+            specular,
+            specular_color,
+            ior,
+            transmission: transmission.min(1.0),
+            alpha_mode,
+            double_sided: m.double_sided,
+        })
+    }
+
+    /// A `textureInfo` with its `KHR_texture_transform`.
+    fn texture_info(
+        &mut self,
+        info: Option<&json::texture::Info>,
+        slot: &str,
+    ) -> Result<Option<TextureRef>, SceneError> {
+        let Some(info) = info else { return Ok(None) };
+        let ext = info.extensions.as_ref();
+        let transform = ext.and_then(|e| e.texture_transform.as_ref()).map(|t| {
+            (
+                TexTransform {
+                    offset: Vec2::from_array(t.offset.0),
+                    rotation: t.rotation.0,
+                    scale: Vec2::from_array(t.scale.0),
+                },
+                t.tex_coord,
+            )
+        });
+        if let Some((t, _)) = &transform {
+            check_transform(t).context(|| slot.to_string())?;
+        }
+        self.texture_ref(info.index.value(), info.tex_coord, transform).context(|| slot.to_string())
+    }
+
+    fn texture_ref(
+        &mut self,
+        texture: usize,
+        tex_coord: u32,
+        transform: Option<(TexTransform, Option<u32>)>,
+    ) -> Result<Option<TextureRef>, SceneError> {
+        let tex_coord = transform.and_then(|(_, t)| t).unwrap_or(tex_coord);
+        let Some(scene_texture) = self.texture(texture)? else {
+            return Ok(None);
+        };
+        if tex_coord > 1 {
+            tracing::warn!("texture {texture} uses TEXCOORD_{tex_coord}; only sets 0 and 1 are supported, texture ignored");
+            return Ok(None);
+        }
+        Ok(Some(TextureRef {
+            texture: scene_texture,
+            tex_coord,
+            transform: transform.map(|(t, _)| t),
+        }))
+    }
+
+    /// The scene texture for glTF texture `index`, decoded on first use.
+    fn texture(&mut self, index: usize) -> Result<Option<usize>, SceneError> {
+        if let Some(&known) = self.texture_map.get(&index) {
+            return Ok(known);
+        }
+        let root = self.root;
+        let Some(tex) = root.textures.get(index) else {
+            return fail(format!(
+                "texture {index}: does not exist (the file has {} textures)",
+                root.textures.len()
+            ));
+        };
+        let source = tex.source.value();
+        let result = if source == u32::MAX as usize {
+            tracing::warn!(
+                "texture {index}: has no source image (only an unsupported extension's); ignored"
+            );
+            None
+        } else {
+            let (wrap_s, wrap_t, nearest) = match tex.sampler {
+                Some(s) => sampler(root, s.value()).context(|| format!("texture {index}"))?,
+                None => (Wrap::Repeat, Wrap::Repeat, false),
+            };
+            self.decode_image(source).context(|| format!("texture {index}"))?;
+            let image = &self.images[&source];
+            self.charge(
+                image.texels.len() as u64,
+                |b| &mut b.texels,
+                || format!("texture {index}"),
+            )?;
+            self.textures.push(Texture {
+                width: image.width,
+                height: image.height,
+                texels: image.texels.clone(),
+                wrap_s,
+                wrap_t,
+                nearest,
+            });
+            Some(self.textures.len() - 1)
+        };
+        self.texture_map.insert(index, result);
+        Ok(result)
+    }
+
+    /// Decodes image `index` into `self.images` unless it is there already.
+    fn decode_image(&mut self, index: usize) -> Result<(), SceneError> {
+        if self.images.contains_key(&index) {
+            return Ok(());
+        }
+        let Some(image) = self.root.images.get(index) else {
+            return fail(format!(
+                "image {index}: does not exist (the file has {} images)",
+                self.root.images.len()
+            ));
+        };
+        let bytes: Vec<u8> = match (&image.uri, image.buffer_view) {
+            (Some(uri), _) => self.fetch(uri).context(|| format!("image {index}"))?,
+            (None, Some(view)) => {
+                self.view(view.value()).context(|| format!("image {index}"))?.0.to_vec()
+            }
+            (None, None) => return fail(format!("image {index}: has neither uri nor bufferView")),
+        };
+        let decoded = decode(&bytes).context(|| format!("image {index}"))?;
+        self.images.insert(index, decoded);
+        Ok(())
+    }
+}
+
+/// Decodes PNG or JPEG bytes into RGBA8.
+fn decode(bytes: &[u8]) -> Result<Image, SceneError> {
+    let format = image::guess_format(bytes).map_err(|_| {
+        SceneError("unrecognised image format (only PNG and JPEG are supported)".into())
+    })?;
+    if !matches!(format, image::ImageFormat::Png | image::ImageFormat::Jpeg) {
+        return fail(format!("{format:?} images are not supported (only PNG and JPEG)"));
+    }
+    let decoded = image::ImageReader::with_format(Cursor::new(bytes), format)
+        .decode()
+        .map_err(|e| SceneError(format!("cannot decode {format:?}: {e}")))?;
+    let rgba = decoded.to_rgba8();
+    let (width, height) = rgba.dimensions();
+    if width == 0 || height == 0 {
+        return fail("image has no texels");
+    }
+    let texels = rgba.pixels().map(|p| p.0).collect();
+    Ok(Image { width, height, texels })
+}
+
+/// Wrap modes and nearest magnification of sampler `index`.
+fn sampler(root: &json::Root, index: usize) -> Result<(Wrap, Wrap, bool), SceneError> {
+    let Some(s) = root.samplers.get(index) else {
+        return fail(format!(
+            "sampler {index}: does not exist (the file has {} samplers)",
+            root.samplers.len()
+        ));
+    };
+    let wrap = |w: Checked<WrappingMode>, name: &str| match w {
+        Checked::Valid(WrappingMode::Repeat) => Ok(Wrap::Repeat),
+        Checked::Valid(WrappingMode::ClampToEdge) => Ok(Wrap::ClampToEdge),
+        Checked::Valid(WrappingMode::MirroredRepeat) => Ok(Wrap::MirroredRepeat),
+        Checked::Invalid => fail(format!("sampler {index}: invalid {name}")),
+    };
+    let nearest = match s.mag_filter {
+        Some(Checked::Valid(MagFilter::Nearest)) => true,
+        Some(Checked::Invalid) => return fail(format!("sampler {index}: invalid magFilter")),
+        _ => false,
+    };
+    Ok((wrap(s.wrap_s, "wrapS")?, wrap(s.wrap_t, "wrapT")?, nearest))
+}
+
+/// A `KHR_texture_transform` from raw JSON (texture infos the typed layer does not cover).
+fn parse_transform(v: &Value) -> Result<(TexTransform, Option<u32>), SceneError> {
+    let pair = |key: &str, default: [f32; 2]| -> Result<Vec2, SceneError> {
+        match v.get(key) {
+            None => Ok(Vec2::from_array(default)),
+            Some(Value::Array(a)) if a.len() == 2 => match (a[0].as_f64(), a[1].as_f64()) {
+                (Some(x), Some(y)) => Ok(Vec2::new(x as f32, y as f32)),
+                _ => fail(format!("KHR_texture_transform: invalid {key}")),
+            },
+            Some(_) => fail(format!("KHR_texture_transform: invalid {key}")),
+        }
+    };
+    let rotation = match v.get("rotation") {
+        None => 0.0,
+        Some(r) => r
+            .as_f64()
+            .ok_or_else(|| SceneError("KHR_texture_transform: invalid rotation".into()))?
+            as f32,
+    };
+    let tex_coord = match v.get("texCoord") {
+        None => None,
+        Some(t) => Some(
+            t.as_u64()
+                .and_then(|t| u32::try_from(t).ok())
+                .ok_or_else(|| SceneError("KHR_texture_transform: invalid texCoord".into()))?,
+        ),
+    };
+    let t = TexTransform {
+        offset: pair("offset", [0.0, 0.0])?,
+        rotation,
+        scale: pair("scale", [1.0, 1.0])?,
+    };
+    check_transform(&t)?;
+    Ok((t, tex_coord))
+}
+
+fn check_transform(t: &TexTransform) -> Result<(), SceneError> {
+    if !(t.offset.is_finite() && t.scale.is_finite() && t.rotation.is_finite()) {
+        return fail("KHR_texture_transform: non-finite offset, rotation or scale");
+    }
+    Ok(())
+}

@@ -1,0 +1,270 @@
+//! glTF 2.0 loading: `.glb` and `.gltf` (data URIs or files inside the scene's own folder or
+//! bundle) into a [`Scene`], with validation that names the offending object.
+//! Start at [`load_path`], [`load_slice`] and [`check_renderable`].
+
+// Files: mod.rs (public API, resolvers, loader state), glb.rs (binary container), json.rs (JSON
+// layer, asset and extension checks), uri.rs (data URIs, confinement of file URIs), accessor.rs
+// (buffers, views, accessors), mesh.rs (primitives), material.rs (materials, textures, images),
+// nodes.rs (node tree, instances, cameras, lights, default camera), tests*.rs.
+
+mod accessor;
+mod glb;
+mod json;
+mod material;
+mod mesh;
+mod nodes;
+mod uri;
+
+#[cfg(test)]
+mod tests;
+#[cfg(test)]
+mod tests_assets;
+
+use std::borrow::Cow;
+use std::cell::{Cell, OnceCell};
+use std::collections::HashMap;
+use std::path::{Component, Path, PathBuf};
+
+use crate::scene::{Camera, Instance, Mesh, PunctualLight, Scene, Texture};
+
+/// Why a scene could not be loaded. The message names the glTF object at fault.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct SceneError(pub String);
+
+/// Supplies the bytes of the files a `.gltf` refers to (buffers and images that are not `data:`
+/// URIs): a folder ([`DirResolver`]), nothing ([`NoFiles`]), or an uploaded bundle.
+///
+/// The loader has already rejected absolute paths, schemes other than `data:` and `..` escapes
+/// and percent-decoded the URI: `uri` is a relative path with `/` separators and no `.` or `..`
+/// segments. An implementation must still never return bytes from outside its own root.
+pub trait Resolver {
+    /// Returns the whole content of the file at the relative path `uri`, or why it cannot.
+    fn read(&self, uri: &str) -> Result<Vec<u8>, String>;
+}
+
+/// Resolves URIs inside one folder and never outside it (symbolic links included: the
+/// canonical path of every file must lie under the canonical folder).
+#[derive(Clone, Debug)]
+pub struct DirResolver {
+    dir: PathBuf,
+}
+
+impl DirResolver {
+    /// A resolver for files inside `dir`.
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        DirResolver { dir: dir.into() }
+    }
+
+    /// The folder files are resolved in.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
+impl Resolver for DirResolver {
+    fn read(&self, uri: &str) -> Result<Vec<u8>, String> {
+        let rel = Path::new(uri);
+        if !rel.components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir)) {
+            return Err(format!("'{uri}' is not a plain relative path"));
+        }
+        let base = self
+            .dir
+            .canonicalize()
+            .map_err(|e| format!("scene folder {}: {e}", self.dir.display()))?;
+        let full =
+            base.join(rel).canonicalize().map_err(|e| format!("cannot open '{uri}': {e}"))?;
+        if !full.starts_with(&base) {
+            return Err(format!("'{uri}' resolves outside the scene folder"));
+        }
+        if !full.is_file() {
+            return Err(format!("'{uri}' is not a file"));
+        }
+        std::fs::read(&full).map_err(|e| format!("cannot read '{uri}': {e}"))
+    }
+}
+
+/// A resolver with no files at all: only `data:` URIs and the GLB BIN chunk can be used.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoFiles;
+
+impl Resolver for NoFiles {
+    fn read(&self, uri: &str) -> Result<Vec<u8>, String> {
+        Err(format!("external file '{uri}' is not available (this scene may only use data: URIs)"))
+    }
+}
+
+/// Loads a `.gltf` or `.glb` file; external files are resolved only inside its folder.
+///
+/// The format is recognised from the magic bytes (`glTF` = binary); a file named `.glb` that
+/// does not start with them is an error.
+pub fn load_path(path: &Path) -> Result<Scene, SceneError> {
+    let bytes = std::fs::read(path)
+        .map_err(|e| SceneError(format!("{}: cannot read: {e}", path.display())))?;
+    let named_glb = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+    if named_glb && !glb::is_glb(&bytes) {
+        return Err(SceneError(format!(
+            "GLB: {} does not start with the magic bytes \"glTF\"",
+            path.display()
+        )));
+    }
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    load_slice(&bytes, &DirResolver::new(dir))
+}
+
+/// Loads a glTF asset from memory: binary (`glTF` magic) or JSON. `files` supplies the files its
+/// URIs name.
+///
+/// The loader follows the default scene's node tree (`scene`, else scene 0, else every root
+/// node) and reads only the meshes, accessors, buffers, materials, textures and images that the
+/// tree uses, so an unused broken object (an image in an unknown format, a buffer on the web) does
+/// not stop a scene from loading; everything it does read is checked, and a malformed file gives
+/// a [`SceneError`] naming the object ("accessor 3: ...", "mesh 2 primitive 0: ...") rather than a
+/// panic. [`Scene::materials`] holds the used glTF materials in file order, then the glTF default
+/// material ([`Material::default`](crate::scene::Material)) if some primitive has no material;
+/// [`Scene::textures`] holds the textures those materials use. A file without a camera gets a
+/// default perspective camera named "default" (40 degrees, seeing the whole scene from +z).
+pub fn load_slice(bytes: &[u8], files: &dyn Resolver) -> Result<Scene, SceneError> {
+    let (json_bytes, bin) = if glb::is_glb(bytes) {
+        let g = glb::parse(bytes)?;
+        (g.json, g.bin)
+    } else {
+        (bytes, None)
+    };
+    let doc = json::parse(json_bytes)?;
+    Loader::new(&doc, bin, files).load()
+}
+
+/// Checks that a loaded scene has something to render.
+pub fn check_renderable(scene: &Scene) -> Result<(), SceneError> {
+    if scene.triangle_count() == 0 {
+        return Err(SceneError("scene has no triangles".into()));
+    }
+    Ok(())
+}
+
+/// Shorthand for an error message.
+fn fail<T>(msg: impl Into<String>) -> Result<T, SceneError> {
+    Err(SceneError(msg.into()))
+}
+
+/// Prefixes an error with the object that was being loaded when it happened.
+trait Context<T> {
+    fn context(self, what: impl FnOnce() -> String) -> Result<T, SceneError>;
+}
+
+impl<T> Context<T> for Result<T, SceneError> {
+    fn context(self, what: impl FnOnce() -> String) -> Result<T, SceneError> {
+        self.map_err(|e| SceneError(format!("{}: {}", what(), e.0)))
+    }
+}
+
+/// A decoded image, shared by the textures that sample it.
+struct Image {
+    width: u32,
+    height: u32,
+    texels: Vec<[u8; 4]>,
+}
+
+/// The loader's state: the parsed document, lazily loaded buffers and images, and the scene
+/// being built.
+struct Loader<'a> {
+    root: &'a ::gltf::json::Root,
+    raw: &'a serde_json::Value,
+    bin: Option<&'a [u8]>,
+    files: &'a dyn Resolver,
+    buffers: Vec<OnceCell<Cow<'a, [u8]>>>,
+    images: HashMap<usize, Image>,
+
+    meshes: Vec<Mesh>,
+    /// The glTF material of each entry of `meshes` (`None` = default material).
+    mesh_materials: Vec<Option<usize>>,
+    /// (glTF mesh, primitive) -> index in `meshes`, `None` when the primitive has no triangles.
+    mesh_map: HashMap<(usize, usize), Option<usize>>,
+    instances: Vec<Instance>,
+    cameras: Vec<Camera>,
+    lights: Vec<PunctualLight>,
+    textures: Vec<Texture>,
+    /// glTF texture -> index in `textures`, `None` when it has no usable source.
+    texture_map: HashMap<usize, Option<usize>>,
+    /// What is left of the [`Budget`] for this file.
+    budget: Cell<Budget>,
+}
+
+/// Limits on what one file may make the loader allocate, far above any real scene, so that a
+/// small malicious file (thousands of primitives sharing one big accessor, textures sharing one
+/// huge image, millions of GPU instances) gives an error instead of exhausting memory.
+#[derive(Clone, Copy, Debug)]
+struct Budget {
+    /// Accessor components read (4 bytes each), over all accessors.
+    components: u64,
+    /// Texels of scene textures (4 bytes each).
+    texels: u64,
+    /// Mesh instances.
+    instances: u64,
+}
+
+impl Budget {
+    const FULL: Budget = Budget { components: 1 << 28, texels: 1 << 29, instances: 1 << 24 };
+}
+
+impl Loader<'_> {
+    /// Takes `amount` from one budget line; `what` names the object for the error.
+    fn charge(
+        &self,
+        amount: u64,
+        line: fn(&mut Budget) -> &mut u64,
+        what: impl FnOnce() -> String,
+    ) -> Result<(), SceneError> {
+        let mut b = self.budget.get();
+        let left = line(&mut b);
+        if amount > *left {
+            return fail(format!("{}: the scene is too large for this loader's limits", what()));
+        }
+        *left -= amount;
+        self.budget.set(b);
+        Ok(())
+    }
+}
+
+impl<'a> Loader<'a> {
+    fn new(doc: &'a json::Document, bin: Option<&'a [u8]>, files: &'a dyn Resolver) -> Self {
+        Loader {
+            root: &doc.root,
+            raw: &doc.raw,
+            bin,
+            files,
+            buffers: (0..doc.root.buffers.len()).map(|_| OnceCell::new()).collect(),
+            images: HashMap::new(),
+            meshes: Vec::new(),
+            mesh_materials: Vec::new(),
+            mesh_map: HashMap::new(),
+            instances: Vec::new(),
+            cameras: Vec::new(),
+            lights: Vec::new(),
+            textures: Vec::new(),
+            texture_map: HashMap::new(),
+            budget: Cell::new(Budget::FULL),
+        }
+    }
+
+    fn load(mut self) -> Result<Scene, SceneError> {
+        self.load_nodes()?;
+        let materials = self.load_materials()?;
+        let mut scene = Scene {
+            meshes: std::mem::take(&mut self.meshes),
+            instances: std::mem::take(&mut self.instances),
+            materials,
+            textures: std::mem::take(&mut self.textures),
+            cameras: std::mem::take(&mut self.cameras),
+            lights: std::mem::take(&mut self.lights),
+        };
+        if scene.cameras.is_empty() {
+            scene.cameras.push(nodes::default_camera(&scene));
+        }
+        Ok(scene)
+    }
+}
