@@ -1,0 +1,81 @@
+//! BSDFs: the interface (one `match` per method) and one file per model.
+//!
+//! Directions follow pbrt: `wo` points toward the viewer (where light leaves), `wi` toward where
+//! light comes from; both are in the local shading frame (+z = shading normal, flipped by the
+//! integrator to `wo`'s side). `eval` returns f(wo, wi) without the cosine; `pdf` is per solid
+//! angle; `sample` takes its uniform numbers as arguments.
+
+mod diffuse;
+mod metal_rough;
+
+pub use diffuse::Diffuse;
+pub use metal_rough::MetalRough;
+
+use glam::{Vec2, Vec3};
+
+/// Which lobe a sample came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lobe {
+    /// Diffuse reflection.
+    Diffuse,
+    /// Glossy (microfacet) reflection.
+    Glossy,
+}
+
+/// A sampled direction.
+#[derive(Clone, Copy, Debug)]
+pub struct BsdfSample {
+    /// f(wo, wi), without the cosine.
+    pub f: Vec3,
+    /// The sampled incident direction (local frame).
+    pub wi: Vec3,
+    /// Density of `wi` per solid angle (of the whole BSDF, all lobes).
+    pub pdf: f32,
+    /// The lobe that produced it.
+    pub lobe: Lobe,
+}
+
+/// A BSDF at a shading point.
+#[derive(Clone, Copy, Debug)]
+pub enum Bsdf {
+    /// Lambertian reflection.
+    Diffuse(Diffuse),
+    /// The glTF metallic-roughness BRDF (Lambert + GGX, Fresnel-mixed).
+    MetalRough(MetalRough),
+}
+
+impl Bsdf {
+    /// f(wo, wi).
+    #[inline]
+    pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        match self {
+            Bsdf::Diffuse(b) => b.eval(wo, wi),
+            Bsdf::MetalRough(b) => b.eval(wo, wi),
+        }
+    }
+
+    /// Density of `sample` producing `wi`.
+    #[inline]
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        match self {
+            Bsdf::Diffuse(b) => b.pdf(wo, wi),
+            Bsdf::MetalRough(b) => b.pdf(wo, wi),
+        }
+    }
+
+    /// Samples `wi` for `wo` with lobe choice `u_lobe` and direction numbers `u`.
+    #[inline]
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        match self {
+            Bsdf::Diffuse(b) => b.sample(wo, u),
+            Bsdf::MetalRough(b) => b.sample(wo, u_lobe, u),
+        }
+    }
+
+    /// Whether the BSDF is worth light sampling (always true for these rough models; a
+    /// near-mirror still gets MIS weights that favour BSDF sampling).
+    #[inline]
+    pub fn has_non_specular(&self) -> bool {
+        true
+    }
+}

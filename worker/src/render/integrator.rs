@@ -1,0 +1,181 @@
+//! The path tracer: next-event estimation and BSDF sampling combined with multiple importance
+//! sampling (power heuristic), Russian roulette, and a bounce limit.
+//!
+//! A loop, not recursion. Every bounce draws the same five sampler dimensions whatever happens,
+//! so dimension `k` always means the same thing for every sample of every pixel.
+
+use glam::Vec3;
+
+use super::{
+    bsdf::Bsdf,
+    geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
+    light::Light,
+    material,
+    sampler::Sampler,
+    scene::{PreparedScene, NONE},
+};
+
+/// Counters kept per task (never logged per ray).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stats {
+    /// Rays traced: camera, bounce and shadow rays.
+    pub rays: u64,
+}
+
+/// 1 - ShadowEpsilon: shadow rays toward a point stop just short of it.
+const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
+
+#[inline]
+fn power_heuristic(a: f32, b: f32) -> f32 {
+    let (a2, b2) = (a * a, b * b);
+    if a2.is_infinite() {
+        return 1.0;
+    }
+    if a2 + b2 == 0.0 {
+        return 0.0;
+    }
+    a2 / (a2 + b2)
+}
+
+/// Radiance arriving at the camera along `ray`.
+pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mut Stats) -> Vec3 {
+    let mut radiance = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    let mut depth = 0u32;
+    // Density of the BSDF sample that produced `ray` (0 for camera rays: no MIS on them).
+    let mut prev_bsdf_pdf = 0.0f32;
+    let lights = &scene.lights;
+    loop {
+        let u_light_choice = sampler.next_1d();
+        let u_light = sampler.next_2d();
+        let u_lobe = sampler.next_1d();
+        let u_bsdf = sampler.next_2d();
+        let u_rr = sampler.next_1d();
+
+        stats.rays += 1;
+        let Some(hit) = scene.accel.intersect(&ray, f32::INFINITY) else {
+            if let (Some(env), Some(env_idx)) = (scene.environment, lights.environment) {
+                let weight = if depth == 0 {
+                    1.0
+                } else {
+                    let light_pdf =
+                        lights.probability(env_idx) * crate::render::sampling::uniform_sphere_pdf();
+                    power_heuristic(prev_bsdf_pdf, light_pdf)
+                };
+                radiance += beta * env * weight;
+            }
+            break;
+        };
+        let tri = scene.shading[hit.prim as usize];
+        let [p0, p1, p2] = *scene.accel.triangle(hit.prim);
+        let b0 = 1.0 - hit.b1 - hit.b2;
+        let p = p0 * b0 + p1 * hit.b1 + p2 * hit.b2;
+        let p_error = interpolation_error([p0, p1, p2], [b0, hit.b1, hit.b2]);
+        let ng_raw = (p1 - p0).cross(p2 - p0);
+        let Some(ng) = ng_raw.try_normalize() else {
+            break; // A degenerate triangle that the test still reported: nothing to shade.
+        };
+        let wo = -ray.dir;
+
+        if tri.light != NONE {
+            if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
+                let le = light.radiance(wo);
+                if le != Vec3::ZERO {
+                    let weight = if depth == 0 {
+                        1.0
+                    } else {
+                        let dist2 = hit.t * hit.t * ray.dir.length_squared();
+                        let light_pdf =
+                            lights.probability(tri.light) * light.pdf_li(ray.dir, dist2);
+                        power_heuristic(prev_bsdf_pdf, light_pdf)
+                    };
+                    radiance += beta * le * weight;
+                }
+            }
+        }
+        if depth >= scene.max_depth {
+            break;
+        }
+
+        // Shading frame on wo's side of the surface (surfaces reflect on both faces).
+        let ng = if ng.dot(wo) < 0.0 { -ng } else { ng };
+        let ns = if tri.smooth {
+            let [a, b, c] = tri.vertices;
+            let n = scene.normals[a as usize] * b0
+                + scene.normals[b as usize] * hit.b1
+                + scene.normals[c as usize] * hit.b2;
+            match n.try_normalize() {
+                Some(n) if n.dot(ng) > 0.0 => n,
+                Some(n) if n.dot(ng) < 0.0 => -n,
+                _ => ng,
+            }
+        } else {
+            ng
+        };
+        let frame = Frame::from_z(ns);
+        let wo_local = frame.to_local(wo);
+        if wo_local.z <= 0.0 {
+            break; // Grazing with a bent normal: no consistent reflection.
+        }
+        let bsdf: Bsdf = material::bsdf(&scene.materials[tri.material as usize]);
+
+        // Next-event estimation.
+        if let Some((light_idx, choice_pdf)) = lights.choose(u_light_choice) {
+            let light = &lights.lights[light_idx as usize];
+            if let Some(ls) = light.sample_li(p, u_light) {
+                let wi_local = frame.to_local(ls.wi);
+                // Reflection only: wi must leave on wo's side of the geometric surface too.
+                if wi_local.z > 0.0 && ls.wi.dot(ng) > 0.0 {
+                    let f = bsdf.eval(wo_local, wi_local) * wi_local.z;
+                    if f != Vec3::ZERO {
+                        let origin = offset_ray_origin(p, p_error, ng, ls.wi);
+                        let (shadow, t_max) = match ls.point {
+                            Some(q) => {
+                                let target =
+                                    offset_ray_origin(q, ls.point_error, ls.normal, -ls.wi);
+                                (Ray::new(origin, target - origin), SHADOW_T_MAX)
+                            }
+                            None => (Ray::new(origin, ls.wi), f32::INFINITY),
+                        };
+                        stats.rays += 1;
+                        if !scene.accel.occluded(&shadow, t_max) {
+                            let light_pdf = ls.pdf * choice_pdf;
+                            let weight = if ls.is_delta {
+                                1.0
+                            } else {
+                                power_heuristic(light_pdf, bsdf.pdf(wo_local, wi_local))
+                            };
+                            radiance += beta * f * ls.li * (weight / light_pdf);
+                        }
+                    }
+                }
+            }
+        }
+
+        // BSDF sampling.
+        let Some(bs) = bsdf.sample(wo_local, u_lobe, u_bsdf) else {
+            break;
+        };
+        let wi = frame.to_world(bs.wi);
+        if wi.dot(ng) <= 0.0 {
+            break;
+        }
+        beta *= bs.f * (bs.wi.z / bs.pdf);
+        if !beta.is_finite() || beta == Vec3::ZERO {
+            break;
+        }
+        prev_bsdf_pdf = bs.pdf;
+        ray = Ray::new(offset_ray_origin(p, p_error, ng, wi), wi);
+        depth += 1;
+
+        // Russian roulette once paths have a few bounces.
+        if depth > 2 {
+            let q = (1.0 - beta.max_element()).max(0.0);
+            if u_rr < q {
+                break;
+            }
+            beta /= 1.0 - q;
+        }
+    }
+    radiance
+}

@@ -1,0 +1,86 @@
+//! Emissive triangles as area lights, sampled uniformly over their area and converted to solid
+//! angle at the receiver.
+
+use glam::{Vec2, Vec3};
+
+use super::LightSample;
+use crate::render::{geometry::interpolation_error, sampling::sample_uniform_triangle};
+
+/// One emissive triangle.
+#[derive(Clone, Copy, Debug)]
+pub struct TriangleLight {
+    /// Vertices (camera-relative world space).
+    pub p: [Vec3; 3],
+    /// Unit geometric normal of the front face (counter-clockwise winding).
+    pub normal: Vec3,
+    /// Area.
+    pub area: f32,
+    /// Emitted radiance.
+    pub emission: Vec3,
+    /// Emits from both faces (a `doubleSided` material).
+    pub two_sided: bool,
+}
+
+impl TriangleLight {
+    /// A light for triangle `p`; `None` for a degenerate triangle (no area, nothing emitted).
+    pub fn new(p: [Vec3; 3], emission: Vec3, two_sided: bool) -> Option<Self> {
+        let c = (p[1] - p[0]).cross(p[2] - p[0]);
+        let len = c.length();
+        if !(len > 0.0) || !len.is_finite() {
+            return None;
+        }
+        Some(TriangleLight { p, normal: c / len, area: 0.5 * len, emission, two_sided })
+    }
+
+    /// Radiance leaving toward direction `w` (unit, pointing away from the light).
+    #[inline]
+    pub fn radiance(&self, w: Vec3) -> Vec3 {
+        if self.two_sided || self.normal.dot(w) > 0.0 {
+            self.emission
+        } else {
+            Vec3::ZERO
+        }
+    }
+
+    /// Samples a point uniformly over the area.
+    #[inline]
+    pub fn sample_li(&self, receiver: Vec3, u: Vec2) -> Option<LightSample> {
+        let (b0, b1) = sample_uniform_triangle(u);
+        let b = [b0, b1, 1.0 - b0 - b1];
+        let point = self.p[0] * b[0] + self.p[1] * b[1] + self.p[2] * b[2];
+        let to_light = point - receiver;
+        let dist2 = to_light.length_squared();
+        if !(dist2 > 0.0) {
+            return None;
+        }
+        let wi = to_light / dist2.sqrt();
+        let cos_light = self.normal.dot(-wi);
+        let li = self.radiance(-wi);
+        if li == Vec3::ZERO || cos_light == 0.0 {
+            return None;
+        }
+        let pdf = dist2 / (cos_light.abs() * self.area);
+        if !pdf.is_finite() {
+            return None;
+        }
+        Some(LightSample {
+            li,
+            wi,
+            point: Some(point),
+            normal: self.normal,
+            point_error: interpolation_error(self.p, b),
+            pdf,
+            is_delta: false,
+        })
+    }
+
+    /// Density of `sample_li` at a point on the light seen along `wi` at distance² `dist2`.
+    #[inline]
+    pub fn pdf_li(&self, wi: Vec3, dist2: f32) -> f32 {
+        let cos_light = self.normal.dot(wi).abs();
+        if cos_light == 0.0 {
+            return 0.0;
+        }
+        dist2 / (cos_light * self.area)
+    }
+}

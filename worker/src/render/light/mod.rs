@@ -1,0 +1,158 @@
+//! Light sources and the choice between them.
+//!
+//! Lights are picked in proportion to their estimated power (`LightSampler`), then sampled
+//! (`Light::sample_li`). Every density is returned per unit solid angle at the receiving point and
+//! already includes the probability of choosing the light, so the integrator's MIS weights compare
+//! like with like. Delta lights (point, spot, directional) report `is_delta` and are never hit by
+//! BSDF-sampled rays.
+
+mod area;
+mod punctual;
+
+pub use area::TriangleLight;
+pub use punctual::{spot_falloff, DirectionalLight, PointLight, SpotLight};
+
+use std::f32::consts::PI;
+
+use glam::{Vec2, Vec3};
+
+use crate::render::sampling::{sample_uniform_sphere, uniform_sphere_pdf};
+
+/// A light's contribution toward a receiving point.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    /// Radiance (or, for delta lights, radiance-equivalent) arriving along `-wi`.
+    pub li: Vec3,
+    /// Unit direction from the receiver toward the light.
+    pub wi: Vec3,
+    /// The point on the light (for the shadow ray); `None` for lights at infinity.
+    pub point: Option<Vec3>,
+    /// Geometric normal at `point` (area lights), to offset the shadow ray's end.
+    pub normal: Vec3,
+    /// Rounding error bound of `point` per axis (zero for punctual lights).
+    pub point_error: Vec3,
+    /// Density per solid angle including the choice of light (1 x choice for delta lights).
+    pub pdf: f32,
+    /// True for point, spot and directional lights.
+    pub is_delta: bool,
+}
+
+/// A uniform environment: the same radiance from every direction.
+#[derive(Clone, Copy, Debug)]
+pub struct UniformEnvironment {
+    /// Radiance.
+    pub radiance: Vec3,
+}
+
+/// Any light source.
+#[derive(Clone, Copy, Debug)]
+pub enum Light {
+    /// An emissive triangle.
+    Triangle(TriangleLight),
+    /// A point light.
+    Point(PointLight),
+    /// A spot light.
+    Spot(SpotLight),
+    /// A directional light.
+    Directional(DirectionalLight),
+    /// A uniform environment.
+    Environment(UniformEnvironment),
+}
+
+impl Light {
+    /// Samples an incident direction at receiver `p` (numbers `u`). The density excludes the
+    /// choice of light.
+    #[inline]
+    pub fn sample_li(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
+        match self {
+            Light::Triangle(l) => l.sample_li(p, u),
+            Light::Point(l) => l.sample_li(p),
+            Light::Spot(l) => l.sample_li(p),
+            Light::Directional(l) => l.sample_li(),
+            Light::Environment(env) => Some(LightSample {
+                li: env.radiance,
+                wi: sample_uniform_sphere(u),
+                point: None,
+                normal: Vec3::ZERO,
+                point_error: Vec3::ZERO,
+                pdf: uniform_sphere_pdf(),
+                is_delta: false,
+            }),
+        }
+    }
+
+    /// Power estimate used to choose between lights (luminance of emitted flux).
+    pub fn power(&self, scene_radius: f32) -> f32 {
+        let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722)).max(0.0);
+        match self {
+            Light::Triangle(l) => {
+                lum(l.emission) * l.area * PI * if l.two_sided { 2.0 } else { 1.0 }
+            }
+            Light::Point(l) => 4.0 * PI * lum(l.intensity),
+            Light::Spot(l) => lum(l.intensity) * l.cone_solid_angle_weight(),
+            Light::Directional(l) => lum(l.irradiance) * PI * scene_radius * scene_radius,
+            Light::Environment(env) => {
+                lum(env.radiance) * 4.0 * PI * PI * scene_radius * scene_radius
+            }
+        }
+    }
+}
+
+/// Chooses lights in proportion to power.
+#[derive(Clone, Debug, Default)]
+pub struct LightSampler {
+    /// All lights.
+    pub lights: Vec<Light>,
+    /// Cumulative power, normalised, `lights.len()` entries ending at 1.
+    cdf: Vec<f32>,
+    /// Probability of each light.
+    prob: Vec<f32>,
+    /// Index in `lights` of the environment, if any.
+    pub environment: Option<u32>,
+}
+
+impl LightSampler {
+    /// Builds the distribution. Lights with zero power are never chosen.
+    pub fn new(lights: Vec<Light>, scene_radius: f32) -> Self {
+        let powers: Vec<f64> = lights.iter().map(|l| l.power(scene_radius) as f64).collect();
+        let total: f64 = powers.iter().sum();
+        let mut cdf = Vec::with_capacity(lights.len());
+        let mut prob = Vec::with_capacity(lights.len());
+        let mut acc = 0.0f64;
+        for &p in &powers {
+            acc += p;
+            cdf.push(if total > 0.0 { (acc / total) as f32 } else { 0.0 });
+            prob.push(if total > 0.0 { (p / total) as f32 } else { 0.0 });
+        }
+        if let Some(last) = cdf.last_mut() {
+            if total > 0.0 {
+                *last = 1.0;
+            }
+        }
+        let environment =
+            lights.iter().position(|l| matches!(l, Light::Environment(_))).map(|i| i as u32);
+        LightSampler { lights, cdf, prob, environment }
+    }
+
+    /// True when there is no light with power.
+    pub fn is_empty(&self) -> bool {
+        self.cdf.last().is_none_or(|&c| c <= 0.0)
+    }
+
+    /// Picks a light with `u` in [0, 1): (index, probability).
+    #[inline]
+    pub fn choose(&self, u: f32) -> Option<(u32, f32)> {
+        if self.is_empty() {
+            return None;
+        }
+        let i = self.cdf.partition_point(|&c| c <= u).min(self.cdf.len() - 1);
+        let p = self.prob[i];
+        (p > 0.0).then_some((i as u32, p))
+    }
+
+    /// Probability that `choose` returns light `i`.
+    #[inline]
+    pub fn probability(&self, i: u32) -> f32 {
+        self.prob[i as usize]
+    }
+}

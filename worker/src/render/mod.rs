@@ -1,0 +1,91 @@
+//! The renderer: `render_task` path-traces one task (a tile x a sample range) of a prepared scene.
+//!
+//! Synchronous and free of I/O: no `.await`, no logging inside loops. Data flows one way:
+//! `scene::prepare -> accel -> integrator (camera, sampler, bsdf, light) -> TileAccum`.
+
+pub mod accel;
+pub mod bsdf;
+pub mod camera;
+pub mod geometry;
+pub mod integrator;
+pub mod light;
+pub mod material;
+pub mod sampler;
+pub mod sampling;
+pub mod scene;
+
+#[cfg(test)]
+mod tests;
+
+use common::{
+    film::{Rect, TileAccum},
+    protocol::{TaskResult, TaskSpec},
+};
+use glam::{UVec2, Vec2};
+
+use self::{integrator::Stats, sampler::Sampler, scene::PreparedScene};
+
+/// Renders `task` with `seed` on the calling thread.
+pub fn render_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> TaskResult {
+    render_task_threads(scene, seed, task, 1)
+}
+
+/// Renders `task` on `threads` threads (rows are interleaved between them). The result does not
+/// depend on `threads`: sums are exact integers.
+pub fn render_task_threads(
+    scene: &PreparedScene,
+    seed: u64,
+    task: &TaskSpec,
+    threads: usize,
+) -> TaskResult {
+    let rect = task.rect;
+    let threads = threads.clamp(1, rect.height.max(1) as usize);
+    if threads == 1 {
+        let (tile, stats) = render_rows(scene, seed, task, 0, 1);
+        return TaskResult { spec: *task, tile, rays: stats.rays };
+    }
+    let parts: Vec<(TileAccum, Stats)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| s.spawn(move || render_rows(scene, seed, task, t as u32, threads as u32)))
+            .collect();
+        handles.into_iter().map(|h| h.join().expect("render thread panicked")).collect()
+    });
+    let mut tile = TileAccum::new(rect);
+    let mut rays = 0;
+    for (part, stats) in &parts {
+        tile.merge(part);
+        rays += stats.rays;
+    }
+    TaskResult { spec: *task, tile, rays }
+}
+
+/// Renders rows `first, first + step, ...` of the task's tile.
+fn render_rows(
+    scene: &PreparedScene,
+    seed: u64,
+    task: &TaskSpec,
+    first: u32,
+    step: u32,
+) -> (TileAccum, Stats) {
+    let rect: Rect = task.rect;
+    let mut tile = TileAccum::new(rect);
+    let mut stats = Stats::default();
+    let mut sampler = Sampler::new(seed, task.frame);
+    let has_lens = scene.camera.has_lens();
+    let mut row = first;
+    while row < rect.height {
+        for col in 0..rect.width {
+            let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
+            for s in task.samples.start..task.samples.end {
+                sampler.start_pixel_sample(pixel, s);
+                let film = pixel.as_vec2() + sampler.next_2d();
+                let lens = if has_lens { sampler.next_2d() } else { Vec2::ZERO };
+                let ray = scene.camera.generate_ray(film, lens);
+                let l = integrator::li(scene, ray, &mut sampler, &mut stats);
+                tile.add_sample(col, row, s, l.to_array());
+            }
+        }
+        row += step;
+    }
+    (tile, stats)
+}

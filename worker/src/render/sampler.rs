@@ -1,0 +1,217 @@
+//! The deterministic sampler: the numbers for sample `s` of pixel `p` in frame `f` are a pure
+//! function of (seed, f, p, s, dimension).
+//!
+//! Padded Owen-scrambled Sobol (pbrt-v4 `PaddedSobolSampler`, Burley 2020): each 1D or 2D draw
+//! uses the first two Sobol dimensions at a sample index that is itself Owen-scrambled with a
+//! hash of (pixel, dimension), and the point is Owen-scrambled with another hash. Any aligned
+//! block of 2^k sample indices (for example the samples [64, 128) of one task) is a stratified
+//! (0, k, 2)-net on its own, so splitting a pixel's samples into tasks loses no stratification.
+//!
+//! Even and odd sample indices are two independently scrambled sequences (sample `s` is number
+//! `s / 2` of sequence `s % 2`): two independent randomised estimates whose difference tells the
+//! film its real error (`common::film::PixelSums::half_difference_variance`).
+
+use glam::{UVec2, Vec2};
+
+/// Per-pixel sample generator. Create one per thread and call `start_pixel_sample` for every
+/// sample: it holds no state that outlives a sample.
+#[derive(Clone, Debug)]
+pub struct Sampler {
+    /// Hash of (seed, frame): the job-level scramble.
+    base: u64,
+    /// Hash of (base, pixel) for the current sample.
+    pixel_hash: u64,
+    /// The sample index within the pixel.
+    sample_idx: u32,
+    /// Next dimension to draw.
+    dimension: u32,
+}
+
+impl Sampler {
+    /// A sampler for frame `frame` of a job with seed `seed`.
+    pub fn new(seed: u64, frame: i64) -> Self {
+        let base = mix64(seed ^ mix64(frame as u64 ^ 0x9e37_79b9_7f4a_7c15));
+        Sampler { base, pixel_hash: 0, sample_idx: 0, dimension: 0 }
+    }
+
+    /// Positions the sampler at sample `sample_idx` of `pixel`, dimension 0.
+    #[inline]
+    pub fn start_pixel_sample(&mut self, pixel: UVec2, sample_idx: u32) {
+        let half = (sample_idx & 1) as u64;
+        self.pixel_hash =
+            mix64(self.base ^ mix64(((pixel.x as u64) << 32) | pixel.y as u64) ^ (half << 63));
+        self.sample_idx = sample_idx >> 1;
+        self.dimension = 0;
+    }
+
+    #[inline]
+    fn dimension_hash(&mut self) -> u64 {
+        let d = self.dimension;
+        self.dimension += 1;
+        mix64(self.pixel_hash ^ (d as u64).wrapping_mul(0xd1b5_4a32_d192_ed03))
+    }
+
+    /// The next uniform number in [0, 1).
+    #[inline]
+    pub fn next_1d(&mut self) -> f32 {
+        let h = self.dimension_hash();
+        let index = nested_uniform_scramble(self.sample_idx, h as u32);
+        to_unit(nested_uniform_scramble(sobol_0(index), (h >> 32) as u32))
+    }
+
+    /// The next pair of uniform numbers in [0, 1)², stratified jointly.
+    #[inline]
+    pub fn next_2d(&mut self) -> Vec2 {
+        let h = self.dimension_hash();
+        let index = nested_uniform_scramble(self.sample_idx, h as u32);
+        let h2 = mix64(h);
+        Vec2::new(
+            to_unit(nested_uniform_scramble(sobol_0(index), (h >> 32) as u32)),
+            to_unit(nested_uniform_scramble(sobol_1(index), h2 as u32)),
+        )
+    }
+}
+
+/// A strong 64-bit mixer (the splitmix64 finaliser).
+#[inline]
+pub fn mix64(mut x: u64) -> u64 {
+    x ^= x >> 30;
+    x = x.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x ^= x >> 27;
+    x = x.wrapping_mul(0x94d0_49bb_1331_11eb);
+    x ^ (x >> 31)
+}
+
+/// First Sobol dimension (van der Corput): the bits of `i` reversed.
+#[inline]
+fn sobol_0(i: u32) -> u32 {
+    i.reverse_bits()
+}
+
+/// Second Sobol dimension; its generator matrix columns are v_j = v_{j-1} ^ (v_{j-1} >> 1).
+#[inline]
+fn sobol_1(mut i: u32) -> u32 {
+    let mut v: u32 = 1 << 31;
+    let mut x = 0;
+    while i != 0 {
+        if i & 1 != 0 {
+            x ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    x
+}
+
+/// Burley's improved Laine-Karras hash: each bit is flipped by a function of the lower bits.
+#[inline]
+fn laine_karras_permutation(mut x: u32, seed: u32) -> u32 {
+    x = x.wrapping_add(seed);
+    x ^= x.wrapping_mul(0x6c50_b47c);
+    x ^= x.wrapping_mul(0xb82f_1e52);
+    x ^= x.wrapping_mul(0xc7af_e638);
+    x ^= x.wrapping_mul(0x8d22_f6e6);
+    x
+}
+
+/// Owen scrambling of a binary fraction (each bit flipped by a hash of the bits above it).
+#[inline]
+fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
+    laine_karras_permutation(x.reverse_bits(), seed).reverse_bits()
+}
+
+#[inline]
+fn to_unit(x: u32) -> f32 {
+    (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn values_depend_only_on_pixel_sample_and_dimension() {
+        let mut a = Sampler::new(3, 0);
+        let mut b = Sampler::new(3, 0);
+        b.start_pixel_sample(UVec2::new(9, 9), 77);
+        b.next_2d();
+        a.start_pixel_sample(UVec2::new(5, 6), 41);
+        let first = (a.next_1d(), a.next_2d(), a.next_1d());
+        b.start_pixel_sample(UVec2::new(5, 6), 41);
+        assert_eq!(first, (b.next_1d(), b.next_2d(), b.next_1d()));
+        let mut c = Sampler::new(4, 0);
+        c.start_pixel_sample(UVec2::new(5, 6), 41);
+        assert_ne!(first.0, c.next_1d(), "seed must matter");
+        let mut d = Sampler::new(3, 1);
+        d.start_pixel_sample(UVec2::new(5, 6), 41);
+        assert_ne!(first.0, d.next_1d(), "frame must matter");
+    }
+
+    /// Every aligned block of 2^k samples is a (0, k, 2)-net: each elementary interval of area
+    /// 2^-k holds exactly one point, for every dimension pair and any block offset.
+    #[test]
+    fn aligned_blocks_are_stratified_nets() {
+        let mut s = Sampler::new(0, 0);
+        for (log_n, offset) in [(4u32, 0u32), (6, 64), (6, 128), (8, 256), (5, 1 << 20)] {
+            let n = 1u32 << log_n;
+            for dim in 0..6 {
+                // Even sample indices 2i: consecutive points i of one of the two sequences.
+                let points: Vec<Vec2> = (offset..offset + n)
+                    .map(|i| {
+                        s.start_pixel_sample(UVec2::new(3, 17), 2 * i);
+                        for _ in 0..dim {
+                            s.next_2d();
+                        }
+                        s.next_2d()
+                    })
+                    .collect();
+                for log_x in 0..=log_n {
+                    let (nx, ny) = (1u32 << log_x, 1u32 << (log_n - log_x));
+                    let mut seen = vec![false; n as usize];
+                    for p in &points {
+                        let cell = (p.x * nx as f32) as u32 + nx * (p.y * ny as f32) as u32;
+                        assert!(
+                            !seen[cell as usize],
+                            "block {offset}+{n} dim {dim}: cell {cell} twice"
+                        );
+                        seen[cell as usize] = true;
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn one_dimensional_draws_are_stratified_and_uniform() {
+        let mut s = Sampler::new(1, 0);
+        let n = 1024;
+        let mut seen = vec![false; n];
+        let mut mean = 0.0f64;
+        for i in 0..n as u32 {
+            s.start_pixel_sample(UVec2::new(0, 0), 2 * i + 1);
+            s.next_2d();
+            let u = s.next_1d();
+            assert!((0.0..1.0).contains(&u));
+            let cell = (u * n as f32) as usize;
+            assert!(!seen[cell], "cell {cell} twice");
+            seen[cell] = true;
+            mean += u as f64;
+        }
+        assert!((mean / n as f64 - 0.5).abs() < 1e-3);
+    }
+
+    #[test]
+    fn pixels_are_decorrelated() {
+        let mut s = Sampler::new(0, 0);
+        let first: Vec<f32> = (0..64)
+            .map(|x| {
+                s.start_pixel_sample(UVec2::new(x, 0), 0);
+                s.next_1d()
+            })
+            .collect();
+        let mut sorted = first.clone();
+        sorted.sort_by(f32::total_cmp);
+        sorted.dedup();
+        assert_eq!(sorted.len(), 64, "pixels must not share sample values");
+    }
+}

@@ -1,0 +1,227 @@
+//! `prepare`: turns the loaded scene model into what the integrator reads — camera-relative
+//! world-space triangles in a BVH, per-triangle shading data in the same order, resolved
+//! materials, and the lights.
+//!
+//! The world is translated so that the chosen camera sits at the origin, in f64, before rounding
+//! to f32: precision is then best where the camera looks, whatever the scene's absolute position.
+
+use std::time::Instant;
+
+use common::{
+    scene::{AlphaMode, Material, Projection, PunctualKind, Scene},
+    settings::{Environment, RenderSettings},
+};
+use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3};
+
+use super::{
+    accel::Accel,
+    camera::{Camera, CameraModel},
+    light::{
+        DirectionalLight, Light, LightSampler, PointLight, SpotLight, TriangleLight,
+        UniformEnvironment,
+    },
+};
+
+/// Marks "no such index" in the compact per-triangle tables.
+pub const NONE: u32 = u32::MAX;
+
+/// Shading data of one triangle (BVH order).
+#[derive(Clone, Copy, Debug)]
+pub struct TriShading {
+    /// Indices into `PreparedScene::normals` / `uvs` of its three vertices.
+    pub vertices: [u32; 3],
+    /// Index into `PreparedScene::materials`.
+    pub material: u32,
+    /// Index into `PreparedScene::lights.lights` when the triangle emits, else `NONE`.
+    pub light: u32,
+    /// Whether the mesh has vertex normals (else flat shading).
+    pub smooth: bool,
+}
+
+/// Everything a worker needs to render tasks of one job, built once per (scene, settings).
+pub struct PreparedScene {
+    /// World position (f64) of the renderer's origin: the camera.
+    pub origin: DVec3,
+    /// The camera at the origin.
+    pub camera: Camera,
+    /// Triangles and BVH.
+    pub accel: Accel,
+    /// Per-triangle shading data, indexed like `Hit::prim`.
+    pub shading: Vec<TriShading>,
+    /// World-space vertex normals (zero when the mesh has none).
+    pub normals: Vec<Vec3>,
+    /// Vertex texture coordinates (set 0; zero when absent).
+    pub uvs: Vec<Vec2>,
+    /// Materials, as loaded.
+    pub materials: Vec<Material>,
+    /// Lights and the distribution to choose them.
+    pub lights: LightSampler,
+    /// Uniform environment radiance seen by escaping rays.
+    pub environment: Option<Vec3>,
+    /// Maximum number of bounces.
+    pub max_depth: u32,
+    /// Seconds spent building the BVH.
+    pub build_seconds: f64,
+}
+
+/// Why a scene cannot be prepared for these settings.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct PrepareError(pub String);
+
+/// Builds the render-ready scene.
+pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene, PrepareError> {
+    let camera_model = match &settings.camera {
+        Some(name) => scene
+            .cameras
+            .iter()
+            .find(|c| &c.name == name)
+            .ok_or_else(|| PrepareError(format!("settings.camera: no camera named `{name}`")))?,
+        None => {
+            scene.cameras.first().ok_or_else(|| PrepareError("scene has no camera".to_string()))?
+        }
+    };
+    let origin = camera_model.position();
+    let to_world = {
+        let m = DMat3::from_mat4(camera_model.transform);
+        Mat3::from_cols(
+            m.x_axis.normalize().as_vec3(),
+            m.y_axis.normalize().as_vec3(),
+            m.z_axis.normalize().as_vec3(),
+        )
+    };
+    let model = match camera_model.projection {
+        Projection::Perspective { yfov } => {
+            CameraModel::Perspective { tan_half_fov: (0.5 * yfov).tan() }
+        }
+        Projection::Orthographic { ymag, .. } => CameraModel::Orthographic { ymag },
+    };
+    let camera = Camera {
+        to_world,
+        model,
+        width: settings.width as f32,
+        height: settings.height as f32,
+        aperture_radius: settings.lens.aperture_radius as f32,
+        focus_distance: settings.lens.focus_distance as f32,
+    };
+
+    let to_relative = DMat4::from_translation(-origin);
+    let mut triangles: Vec<[Vec3; 3]> = Vec::with_capacity(scene.triangle_count());
+    let mut shading: Vec<TriShading> = Vec::with_capacity(scene.triangle_count());
+    let mut normals: Vec<Vec3> = Vec::new();
+    let mut uvs: Vec<Vec2> = Vec::new();
+    for inst in &scene.instances {
+        let mesh = &scene.meshes[inst.mesh];
+        let material = &scene.materials[mesh.material];
+        if let AlphaMode::Mask { cutoff } = material.alpha_mode {
+            if material.base_color.w < cutoff && material.base_color_texture.is_none() {
+                continue; // Entirely cut out.
+            }
+        }
+        let m = to_relative * inst.transform;
+        let normal_m = DMat3::from_mat4(m).inverse().transpose();
+        let flip = m.determinant() < 0.0;
+        let base = normals.len() as u32;
+        let world: Vec<Vec3> =
+            mesh.positions.iter().map(|p| m.transform_point3(p.as_dvec3()).as_vec3()).collect();
+        match &mesh.normals {
+            Some(ns) => normals
+                .extend(ns.iter().map(|n| (normal_m * n.as_dvec3()).normalize_or_zero().as_vec3())),
+            None => normals.extend(std::iter::repeat_n(Vec3::ZERO, world.len())),
+        }
+        match &mesh.uvs[0] {
+            Some(t) => uvs.extend_from_slice(t),
+            None => uvs.extend(std::iter::repeat_n(Vec2::ZERO, world.len())),
+        }
+        for &[a, b, c] in &mesh.indices {
+            let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };
+            triangles.push([world[a as usize], world[b as usize], world[c as usize]]);
+            shading.push(TriShading {
+                vertices: [base + a, base + b, base + c],
+                material: mesh.material as u32,
+                light: NONE,
+                smooth: mesh.normals.is_some(),
+            });
+        }
+    }
+
+    let start = Instant::now();
+    let (accel, order) = Accel::build(&triangles);
+    let build_seconds = start.elapsed().as_secs_f64();
+    drop(triangles);
+    let mut shading: Vec<TriShading> = order.iter().map(|&i| shading[i as usize]).collect();
+
+    let mut lights = Vec::new();
+    for (prim, tri) in shading.iter_mut().enumerate() {
+        let material = &scene.materials[tri.material as usize];
+        if material.emissive.max_element() > 0.0 {
+            let p = *accel.triangle(prim as u32);
+            if let Some(light) = TriangleLight::new(p, material.emissive, material.double_sided) {
+                tri.light = lights.len() as u32;
+                lights.push(Light::Triangle(light));
+            }
+        }
+    }
+    for l in &scene.lights {
+        let position = (l.position - origin).as_vec3();
+        let direction = l.direction.normalize().as_vec3();
+        lights.push(match l.kind {
+            PunctualKind::Point => Light::Point(PointLight { position, intensity: l.intensity }),
+            PunctualKind::Spot { inner_cone, outer_cone } => Light::Spot(SpotLight {
+                position,
+                direction,
+                intensity: l.intensity,
+                cos_inner: inner_cone.cos(),
+                cos_outer: outer_cone.cos(),
+            }),
+            PunctualKind::Directional => Light::Directional(DirectionalLight {
+                to_light: -direction,
+                irradiance: l.intensity,
+            }),
+        });
+    }
+    let environment = match &settings.environment {
+        None => None,
+        Some(Environment::Color { color }) => {
+            let radiance = Vec3::from_array(*color);
+            (radiance.max_element() > 0.0).then_some(radiance)
+        }
+        Some(Environment::Map { map, .. }) => {
+            return Err(PrepareError(format!(
+                "settings.environment: environment maps (`{map}`) are not supported yet; use a uniform colour"
+            )))
+        }
+    };
+    if let Some(radiance) = environment {
+        lights.push(Light::Environment(UniformEnvironment { radiance }));
+    }
+    let scene_radius = scene_radius(&accel).max(1e-6);
+    Ok(PreparedScene {
+        origin,
+        camera,
+        accel,
+        shading,
+        normals,
+        uvs,
+        materials: scene.materials.clone(),
+        lights: LightSampler::new(lights, scene_radius),
+        environment,
+        max_depth: settings.max_depth,
+        build_seconds,
+    })
+}
+
+fn scene_radius(accel: &Accel) -> f32 {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for i in 0..accel.len() as u32 {
+        for p in accel.triangle(i) {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+    }
+    if lo.x > hi.x {
+        return 1.0;
+    }
+    0.5 * (hi - lo).length()
+}

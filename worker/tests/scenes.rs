@@ -1,0 +1,218 @@
+//! Whole-scene estimator tests: analytic furnaces, convergence to the independent Cornell box
+//! reference, exact merging of split sample ranges, and numerical robustness (scale, distance
+//! from the origin, degenerate triangles). Tolerances come from the films' measured variance.
+
+mod support;
+
+use common::{
+    film::{Film, Rect, TileAccum},
+    protocol::{SampleRange, TaskSpec},
+    settings::RenderSettings,
+};
+use serde_json::json;
+use support::*;
+use worker::render::{render_task, scene::prepare};
+
+/// Reference noise of `ref/cornell-box.exr` per value (its `noise_rmse_est`, squared).
+const CORNELL_REF_VAR: f64 = 0.001_251_854 * 0.001_251_854;
+
+fn downsample(w: usize, h: usize, img: &[[f32; 3]], f: usize) -> Vec<[f32; 3]> {
+    let (ow, oh) = (w / f, h / f);
+    let mut out = vec![[0.0f32; 3]; ow * oh];
+    for y in 0..oh {
+        for x in 0..ow {
+            let mut acc = [0.0f64; 3];
+            for dy in 0..f {
+                for dx in 0..f {
+                    let p = img[(y * f + dy) * w + x * f + dx];
+                    for c in 0..3 {
+                        acc[c] += p[c] as f64;
+                    }
+                }
+            }
+            out[y * ow + x] = acc.map(|v| (v / (f * f) as f64) as f32);
+        }
+    }
+    out
+}
+
+fn assert_matches(what: &str, film: &Film, expected: &[[f32; 3]], expected_var: f64) -> Comparison {
+    assert_eq!(film.rejected, 0, "{what}: non-finite samples");
+    let cmp = compare(film, expected, expected_var, 16);
+    let z_block = sidak_z(0.01, cmp.blocks);
+    eprintln!("{what}: {cmp:?} (block limit {z_block:.2})");
+    assert!(cmp.z_image.abs() < 4.0, "{what}: image-level bias, z = {:.2}", cmp.z_image);
+    assert!(cmp.z_block_max < z_block, "{what}: a block is off by {:.2} sigma", cmp.z_block_max);
+    cmp
+}
+
+#[test]
+fn furnace_sphere_is_its_albedo_within_noise() {
+    let scene = load("furnace.gltf");
+    let mut settings = settings("furnace");
+    settings.spp = 16;
+    let film = render(&scene, &settings);
+    let (w, h, reference) = read_rgb(&shared().join("scenes/ref/furnace.exr"));
+    assert_eq!((w as u32, h as u32), (settings.width, settings.height));
+    assert_matches("furnace", &film, &reference, 0.0);
+    // Background pixels see the environment directly: exactly 1 with no variance.
+    assert_eq!(film.pixels[0].mean(), [1.0; 3]);
+    // The centre pixel sees the sphere: 0.8 within its own confidence interval.
+    let centre = film.pixels[(h / 2 * w + w / 2) as usize];
+    let (m, v) = (centre.mean()[1], centre.variance_of_mean()[1]);
+    assert!((m - 0.8).abs() <= 4.0 * v.sqrt() + 1e-6, "centre {m} +- {}", v.sqrt());
+}
+
+#[test]
+fn closed_furnace_is_one_everywhere() {
+    let scene = load("furnace-closed.gltf");
+    let settings = settings("furnace-closed");
+    let film = render(&scene, &settings);
+    let ones = vec![[1.0f32; 3]; (settings.width * settings.height) as usize];
+    let cmp = assert_matches("furnace-closed", &film, &ones, 0.0);
+    assert!(cmp.rmse < 0.05, "rmse {}", cmp.rmse);
+}
+
+#[test]
+fn cornell_box_converges_to_the_independent_reference() {
+    let scene = load("cornell-box.gltf");
+    let mut settings = settings("cornell-box");
+    settings.spp = 64;
+    let film = render(&scene, &settings);
+    let (_, _, reference) = read_rgb(&shared().join("scenes/ref/cornell-box.exr"));
+    let cmp = assert_matches("cornell", &film, &reference, CORNELL_REF_VAR);
+    let ratio = cmp.predicted_rmse / cmp.rmse;
+    assert!(
+        (0.5..=2.0).contains(&ratio),
+        "estimated error {:.4} vs real {:.4}",
+        cmp.predicted_rmse,
+        cmp.rmse
+    );
+}
+
+#[test]
+fn split_sample_ranges_merge_bit_for_bit() {
+    let scene = load("cornell-box.gltf");
+    let settings = RenderSettings { width: 48, height: 40, ..settings("cornell-box") };
+    let prepared = prepare(&scene, &settings).unwrap();
+    let rect = Rect { x0: 8, y0: 4, width: 24, height: 20 };
+    let task = |start, end| TaskSpec { frame: 0, rect, samples: SampleRange { start, end } };
+    let whole = render_task(&prepared, 0, &task(0, 64)).tile;
+    let mut halves = render_task(&prepared, 0, &task(32, 64)).tile;
+    halves.merge(&render_task(&prepared, 0, &task(0, 32)).tile);
+    let mut quarters = TileAccum::new(rect);
+    for (s, e) in [(48, 64), (0, 16), (32, 48), (16, 32)] {
+        quarters.merge(&render_task(&prepared, 0, &task(s, e)).tile);
+    }
+    assert_eq!(whole, halves);
+    assert_eq!(whole, quarters);
+    let threaded = worker::render::render_task_threads(&prepared, 0, &task(0, 64), 3).tile;
+    assert_eq!(whole, threaded);
+}
+
+/// The Cornell box under a root transform must render like the original (camera included).
+fn transformed_cornell_matches_reference(tag: &str, root: serde_json::Value) {
+    let path = edited_scene("cornell-box", tag, |json| wrap_roots(json, root));
+    let scene = common::gltf::load_path(&path).unwrap();
+    let mut settings = settings("cornell-box");
+    settings.width = 128;
+    settings.height = 128;
+    settings.spp = 16;
+    let film = render(&scene, &settings);
+    let (w, h, reference) = read_rgb(&shared().join("scenes/ref/cornell-box.exr"));
+    let reference = downsample(w, h, &reference, 2);
+    assert_matches(tag, &film, &reference, CORNELL_REF_VAR / 4.0);
+}
+
+#[test]
+fn cornell_box_at_original_placement() {
+    transformed_cornell_matches_reference("identity", json!({"name": "root"}));
+}
+
+#[test]
+fn cornell_box_scaled_down_1e3() {
+    transformed_cornell_matches_reference("scale-1e-3", json!({"scale": [1e-3, 1e-3, 1e-3]}));
+}
+
+#[test]
+fn cornell_box_scaled_up_1e3() {
+    transformed_cornell_matches_reference("scale-1e3", json!({"scale": [1e3, 1e3, 1e3]}));
+}
+
+#[test]
+fn cornell_box_moved_1e5_away() {
+    transformed_cornell_matches_reference("offset-1e5", json!({"translation": [1e5, -1e5, 1e5]}));
+}
+
+#[test]
+fn cornell_box_moved_1e6_away() {
+    transformed_cornell_matches_reference("offset-1e6", json!({"translation": [1e6, 1e6, -1e6]}));
+}
+
+#[test]
+fn degenerate_triangles_change_nothing() {
+    // Zero-area, collinear and needle-thin triangles in the middle of the box.
+    let positions: [[f32; 3]; 9] = [
+        [0.3, 0.3, 0.3],
+        [0.3, 0.3, 0.3],
+        [0.3, 0.3, 0.3],
+        [0.1, 0.2, 0.25],
+        [0.2, 0.3, 0.25],
+        [0.3, 0.4, 0.25],
+        [0.25, 0.05, 0.2],
+        [0.25, 0.5, 0.2],
+        [0.25 + 1e-7, 0.5, 0.2],
+    ];
+    let bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    let uri = format!("data:application/octet-stream;base64,{}", base64_encode(&bytes));
+    let path = edited_scene("cornell-box", "degenerate", |json| {
+        let buffer = json["buffers"].as_array().unwrap().len();
+        json["buffers"]
+            .as_array_mut()
+            .unwrap()
+            .push(json!({"uri": uri, "byteLength": bytes.len()}));
+        let view = json["bufferViews"].as_array().unwrap().len();
+        json["bufferViews"]
+            .as_array_mut()
+            .unwrap()
+            .push(json!({"buffer": buffer, "byteLength": bytes.len()}));
+        let accessor = json["accessors"].as_array().unwrap().len();
+        json["accessors"].as_array_mut().unwrap().push(json!({
+            "bufferView": view, "componentType": 5126, "count": 9, "type": "VEC3",
+            "min": [0.1, 0.05, 0.2], "max": [0.3, 0.5, 0.3]
+        }));
+        let mesh = json["meshes"].as_array().unwrap().len();
+        json["meshes"]
+            .as_array_mut()
+            .unwrap()
+            .push(json!({"primitives": [{"attributes": {"POSITION": accessor}, "material": 0}]}));
+        let node = json["nodes"].as_array().unwrap().len();
+        json["nodes"].as_array_mut().unwrap().push(json!({"name": "degenerate", "mesh": mesh}));
+        json["scenes"][0]["nodes"].as_array_mut().unwrap().push(json!(node));
+    });
+    let scene = common::gltf::load_path(&path).unwrap();
+    let mut settings = settings("cornell-box");
+    settings.width = 128;
+    settings.height = 128;
+    settings.spp = 16;
+    let film = render(&scene, &settings);
+    let (w, h, reference) = read_rgb(&shared().join("scenes/ref/cornell-box.exr"));
+    assert_matches("degenerate", &film, &downsample(w, h, &reference, 2), CORNELL_REF_VAR / 4.0);
+}
+
+fn base64_encode(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [chunk[0], *chunk.get(1).unwrap_or(&0), *chunk.get(2).unwrap_or(&0)];
+        let n = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
+        for i in 0..4 {
+            if i <= chunk.len() {
+                out.push(T[(n >> (18 - 6 * i) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,224 @@
+//! Helpers shared by the scene tests: locating `shared/`, rendering a whole frame in-process,
+//! reading reference EXRs, and the variance-derived statistics the assertions use.
+
+#![allow(dead_code, unreachable_pub)]
+
+use std::path::{Path, PathBuf};
+
+use common::{
+    film::{Film, Rect},
+    protocol::{SampleRange, TaskSpec},
+    scene::Scene,
+    settings::RenderSettings,
+};
+use worker::render::{render_task, scene::prepare};
+
+/// The `shared/` folder beside the repository.
+pub fn shared() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared")
+}
+
+/// Loads a scene under `shared/scenes/`.
+pub fn load(name: &str) -> Scene {
+    let path = shared().join("scenes").join(name);
+    common::gltf::load_path(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Reads `shared/scenes/<name>.settings.json`.
+pub fn settings(name: &str) -> RenderSettings {
+    let path = shared().join("scenes").join(format!("{name}.settings.json"));
+    RenderSettings::from_json(&std::fs::read_to_string(&path).unwrap()).unwrap()
+}
+
+/// Renders every pixel of frame 0 for samples [0, spp), tiles spread over two threads.
+pub fn render(scene: &Scene, settings: &RenderSettings) -> Film {
+    let prepared = prepare(scene, settings).expect("prepare");
+    let mut tasks = Vec::new();
+    let tile = 32;
+    for y0 in (0..settings.height).step_by(tile) {
+        for x0 in (0..settings.width).step_by(tile) {
+            let rect = Rect {
+                x0,
+                y0,
+                width: (tile as u32).min(settings.width - x0),
+                height: (tile as u32).min(settings.height - y0),
+            };
+            tasks.push(TaskSpec {
+                frame: 0,
+                rect,
+                samples: SampleRange { start: 0, end: settings.spp },
+            });
+        }
+    }
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let film = std::sync::Mutex::new(Film::new(settings.width, settings.height));
+    std::thread::scope(|s| {
+        for _ in 0..2 {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(task) = tasks.get(i) else { break };
+                let result = render_task(&prepared, settings.seed, task);
+                film.lock().unwrap().merge_tile(&result.tile);
+            });
+        }
+    });
+    film.into_inner().unwrap()
+}
+
+/// Reads the R, G, B channels of an EXR, row-major.
+pub fn read_rgb(path: &Path) -> (usize, usize, Vec<[f32; 3]>) {
+    use exr::prelude::*;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let layer = &image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let channel = |name: &str| -> Vec<f32> {
+        layer
+            .channel_data
+            .list
+            .iter()
+            .find(|c| c.name.to_string() == name)
+            .unwrap_or_else(|| panic!("{}: no channel {name}", path.display()))
+            .sample_data
+            .values_as_f32()
+            .collect()
+    };
+    let (r, g, b) = (channel("R"), channel("G"), channel("B"));
+    (w, h, (0..w * h).map(|i| [r[i], g[i], b[i]]).collect())
+}
+
+/// Result of comparing a rendered film against an expected image.
+#[derive(Debug)]
+pub struct Comparison {
+    /// Pooled z-score of the whole image: sum of differences / sqrt(sum of variances).
+    pub z_image: f64,
+    /// Largest |z| over square blocks of pixels.
+    pub z_block_max: f64,
+    /// Number of blocks.
+    pub blocks: usize,
+    /// Measured RMSE against the expectation.
+    pub rmse: f64,
+    /// RMSE predicted by the film's own variance estimate.
+    pub predicted_rmse: f64,
+}
+
+/// Compares `film` with `expected` (row-major RGB) whose own noise variance per value is
+/// `expected_var`. Pixels where the film reports zero variance and matches exactly count as
+/// exact; blocks are `block` x `block` pixels.
+pub fn compare(film: &Film, expected: &[[f32; 3]], expected_var: f64, block: u32) -> Comparison {
+    let (w, h) = (film.width, film.height);
+    let bx = w.div_ceil(block);
+    let by = h.div_ceil(block);
+    let mut block_sums = vec![(0.0f64, 0.0f64); (bx * by) as usize];
+    let (mut d_sum, mut v_sum, mut sq_err) = (0.0, 0.0, 0.0);
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let mean = film.pixels[i].mean();
+            let var = film.pixels[i].variance_of_mean();
+            for c in 0..3 {
+                let d = mean[c] - expected[i][c] as f64;
+                let v = var[c] + expected_var;
+                assert!(v.is_finite(), "pixel ({x}, {y}) has no variance estimate");
+                d_sum += d;
+                v_sum += v;
+                sq_err += d * d;
+                let b = &mut block_sums[((y / block) * bx + x / block) as usize];
+                b.0 += d;
+                b.1 += v;
+            }
+        }
+    }
+    let n = (w * h * 3) as f64;
+    let z = |(d, v): (f64, f64)| {
+        if v > 0.0 {
+            d / v.sqrt()
+        } else if d == 0.0 {
+            0.0
+        } else {
+            f64::INFINITY
+        }
+    };
+    Comparison {
+        z_image: z((d_sum, v_sum)),
+        z_block_max: block_sums.iter().map(|&b| z(b).abs()).fold(0.0, f64::max),
+        blocks: block_sums.len(),
+        rmse: (sq_err / n - expected_var).max(0.0).sqrt(),
+        predicted_rmse: film.error_estimate().rmse,
+    }
+}
+
+/// Two-sided normal quantile for the Sidak-corrected level `alpha` over `tests` tests.
+pub fn sidak_z(alpha: f64, tests: usize) -> f64 {
+    let a = 1.0 - (1.0 - alpha).powf(1.0 / tests as f64);
+    // Inverse of erfc via bisection: P(|Z| > z) = a.
+    let (mut lo, mut hi) = (0.0f64, 40.0f64);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if erfc(mid / std::f64::consts::SQRT_2) > a {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Complementary error function (Numerical Recipes erfcc, relative error < 1.2e-7).
+pub fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if x >= 0.0 {
+        r
+    } else {
+        2.0 - r
+    }
+}
+
+/// A copy of `shared/scenes/<name>.gltf` in a fresh temporary folder (with its `.bin`), after
+/// `edit` has changed its JSON. Returns the new path.
+pub fn edited_scene(name: &str, tag: &str, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
+    let src = shared().join("scenes").join(format!("{name}.gltf"));
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&src).unwrap()).unwrap();
+    edit(&mut json);
+    let dir = std::env::temp_dir().join(format!("renderfarm-test-{}-{tag}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(
+        shared().join("scenes").join(format!("{name}.bin")),
+        dir.join(format!("{name}.bin")),
+    )
+    .unwrap();
+    let path = dir.join(format!("{name}.gltf"));
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    path
+}
+
+/// Wraps every root node of the default scene under one new node with the given TRS.
+pub fn wrap_roots(json: &mut serde_json::Value, node: serde_json::Value) {
+    let scene_idx = json["scene"].as_u64().unwrap_or(0) as usize;
+    let roots = json["scenes"][scene_idx]["nodes"].clone();
+    let nodes = json["nodes"].as_array_mut().unwrap();
+    let mut node = node;
+    node["children"] = roots;
+    nodes.push(node);
+    let new_idx = nodes.len() - 1;
+    json["scenes"][scene_idx]["nodes"] = serde_json::json!([new_idx]);
+}
