@@ -1,0 +1,11 @@
+//! The coordinator: splits frames into tasks, has workers render them, merges the partial sums
+//! and writes the images.
+//!
+//! # Layout
+//! - [`split`]: frames -> tiles x sample ranges, in progressive order.
+//! - [`local`]: the embedded default (`coordinator render`): local worker threads, one process.
+//! - [`output`]: EXR and PNG writing (and reading, for checks).
+
+pub mod local;
+pub mod output;
+pub mod split;

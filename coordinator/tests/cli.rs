@@ -1,0 +1,87 @@
+//! The `coordinator` binary as a user runs it: `render` writes the EXR and PNG, the image does not
+//! depend on the number of workers, and bad input fails with a message instead of a panic.
+
+use std::{path::PathBuf, process::Command};
+
+fn coordinator() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_coordinator"))
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("renderfarm-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// Every channel of an EXR, by name, as raw bits.
+fn channels(path: &PathBuf) -> Vec<(String, Vec<u32>)> {
+    use exr::prelude::*;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .unwrap();
+    image
+        .layer_data
+        .channel_data
+        .list
+        .iter()
+        .map(|c| {
+            let bits = match &c.sample_data {
+                FlatSamples::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
+                FlatSamples::U32(v) => v.clone(),
+                FlatSamples::F16(v) => v.iter().map(|x| x.to_bits() as u32).collect(),
+            };
+            (c.name.to_string(), bits)
+        })
+        .collect()
+}
+
+fn render(workers: &str, out: &PathBuf) {
+    let status = coordinator()
+        .args(["render", "scenes/cornell-box.gltf", "-o"])
+        .arg(out)
+        .args(["--width", "64", "--height", "48", "--spp", "24", "--workers", workers])
+        .current_dir(repo())
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+#[test]
+fn image_is_identical_with_one_or_two_workers() {
+    let (one, two) = (temp("one.exr"), temp("two.exr"));
+    render("1", &one);
+    render("2", &two);
+    let (a, b) = (channels(&one), channels(&two));
+    let names: Vec<&str> = a.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["B", "G", "R", "samples", "variance.B", "variance.G", "variance.R"]);
+    assert_eq!(a, b, "channels differ between 1 and 2 workers");
+    let samples = &a.iter().find(|(n, _)| n == "samples").unwrap().1;
+    assert!(samples.iter().all(|&s| s == 24), "every pixel gets exactly spp samples");
+    assert!(one.with_extension("png").exists());
+}
+
+#[test]
+fn bad_input_fails_with_a_message() {
+    let out = temp("bad.exr");
+    for (args, needle) in [
+        (vec!["render", "does-not-exist.gltf"], "does-not-exist.gltf"),
+        (vec!["render", "scenes/cornell-box.gltf", "--spp", "0"], "spp"),
+        (vec!["render", "scenes/cornell-box.settings.json"], "cornell-box.settings.json"),
+    ] {
+        let output =
+            coordinator().args(&args).arg("-o").arg(&out).current_dir(repo()).output().unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{args:?} succeeded");
+        assert!(!stderr.contains("panicked"), "{args:?} panicked: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: message does not name {needle}: {stderr}");
+    }
+}

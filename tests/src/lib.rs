@@ -1,0 +1,1 @@
+//! Cross-process integration tests live in `tests/`; this library only locates the built binaries.
