@@ -13,6 +13,7 @@ pub mod material;
 pub mod sampler;
 pub mod sampling;
 pub mod scene;
+pub mod texture;
 
 #[cfg(test)]
 mod tests;

@@ -229,16 +229,18 @@ fn bsdf_sample_agrees_with_eval_and_pdf() {
             for _ in 0..20_000 {
                 let u = rng.next_vec3();
                 let Some(s) = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z)) else { continue };
-                let case = format!("{bsdf:?} wo {wo:?} u {u:?}: {s:?}");
-                assert!((s.wi.length() - 1.0).abs() < 1e-5 && s.wi.z > 0.0, "{case}");
-                assert!(s.pdf > 0.0 && s.pdf.is_finite(), "{case}");
-                assert!(s.f.is_finite() && s.f.min_element() >= 0.0, "{case}");
+                // Formatted only on failure: this loop runs millions of times.
+                let case = || format!("{bsdf:?} wo {wo:?} u {u:?}: {s:?}");
+                assert!((s.wi.length() - 1.0).abs() < 1e-5 && s.wi.z > 0.0, "{}", case());
+                assert!(s.pdf > 0.0 && s.pdf.is_finite(), "{}", case());
+                assert!(s.f.is_finite() && s.f.min_element() >= 0.0, "{}", case());
                 let (f, pdf) = (bsdf.eval(wo, s.wi), bsdf.pdf(wo, s.wi));
                 assert!(
                     (s.f - f).abs().max_element() <= 1e-5 * f.max_element(),
-                    "{case}: eval {f}"
+                    "{}: eval {f}",
+                    case()
                 );
-                assert!((s.pdf - pdf).abs() <= 1e-5 * pdf, "{case}: pdf {pdf}");
+                assert!((s.pdf - pdf).abs() <= 1e-5 * pdf, "{}: pdf {pdf}", case());
             }
         }
     }
