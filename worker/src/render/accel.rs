@@ -91,15 +91,11 @@ impl Shear {
         p1.y += s.y * p1.z;
         p2.x += s.x * p2.z;
         p2.y += s.y * p2.z;
-        let mut e0 = difference_of_products(p1.x, p2.y, p1.y, p2.x);
-        let mut e1 = difference_of_products(p2.x, p0.y, p2.y, p0.x);
-        let mut e2 = difference_of_products(p0.x, p1.y, p0.y, p1.x);
-        if e0 == 0.0 || e1 == 0.0 || e2 == 0.0 {
-            // Exactly on an edge in f32: decide in f64 so neighbours agree.
-            e0 = (p1.x as f64 * p2.y as f64 - p1.y as f64 * p2.x as f64) as f32;
-            e1 = (p2.x as f64 * p0.y as f64 - p2.y as f64 * p0.x as f64) as f32;
-            e2 = (p0.x as f64 * p1.y as f64 - p0.y as f64 * p1.x as f64) as f32;
-        }
+        // Edge functions from exact f64 products: rays through a shared edge see the same value
+        // (with opposite sign) from both triangles, so they never slip between them.
+        let e0 = difference_of_products(p1.x, p2.y, p1.y, p2.x);
+        let e1 = difference_of_products(p2.x, p0.y, p2.y, p0.x);
+        let e2 = difference_of_products(p0.x, p1.y, p0.y, p1.x);
         if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
             return None;
         }
@@ -136,12 +132,11 @@ impl Shear {
     }
 }
 
+/// a * b - c * d rounded once: f32 products are exact in f64 (and this avoids `mul_add`,
+/// which is a slow library call on targets built without FMA).
 #[inline]
 fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
-    let cd = c * d;
-    let err = (-c).mul_add(d, cd);
-    let dop = a.mul_add(b, -cd);
-    dop + err
+    (a as f64 * b as f64 - c as f64 * d as f64) as f32
 }
 
 /// 1 / x, finite (keeps the slab test free of inf * 0). `x` is never -0.0 here.
@@ -200,6 +195,12 @@ impl Accel {
         }
     }
 
+    /// Bytes held by the BVH nodes and the triangle vertices.
+    pub fn memory_bytes(&self) -> usize {
+        self.bvh.nodes.len() * std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>()
+            + self.tris.len() * std::mem::size_of::<[Vec3; 3]>()
+    }
+
     /// Number of triangles.
     pub fn len(&self) -> usize {
         self.tris.len()
@@ -219,6 +220,17 @@ impl Accel {
     /// The closest hit with `t` in (0, t_max).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
+        self.intersect_filtered(ray, t_max, |_| true)
+    }
+
+    /// The closest hit with `t` in (0, t_max) that `accept` keeps (alpha-tested surfaces).
+    #[inline]
+    pub fn intersect_filtered(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        accept: impl Fn(&Hit) -> bool,
+    ) -> Option<Hit> {
         if self.tris.is_empty() {
             return None;
         }
@@ -229,7 +241,11 @@ impl Accel {
         self.bvh.ray_traverse(self.bvh_ray(ray, t_max), &mut hit, |bvh_ray, id| {
             match shear.intersect(&self.tris[id], bvh_ray.tmax * scale) {
                 Some((t, b1, b2)) => {
-                    best = Some(Hit { prim: id as u32, t, b1, b2 });
+                    let candidate = Hit { prim: id as u32, t, b1, b2 };
+                    if !accept(&candidate) {
+                        return f32::INFINITY;
+                    }
+                    best = Some(candidate);
                     t / scale
                 }
                 None => f32::INFINITY,
@@ -241,6 +257,12 @@ impl Accel {
     /// Whether anything blocks the ray for `t` in (0, t_max). Stops at the first blocker.
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        self.occluded_filtered(ray, t_max, |_| true)
+    }
+
+    /// Whether anything that `accept` keeps blocks the ray for `t` in (0, t_max).
+    #[inline]
+    pub fn occluded_filtered(&self, ray: &Ray, t_max: f32, accept: impl Fn(&Hit) -> bool) -> bool {
         if self.tris.is_empty() {
             return false;
         }
@@ -248,8 +270,8 @@ impl Accel {
         let scale = self.t_scale;
         !self.bvh.ray_traverse_miss(self.bvh_ray(ray, t_max), |bvh_ray, id| {
             match shear.intersect(&self.tris[id], bvh_ray.tmax * scale) {
-                Some((t, _, _)) => t / scale,
-                None => f32::INFINITY,
+                Some((t, b1, b2)) if accept(&Hit { prim: id as u32, t, b1, b2 }) => t / scale,
+                _ => f32::INFINITY,
             }
         })
     }

@@ -12,6 +12,7 @@ use super::{
     light::Light,
     material,
     sampler::Sampler,
+    sampling::uniform_sphere_pdf,
     scene::{PreparedScene, NONE},
 };
 
@@ -53,13 +54,17 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         let u_rr = sampler.next_1d();
 
         stats.rays += 1;
-        let Some(hit) = scene.accel.intersect(&ray, f32::INFINITY) else {
+        let hit = if scene.alpha_tested {
+            scene.accel.intersect_filtered(&ray, f32::INFINITY, |h| !scene.is_cut_out(h))
+        } else {
+            scene.accel.intersect(&ray, f32::INFINITY)
+        };
+        let Some(hit) = hit else {
             if let (Some(env), Some(env_idx)) = (scene.environment, lights.environment) {
                 let weight = if depth == 0 {
                     1.0
                 } else {
-                    let light_pdf =
-                        lights.probability(env_idx) * crate::render::sampling::uniform_sphere_pdf();
+                    let light_pdf = lights.probability(env_idx) * uniform_sphere_pdf();
                     power_heuristic(prev_bsdf_pdf, light_pdf)
                 };
                 radiance += beta * env * weight;
@@ -68,19 +73,20 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         };
         let tri = scene.shading[hit.prim as usize];
         let [p0, p1, p2] = *scene.accel.triangle(hit.prim);
-        let b0 = 1.0 - hit.b1 - hit.b2;
-        let p = p0 * b0 + p1 * hit.b1 + p2 * hit.b2;
-        let p_error = interpolation_error([p0, p1, p2], [b0, hit.b1, hit.b2]);
-        let ng_raw = (p1 - p0).cross(p2 - p0);
-        let Some(ng) = ng_raw.try_normalize() else {
+        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+        let p_error = interpolation_error([p0, p1, p2], b);
+        let Some(ng) = (p1 - p0).cross(p2 - p0).try_normalize() else {
             break; // A degenerate triangle that the test still reported: nothing to shade.
         };
         let wo = -ray.dir;
+        let material = &scene.materials[tri.material as usize];
+        let sp = scene.surface_point(hit.prim, b);
 
         if tri.light != NONE {
             if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
-                let le = light.radiance(wo);
-                if le != Vec3::ZERO {
+                if light.emits_toward(wo) {
+                    let le = material::emission(&scene.textures, material, &sp);
                     let weight = if depth == 0 {
                         1.0
                     } else {
@@ -99,11 +105,11 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
 
         // Shading frame on wo's side of the surface (surfaces reflect on both faces).
         let ng = if ng.dot(wo) < 0.0 { -ng } else { ng };
-        let ns = if tri.smooth {
-            let [a, b, c] = tri.vertices;
-            let n = scene.normals[a as usize] * b0
-                + scene.normals[b as usize] * hit.b1
-                + scene.normals[c as usize] * hit.b2;
+        let mut ns = if tri.smooth {
+            let [a, bb, c] = tri.vertices;
+            let n = scene.normals[a as usize] * b[0]
+                + scene.normals[bb as usize] * b[1]
+                + scene.normals[c as usize] * b[2];
             match n.try_normalize() {
                 Some(n) if n.dot(ng) > 0.0 => n,
                 Some(n) if n.dot(ng) < 0.0 => -n,
@@ -112,12 +118,15 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         } else {
             ng
         };
+        if let Some(tangent_normal) = material::normal_map(&scene.textures, material, &sp) {
+            ns = perturb_normal(scene, hit.prim, ns, tangent_normal).unwrap_or(ns);
+        }
         let frame = Frame::from_z(ns);
         let wo_local = frame.to_local(wo);
         if wo_local.z <= 0.0 {
             break; // Grazing with a bent normal: no consistent reflection.
         }
-        let bsdf: Bsdf = material::bsdf(&scene.materials[tri.material as usize]);
+        let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp);
 
         // Next-event estimation.
         if let Some((light_idx, choice_pdf)) = lights.choose(u_light_choice) {
@@ -138,14 +147,28 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
                             None => (Ray::new(origin, ls.wi), f32::INFINITY),
                         };
                         stats.rays += 1;
-                        if !scene.accel.occluded(&shadow, t_max) {
+                        let blocked = if scene.alpha_tested {
+                            scene.accel.occluded_filtered(&shadow, t_max, |h| !scene.is_cut_out(h))
+                        } else {
+                            scene.accel.occluded(&shadow, t_max)
+                        };
+                        if !blocked {
+                            let li = match light {
+                                Light::Triangle(l) if l.textured => {
+                                    let m = &scene.materials
+                                        [scene.shading[l.prim as usize].material as usize];
+                                    let sp = scene.surface_point(l.prim, ls.barycentrics);
+                                    material::emission(&scene.textures, m, &sp)
+                                }
+                                _ => ls.li,
+                            };
                             let light_pdf = ls.pdf * choice_pdf;
                             let weight = if ls.is_delta {
                                 1.0
                             } else {
                                 power_heuristic(light_pdf, bsdf.pdf(wo_local, wi_local))
                             };
-                            radiance += beta * f * ls.li * (weight / light_pdf);
+                            radiance += beta * f * li * (weight / light_pdf);
                         }
                     }
                 }
@@ -178,4 +201,31 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         }
     }
     radiance
+}
+
+/// Applies a tangent-space normal from a normal map. The tangent frame comes from the
+/// triangle's texture-coordinate derivatives (dp/du, dp/dv), orthogonalised against `ns`.
+fn perturb_normal(
+    scene: &PreparedScene,
+    prim: u32,
+    ns: Vec3,
+    tangent_normal: Vec3,
+) -> Option<Vec3> {
+    let uvs = scene.uvs.first().filter(|uv| !uv.is_empty())?;
+    let [i0, i1, i2] = scene.shading[prim as usize].vertices.map(|v| v as usize);
+    let [p0, p1, p2] = *scene.accel.triangle(prim);
+    let (duv1, duv2) = (uvs[i1] - uvs[i0], uvs[i2] - uvs[i0]);
+    let det = duv1.x * duv2.y - duv1.y * duv2.x;
+    if det.abs() < 1e-12 {
+        return None;
+    }
+    let dpdu = ((p1 - p0) * duv2.y - (p2 - p0) * duv1.y) / det;
+    let dpdv = ((p2 - p0) * duv1.x - (p1 - p0) * duv2.x) / det;
+    let t = (dpdu - ns * ns.dot(dpdu)).try_normalize()?;
+    // glTF's v runs down the image, so the bitangent points along -dp/dv.
+    let handedness = if ns.cross(t).dot(dpdv) < 0.0 { 1.0 } else { -1.0 };
+    let bt = ns.cross(t) * handedness;
+    let n =
+        (t * tangent_normal.x + bt * tangent_normal.y + ns * tangent_normal.z).try_normalize()?;
+    (n.dot(ns) > 0.0).then_some(n)
 }

@@ -1,25 +1,86 @@
-//! Materials at a hit: the glTF material's factors (and, later, textures) resolved into a `Bsdf`.
+//! Materials at a hit: the glTF material's factors, textures and vertex colours resolved into a
+//! `Bsdf`, an emitted radiance, an alpha coverage and a normal-map perturbation.
 
-use common::scene::Material;
-use glam::Vec3;
+use common::scene::{AlphaMode, Material, Texture};
+use glam::{Vec2, Vec3, Vec4};
 
-use super::bsdf::{Bsdf, Diffuse, MetalRough};
+use super::{
+    bsdf::{Bsdf, Diffuse, MetalRough},
+    texture,
+};
 
-/// The BSDF of `material`. A material with no metal and no specular layer is pure Lambert, the
+/// What the material needs to know about the point: texture coordinates and vertex colour.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    /// TEXCOORD_0 and TEXCOORD_1 (zero when absent).
+    pub uvs: [Vec2; 2],
+    /// COLOR_0 (white when absent).
+    pub color: Vec4,
+}
+
+impl SurfacePoint {
+    /// A point with no texture coordinates and a white vertex colour.
+    pub const PLAIN: SurfacePoint = SurfacePoint { uvs: [Vec2::ZERO; 2], color: Vec4::ONE };
+}
+
+/// Base colour and alpha: factor x texture (sRGB) x vertex colour.
+#[inline]
+pub fn base_color(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec4 {
+    let mut c = m.base_color * sp.color;
+    if let Some(r) = &m.base_color_texture {
+        c *= texture::sample(textures, r, sp.uvs, true);
+    }
+    c
+}
+
+/// Whether the material cuts out the point (alphaMode MASK below the cutoff).
+#[inline]
+pub fn is_cut_out(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> bool {
+    match m.alpha_mode {
+        AlphaMode::Mask { cutoff } => base_color(textures, m, sp).w < cutoff,
+        _ => false,
+    }
+}
+
+/// The BSDF at the point. A material with no metal and no specular layer is pure Lambert, the
 /// cheap path (the Cornell box and furnace scenes are all such).
 #[inline]
-pub fn bsdf(material: &Material) -> Bsdf {
-    let base = material.base_color.truncate().clamp(Vec3::ZERO, Vec3::ONE);
-    let metallic = material.metallic.clamp(0.0, 1.0);
-    if metallic == 0.0 && material.specular <= 0.0 {
+pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Bsdf {
+    let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
+    let (mut metallic, mut roughness) = (m.metallic, m.roughness);
+    if let Some(r) = &m.metallic_roughness_texture {
+        let t = texture::sample(textures, r, sp.uvs, false);
+        roughness *= t.y;
+        metallic *= t.z;
+    }
+    let metallic = metallic.clamp(0.0, 1.0);
+    if metallic == 0.0 && m.specular <= 0.0 {
         return Bsdf::Diffuse(Diffuse { albedo: base });
     }
     Bsdf::MetalRough(MetalRough::new(
         base,
         metallic,
-        material.roughness,
-        material.ior,
-        material.specular,
-        material.specular_color,
+        roughness,
+        m.ior,
+        m.specular,
+        m.specular_color,
     ))
+}
+
+/// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB).
+#[inline]
+pub fn emission(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec3 {
+    match &m.emissive_texture {
+        Some(r) => m.emissive * texture::sample(textures, r, sp.uvs, true).truncate(),
+        None => m.emissive,
+    }
+}
+
+/// The tangent-space normal from the normal map (z up), if the material has one.
+#[inline]
+pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<Vec3> {
+    let (r, scale) = m.normal_texture.as_ref()?;
+    let t = texture::sample(textures, r, sp.uvs, false);
+    let n = Vec3::new((2.0 * t.x - 1.0) * scale, (2.0 * t.y - 1.0) * scale, 2.0 * t.z - 1.0);
+    n.try_normalize()
 }

@@ -8,10 +8,10 @@
 use std::time::Instant;
 
 use common::{
-    scene::{AlphaMode, Material, Projection, PunctualKind, Scene},
+    scene::{AlphaMode, Material, Projection, PunctualKind, Scene, Texture},
     settings::{Environment, RenderSettings},
 };
-use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3};
+use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 
 use super::{
     accel::Accel,
@@ -20,6 +20,7 @@ use super::{
         DirectionalLight, Light, LightSampler, PointLight, SpotLight, TriangleLight,
         UniformEnvironment,
     },
+    material::{self, SurfacePoint},
 };
 
 /// Marks "no such index" in the compact per-triangle tables.
@@ -50,10 +51,18 @@ pub struct PreparedScene {
     pub shading: Vec<TriShading>,
     /// World-space vertex normals (zero when the mesh has none).
     pub normals: Vec<Vec3>,
-    /// Vertex texture coordinates (set 0; zero when absent).
-    pub uvs: Vec<Vec2>,
+    /// Vertex texture coordinate sets 0 and 1; each is empty when no mesh has it, else one per
+    /// vertex (zero where a mesh lacks it).
+    pub uvs: [Vec<Vec2>; 2],
+    /// Vertex colours (COLOR_0); empty when no mesh has them, else one per vertex.
+    pub colors: Vec<Vec4>,
     /// Materials, as loaded.
     pub materials: Vec<Material>,
+    /// Textures, as loaded.
+    pub textures: Vec<Texture>,
+    /// Whether any material is alpha-tested per point (MASK with a texture or vertex colours),
+    /// so that rays must ask the material before accepting a hit.
+    pub alpha_tested: bool,
     /// Lights and the distribution to choose them.
     pub lights: LightSampler,
     /// Uniform environment radiance seen by escaping rays.
@@ -109,7 +118,10 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
     let mut triangles: Vec<[Vec3; 3]> = Vec::with_capacity(scene.triangle_count());
     let mut shading: Vec<TriShading> = Vec::with_capacity(scene.triangle_count());
     let mut normals: Vec<Vec3> = Vec::new();
-    let mut uvs: Vec<Vec2> = Vec::new();
+    let has_uvs = [0, 1].map(|k| scene.meshes.iter().any(|m| m.uvs[k].is_some()));
+    let has_colors = scene.meshes.iter().any(|m| m.colors.is_some());
+    let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
+    let mut colors: Vec<Vec4> = Vec::new();
     for inst in &scene.instances {
         let mesh = &scene.meshes[inst.mesh];
         let material = &scene.materials[mesh.material];
@@ -129,9 +141,19 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
                 .extend(ns.iter().map(|n| (normal_m * n.as_dvec3()).normalize_or_zero().as_vec3())),
             None => normals.extend(std::iter::repeat_n(Vec3::ZERO, world.len())),
         }
-        match &mesh.uvs[0] {
-            Some(t) => uvs.extend_from_slice(t),
-            None => uvs.extend(std::iter::repeat_n(Vec2::ZERO, world.len())),
+        for k in 0..2 {
+            if has_uvs[k] {
+                match &mesh.uvs[k] {
+                    Some(t) => uvs[k].extend_from_slice(t),
+                    None => uvs[k].extend(std::iter::repeat_n(Vec2::ZERO, world.len())),
+                }
+            }
+        }
+        if has_colors {
+            match &mesh.colors {
+                Some(c) => colors.extend_from_slice(c),
+                None => colors.extend(std::iter::repeat_n(Vec4::ONE, world.len())),
+            }
         }
         for &[a, b, c] in &mesh.indices {
             let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };
@@ -152,11 +174,24 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
     let mut shading: Vec<TriShading> = order.iter().map(|&i| shading[i as usize]).collect();
 
     let mut lights = Vec::new();
+    // Mean emission of textured emitters, for choosing lights by power (computed once).
+    let mut texture_means: Vec<Option<Vec4>> = vec![None; scene.textures.len()];
     for (prim, tri) in shading.iter_mut().enumerate() {
         let material = &scene.materials[tri.material as usize];
         if material.emissive.max_element() > 0.0 {
             let p = *accel.triangle(prim as u32);
-            if let Some(light) = TriangleLight::new(p, material.emissive, material.double_sided) {
+            let (emission, textured) = match &material.emissive_texture {
+                Some(r) => {
+                    let mean = *texture_means[r.texture].get_or_insert_with(|| {
+                        super::texture::mean(&scene.textures[r.texture], true)
+                    });
+                    (material.emissive * mean.truncate(), true)
+                }
+                None => (material.emissive, false),
+            };
+            if let Some(mut light) = TriangleLight::new(p, emission, material.double_sided) {
+                light.prim = prim as u32;
+                light.textured = textured;
                 tri.light = lights.len() as u32;
                 lights.push(Light::Triangle(light));
             }
@@ -196,6 +231,10 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
         lights.push(Light::Environment(UniformEnvironment { radiance }));
     }
     let scene_radius = scene_radius(&accel).max(1e-6);
+    let alpha_tested = scene.materials.iter().any(|m| {
+        matches!(m.alpha_mode, AlphaMode::Mask { .. })
+            && (m.base_color_texture.is_some() || has_colors)
+    });
     Ok(PreparedScene {
         origin,
         camera,
@@ -203,12 +242,56 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
         shading,
         normals,
         uvs,
+        colors,
         materials: scene.materials.clone(),
+        textures: scene.textures.clone(),
+        alpha_tested,
         lights: LightSampler::new(lights, scene_radius),
         environment,
         max_depth: settings.max_depth,
         build_seconds,
     })
+}
+
+impl PreparedScene {
+    /// Bytes of geometry the renderer keeps per scene: BVH, triangles, shading data, vertices.
+    pub fn memory_bytes(&self) -> usize {
+        self.accel.memory_bytes()
+            + self.shading.len() * std::mem::size_of::<TriShading>()
+            + self.normals.len() * std::mem::size_of::<Vec3>()
+            + (self.uvs[0].len() + self.uvs[1].len()) * std::mem::size_of::<Vec2>()
+            + self.colors.len() * std::mem::size_of::<Vec4>()
+    }
+}
+
+impl PreparedScene {
+    /// Texture coordinates and vertex colour of triangle `prim` at barycentrics `b`.
+    #[inline]
+    pub fn surface_point(&self, prim: u32, b: [f32; 3]) -> SurfacePoint {
+        let tri = &self.shading[prim as usize];
+        let [i0, i1, i2] = tri.vertices.map(|v| v as usize);
+        let mut sp = SurfacePoint::PLAIN;
+        for k in 0..2 {
+            if let Some(uv) = self.uvs.get(k).filter(|uv| !uv.is_empty()) {
+                sp.uvs[k] = uv[i0] * b[0] + uv[i1] * b[1] + uv[i2] * b[2];
+            }
+        }
+        if !self.colors.is_empty() {
+            sp.color = self.colors[i0] * b[0] + self.colors[i1] * b[1] + self.colors[i2] * b[2];
+        }
+        sp
+    }
+
+    /// Whether the surface at a hit is cut out by its material's alpha (MASK).
+    #[inline]
+    pub fn is_cut_out(&self, hit: &super::accel::Hit) -> bool {
+        let m = &self.materials[self.shading[hit.prim as usize].material as usize];
+        if !matches!(m.alpha_mode, AlphaMode::Mask { .. }) {
+            return false;
+        }
+        let sp = self.surface_point(hit.prim, [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2]);
+        material::is_cut_out(&self.textures, m, &sp)
+    }
 }
 
 fn scene_radius(accel: &Accel) -> f32 {

@@ -19,6 +19,11 @@ pub struct TriangleLight {
     pub emission: Vec3,
     /// Emits from both faces (a `doubleSided` material).
     pub two_sided: bool,
+    /// The triangle's index in the BVH order (to evaluate textured emission).
+    pub prim: u32,
+    /// Whether emission varies over the triangle (an emissive texture): `emission` is then its
+    /// mean, used for choosing lights, and the integrator evaluates the texture at the point.
+    pub textured: bool,
 }
 
 impl TriangleLight {
@@ -29,13 +34,28 @@ impl TriangleLight {
         if !(len > 0.0) || !len.is_finite() {
             return None;
         }
-        Some(TriangleLight { p, normal: c / len, area: 0.5 * len, emission, two_sided })
+        Some(TriangleLight {
+            p,
+            normal: c / len,
+            area: 0.5 * len,
+            emission,
+            two_sided,
+            prim: u32::MAX,
+            textured: false,
+        })
     }
 
-    /// Radiance leaving toward direction `w` (unit, pointing away from the light).
+    /// Whether light leaves toward direction `w` (unit, pointing away from the light): the
+    /// front face (counter-clockwise winding) only, unless the material is double-sided.
+    #[inline]
+    pub fn emits_toward(&self, w: Vec3) -> bool {
+        self.two_sided || self.normal.dot(w) > 0.0
+    }
+
+    /// Radiance leaving toward direction `w` (the mean for textured emitters).
     #[inline]
     pub fn radiance(&self, w: Vec3) -> Vec3 {
-        if self.two_sided || self.normal.dot(w) > 0.0 {
+        if self.emits_toward(w) {
             self.emission
         } else {
             Vec3::ZERO
@@ -69,6 +89,7 @@ impl TriangleLight {
             point: Some(point),
             normal: self.normal,
             point_error: interpolation_error(self.p, b),
+            barycentrics: b,
             pdf,
             is_delta: false,
         })

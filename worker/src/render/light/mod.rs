@@ -31,6 +31,8 @@ pub struct LightSample {
     pub normal: Vec3,
     /// Rounding error bound of `point` per axis (zero for punctual lights).
     pub point_error: Vec3,
+    /// Barycentrics of `point` on an emissive triangle (zero otherwise).
+    pub barycentrics: [f32; 3],
     /// Density per solid angle including the choice of light (1 x choice for delta lights).
     pub pdf: f32,
     /// True for point, spot and directional lights.
@@ -75,6 +77,7 @@ impl Light {
                 point: None,
                 normal: Vec3::ZERO,
                 point_error: Vec3::ZERO,
+                barycentrics: [0.0; 3],
                 pdf: uniform_sphere_pdf(),
                 is_delta: false,
             }),

@@ -29,6 +29,7 @@ impl PointLight {
             point: Some(self.position),
             normal: Vec3::ZERO,
             point_error: Vec3::ZERO,
+            barycentrics: [0.0; 3],
             pdf: 1.0,
             is_delta: true,
         })
@@ -80,6 +81,7 @@ impl SpotLight {
             point: Some(self.position),
             normal: Vec3::ZERO,
             point_error: Vec3::ZERO,
+            barycentrics: [0.0; 3],
             pdf: 1.0,
             is_delta: true,
         })
@@ -117,6 +119,7 @@ impl DirectionalLight {
             point: None,
             normal: Vec3::ZERO,
             point_error: Vec3::ZERO,
+            barycentrics: [0.0; 3],
             pdf: 1.0,
             is_delta: true,
         })
