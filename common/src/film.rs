@@ -1,6 +1,7 @@
 //! Film arithmetic: per-pixel partial sums that merge exactly, and the statistics read from them.
 //!
-//! Each sample's RGB value is quantised once to fixed point (sum: 2^-48, square: 2^-32) and added
+//! Each sample's RGB value is quantised once to fixed point (sum: 2^-48, square: 2^-32, truncated)
+//! and added
 //! into 128-bit integers. Integer addition is associative, so a pixel's sums are bit-for-bit the
 //! same however its samples were split into tasks and in whatever order the tasks are merged:
 //! this is what makes the farm's images reproducible. The quantisation step (3.6e-15) is far below
@@ -21,6 +22,18 @@ const SQ_SCALE: f64 = (1u64 << 32) as f64;
 /// Largest magnitude a single sample may have (keeps the 128-bit sums far from overflow:
 /// 2^79 / 2^40 = 2^39 samples of this size before the sum could overflow).
 pub const MAX_SAMPLE_VALUE: f32 = 1.0e12;
+
+/// Truncates a scaled sample to an integer. Any deterministic rounding keeps merging exact; this
+/// one converts through i64 (one instruction) whenever the value fits, which is almost always.
+#[inline]
+fn to_fixed(scaled: f64) -> i128 {
+    const LIMIT: f64 = (1u64 << 62) as f64;
+    if scaled.abs() < LIMIT {
+        scaled as i64 as i128
+    } else {
+        scaled as i128
+    }
+}
 
 /// Sums over the samples of one pixel.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -50,12 +63,12 @@ impl PixelSums {
         }
         for c in 0..3 {
             let v = rgb[c] as f64;
-            let fixed = (v * SUM_SCALE).round() as i128;
+            let fixed = to_fixed(v * SUM_SCALE);
             self.sum[c] += fixed;
             if odd {
                 self.sum_odd[c] += fixed;
             }
-            self.sum_sq[c] += (v * v * SQ_SCALE).round() as i128;
+            self.sum_sq[c] += to_fixed(v * v * SQ_SCALE);
         }
         true
     }

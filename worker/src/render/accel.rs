@@ -45,8 +45,19 @@ pub struct Accel {
 /// Per-ray constants of the watertight test.
 struct Shear {
     origin: Vec3,
-    k: [usize; 3],
+    /// The axis along which the ray's direction is largest (it becomes z).
+    kz: usize,
     s: Vec3,
+}
+
+/// Rotates coordinates so that axis `kz` becomes z (x and y follow cyclically).
+#[inline(always)]
+fn permute(v: Vec3, kz: usize) -> Vec3 {
+    match kz {
+        0 => Vec3::new(v.y, v.z, v.x),
+        1 => Vec3::new(v.z, v.x, v.y),
+        _ => v,
+    }
 }
 
 impl Shear {
@@ -65,24 +76,15 @@ impl Shear {
         } else {
             2
         };
-        let kx = (kz + 1) % 3;
-        let ky = (kx + 1) % 3;
-        let dz = d[kz];
-        Shear {
-            origin: ray.origin,
-            k: [kx, ky, kz],
-            s: Vec3::new(-d[kx] / dz, -d[ky] / dz, 1.0 / dz),
-        }
+        let d = permute(d, kz);
+        Shear { origin: ray.origin, kz, s: Vec3::new(-d.x / d.z, -d.y / d.z, 1.0 / d.z) }
     }
 
     /// Returns (t, b1, b2) for a hit with `t` in (0, t_max).
     #[inline]
     fn intersect(&self, tri: &[Vec3; 3], t_max: f32) -> Option<(f32, f32, f32)> {
-        let [kx, ky, kz] = self.k;
-        let rel = |p: Vec3| {
-            let q = p - self.origin;
-            Vec3::new(q[kx], q[ky], q[kz])
-        };
+        let kz = self.kz;
+        let rel = |p: Vec3| permute(p - self.origin, kz);
         let (mut p0, mut p1, mut p2) = (rel(tri[0]), rel(tri[1]), rel(tri[2]));
         let s = self.s;
         p0.x += s.x * p0.z;
@@ -91,11 +93,17 @@ impl Shear {
         p1.y += s.y * p1.z;
         p2.x += s.x * p2.z;
         p2.y += s.y * p2.z;
-        // Edge functions from exact f64 products: rays through a shared edge see the same value
-        // (with opposite sign) from both triangles, so they never slip between them.
-        let e0 = difference_of_products(p1.x, p2.y, p1.y, p2.x);
-        let e1 = difference_of_products(p2.x, p0.y, p2.y, p0.x);
-        let e2 = difference_of_products(p0.x, p1.y, p0.y, p1.x);
+        // Edge functions; exactly zero in f32 means the ray passes (nearly) through an edge or a
+        // vertex, and the sign is then decided in f64 (Woop et al.): rays through a shared edge
+        // see the same value with opposite signs from both triangles and never slip between.
+        let mut e0 = p1.x * p2.y - p1.y * p2.x;
+        let mut e1 = p2.x * p0.y - p2.y * p0.x;
+        let mut e2 = p0.x * p1.y - p0.y * p1.x;
+        if e0 == 0.0 || e1 == 0.0 || e2 == 0.0 {
+            e0 = difference_of_products(p1.x, p2.y, p1.y, p2.x);
+            e1 = difference_of_products(p2.x, p0.y, p2.y, p0.x);
+            e2 = difference_of_products(p0.x, p1.y, p0.y, p1.x);
+        }
         if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
             return None;
         }
@@ -132,8 +140,7 @@ impl Shear {
     }
 }
 
-/// a * b - c * d rounded once: f32 products are exact in f64 (and this avoids `mul_add`,
-/// which is a slow library call on targets built without FMA).
+/// a * b - c * d rounded once: f32 products are exact in f64.
 #[inline]
 fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
     (a as f64 * b as f64 - c as f64 * d as f64) as f32

@@ -98,16 +98,23 @@ pub fn offset_ray_origin(p: Vec3, p_error: Vec3, n: Vec3, w: Vec3) -> Vec3 {
         offset = -offset;
     }
     let po = p + offset;
-    let step = |v: f32, o: f32| {
-        if o > 0.0 {
-            next_float_up(v)
-        } else if o < 0.0 {
-            next_float_down(v)
-        } else {
-            v
-        }
-    };
-    Vec3::new(step(po.x, offset.x), step(po.y, offset.y), step(po.z, offset.z))
+    Vec3::new(step_away(po.x, offset.x), step_away(po.y, offset.y), step_away(po.z, offset.z))
+}
+
+/// One float step from `v` in the direction of `o`'s sign (none when `o` is zero).
+#[inline(always)]
+fn step_away(v: f32, o: f32) -> f32 {
+    if o == 0.0 || !v.is_finite() {
+        return v;
+    }
+    // Moving away from zero adds one to the magnitude's bits; toward zero subtracts one.
+    let away = (v >= 0.0) == (o > 0.0);
+    let bits = v.to_bits();
+    if v == 0.0 {
+        let tiny = f32::from_bits(1);
+        return if o > 0.0 { tiny } else { -tiny };
+    }
+    f32::from_bits(if away { bits + 1 } else { bits - 1 })
 }
 
 /// The smallest float greater than `v`.

@@ -23,6 +23,11 @@ pub struct Stats {
     pub rays: u64,
 }
 
+/// Bounces before Russian roulette may end a path. Measured on the Cornell box (relative MSE x
+/// seconds at 128 spp, 2 threads): starting after 1, 2, 4 and 6 bounces gave 0.0129, 0.0126,
+/// 0.0120 and 0.0125; dark, indirectly lit regions suffer most from early roulette.
+const RR_MIN_DEPTH: u32 = 4;
+
 /// 1 - ShadowEpsilon: shadow rays toward a point stop just short of it.
 const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
 
@@ -192,7 +197,7 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         depth += 1;
 
         // Russian roulette once paths have a few bounces.
-        if depth > 2 {
+        if depth > RR_MIN_DEPTH {
             let q = (1.0 - beta.max_element()).max(0.0);
             if u_rr < q {
                 break;

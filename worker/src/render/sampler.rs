@@ -21,8 +21,8 @@ pub struct Sampler {
     base: u64,
     /// Hash of (base, pixel) for the current sample.
     pixel_hash: u64,
-    /// The sample index within the pixel.
-    sample_idx: u32,
+    /// The sample index within its sequence, bit-reversed (every draw needs it so).
+    sample_idx_reversed: u32,
     /// Next dimension to draw.
     dimension: u32,
 }
@@ -31,7 +31,7 @@ impl Sampler {
     /// A sampler for frame `frame` of a job with seed `seed`.
     pub fn new(seed: u64, frame: i64) -> Self {
         let base = mix64(seed ^ mix64(frame as u64 ^ 0x9e37_79b9_7f4a_7c15));
-        Sampler { base, pixel_hash: 0, sample_idx: 0, dimension: 0 }
+        Sampler { base, pixel_hash: 0, sample_idx_reversed: 0, dimension: 0 }
     }
 
     /// Positions the sampler at sample `sample_idx` of `pixel`, dimension 0.
@@ -40,7 +40,7 @@ impl Sampler {
         let half = (sample_idx & 1) as u64;
         self.pixel_hash =
             mix64(self.base ^ mix64(((pixel.x as u64) << 32) | pixel.y as u64) ^ (half << 63));
-        self.sample_idx = sample_idx >> 1;
+        self.sample_idx_reversed = (sample_idx >> 1).reverse_bits();
         self.dimension = 0;
     }
 
@@ -55,19 +55,22 @@ impl Sampler {
     #[inline]
     pub fn next_1d(&mut self) -> f32 {
         let h = self.dimension_hash();
-        let index = nested_uniform_scramble(self.sample_idx, h as u32);
-        to_unit(nested_uniform_scramble(sobol_0(index), (h >> 32) as u32))
+        // The index, Owen-scrambled: reverse(LK(reverse(i))). Its first Sobol dimension is its
+        // bit reversal, and Owen scrambling that point is reverse(LK(reverse(point))), so the
+        // reversals pair up and cancel: point = reverse(LK(index, seed)).
+        let index = laine_karras_permutation(self.sample_idx_reversed, h as u32).reverse_bits();
+        to_unit(laine_karras_permutation(index, (h >> 32) as u32).reverse_bits())
     }
 
     /// The next pair of uniform numbers in [0, 1)², stratified jointly.
     #[inline]
     pub fn next_2d(&mut self) -> Vec2 {
         let h = self.dimension_hash();
-        let index = nested_uniform_scramble(self.sample_idx, h as u32);
-        let h2 = mix64(h);
+        let index = laine_karras_permutation(self.sample_idx_reversed, h as u32).reverse_bits();
+        let seed_y = (h.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 32) as u32;
         Vec2::new(
-            to_unit(nested_uniform_scramble(sobol_0(index), (h >> 32) as u32)),
-            to_unit(nested_uniform_scramble(sobol_1(index), h2 as u32)),
+            to_unit(laine_karras_permutation(index, (h >> 32) as u32).reverse_bits()),
+            to_unit(laine_karras_permutation(sobol_1_reversed(index), seed_y).reverse_bits()),
         )
     }
 }
@@ -84,21 +87,52 @@ pub fn mix64(mut x: u64) -> u64 {
 
 /// First Sobol dimension (van der Corput): the bits of `i` reversed.
 #[inline]
+#[cfg(test)]
 fn sobol_0(i: u32) -> u32 {
     i.reverse_bits()
 }
 
-/// Second Sobol dimension; its generator matrix columns are v_j = v_{j-1} ^ (v_{j-1} >> 1).
-#[inline]
+/// Generator matrix columns of the second Sobol dimension: v_0 = 2^31, v_j = v_{j-1} ^ (v_{j-1} >> 1).
+const SOBOL_1_COLUMNS: [u32; 32] = {
+    let mut v = [0u32; 32];
+    v[0] = 1 << 31;
+    let mut j = 1;
+    while j < 32 {
+        v[j] = v[j - 1] ^ (v[j - 1] >> 1);
+        j += 1;
+    }
+    v
+};
+
+/// The same columns bit-reversed, so that `sobol_1_reversed(i) == sobol_1(i).reverse_bits()`.
+const SOBOL_1_COLUMNS_REVERSED: [u32; 32] = {
+    let mut v = [0u32; 32];
+    let mut j = 0;
+    while j < 32 {
+        v[j] = SOBOL_1_COLUMNS[j].reverse_bits();
+        j += 1;
+    }
+    v
+};
+
+/// Second Sobol dimension: the XOR of the columns selected by the bits of `i`.
+#[cfg(test)]
 fn sobol_1(mut i: u32) -> u32 {
-    let mut v: u32 = 1 << 31;
     let mut x = 0;
     while i != 0 {
-        if i & 1 != 0 {
-            x ^= v;
-        }
-        i >>= 1;
-        v ^= v >> 1;
+        x ^= SOBOL_1_COLUMNS[i.trailing_zeros() as usize];
+        i &= i - 1;
+    }
+    x
+}
+
+/// The second Sobol dimension with its bits reversed.
+#[inline]
+fn sobol_1_reversed(mut i: u32) -> u32 {
+    let mut x = 0;
+    while i != 0 {
+        x ^= SOBOL_1_COLUMNS_REVERSED[i.trailing_zeros() as usize];
+        i &= i - 1;
     }
     x
 }
@@ -115,7 +149,7 @@ fn laine_karras_permutation(mut x: u32, seed: u32) -> u32 {
 }
 
 /// Owen scrambling of a binary fraction (each bit flipped by a hash of the bits above it).
-#[inline]
+#[cfg(test)]
 fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
     laine_karras_permutation(x.reverse_bits(), seed).reverse_bits()
 }
@@ -198,6 +232,36 @@ mod tests {
             mean += u as f64;
         }
         assert!((mean / n as f64 - 0.5).abs() < 1e-3);
+    }
+
+    #[test]
+    fn sobol_dimensions_match_their_definitions() {
+        // Dimension 1 is a (0, 1)-sequence too: the first 2^k points hit every 2^-k interval.
+        for k in 0..12 {
+            let n = 1u32 << k;
+            let mut seen = vec![false; n as usize];
+            for i in 0..n {
+                let cell = (sobol_1(i) >> (32 - k.max(1))) as usize * (k > 0) as usize;
+                assert!(!seen[cell] || k == 0, "k {k}: cell {cell} twice");
+                seen[cell] = true;
+            }
+        }
+        assert_eq!(sobol_0(1), 1 << 31);
+        assert_eq!(sobol_1(3), (1 << 31) ^ (3 << 30));
+        for i in [0u32, 1, 2, 3, 77, 1023, 65_535, u32::MAX] {
+            assert_eq!(sobol_1_reversed(i), sobol_1(i).reverse_bits());
+        }
+        // The fast draw equals the textbook composition: Owen-scrambled point of the
+        // Owen-scrambled index.
+        let (i, seed_index, seed_point) = (12_345u32, 0xdead_beefu32, 0x1234_5678u32);
+        let index = nested_uniform_scramble(i, seed_index);
+        let textbook = nested_uniform_scramble(sobol_0(index), seed_point);
+        let fast = laine_karras_permutation(
+            laine_karras_permutation(i.reverse_bits(), seed_index).reverse_bits(),
+            seed_point,
+        )
+        .reverse_bits();
+        assert_eq!(fast, textbook);
     }
 
     #[test]
