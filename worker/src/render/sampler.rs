@@ -126,15 +126,37 @@ fn sobol_1(mut i: u32) -> u32 {
     x
 }
 
-/// The second Sobol dimension with its bits reversed.
-#[inline]
-fn sobol_1_reversed(mut i: u32) -> u32 {
-    let mut x = 0;
-    while i != 0 {
-        x ^= SOBOL_1_COLUMNS_REVERSED[i.trailing_zeros() as usize];
-        i &= i - 1;
+/// `SOBOL_1_BYTES[k][b]`: the XOR of the reversed columns selected by byte `b` at byte position
+/// `k` of the index (the scrambled index has random high bits, so a bit loop would run ~16 times).
+const SOBOL_1_BYTES: [[u32; 256]; 4] = {
+    let mut t = [[0u32; 256]; 4];
+    let mut k = 0;
+    while k < 4 {
+        let mut b = 0;
+        while b < 256 {
+            let mut x = 0;
+            let mut j = 0;
+            while j < 8 {
+                if b & (1 << j) != 0 {
+                    x ^= SOBOL_1_COLUMNS_REVERSED[8 * k + j];
+                }
+                j += 1;
+            }
+            t[k][b] = x;
+            b += 1;
+        }
+        k += 1;
     }
-    x
+    t
+};
+
+/// The second Sobol dimension with its bits reversed: four table lookups.
+#[inline]
+fn sobol_1_reversed(i: u32) -> u32 {
+    SOBOL_1_BYTES[0][(i & 0xff) as usize]
+        ^ SOBOL_1_BYTES[1][((i >> 8) & 0xff) as usize]
+        ^ SOBOL_1_BYTES[2][((i >> 16) & 0xff) as usize]
+        ^ SOBOL_1_BYTES[3][(i >> 24) as usize]
 }
 
 /// Burley's improved Laine-Karras hash: each bit is flipped by a function of the lower bits.
