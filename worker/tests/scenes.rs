@@ -164,7 +164,7 @@ fn degenerate_triangles_change_nothing() {
         [0.25 + 1e-7, 0.5, 0.2],
     ];
     let bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-    let uri = format!("data:application/octet-stream;base64,{}", base64_encode(&bytes));
+    let uri = format!("data:application/octet-stream;base64,{}", base64(&bytes));
     let path = edited_scene("cornell-box", "degenerate", |json| {
         let buffer = json["buffers"].as_array().unwrap().len();
         json["buffers"]
@@ -198,21 +198,4 @@ fn degenerate_triangles_change_nothing() {
     let film = render(&scene, &settings);
     let (w, h, reference) = read_rgb(&shared().join("scenes/ref/cornell-box.exr"));
     assert_matches("degenerate", &film, &downsample(w, h, &reference, 2), CORNELL_REF_VAR / 4.0);
-}
-
-fn base64_encode(bytes: &[u8]) -> String {
-    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for chunk in bytes.chunks(3) {
-        let b = [chunk[0], *chunk.get(1).unwrap_or(&0), *chunk.get(2).unwrap_or(&0)];
-        let n = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
-        for i in 0..4 {
-            if i <= chunk.len() {
-                out.push(T[(n >> (18 - 6 * i) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
 }

@@ -222,3 +222,9 @@ pub fn wrap_roots(json: &mut serde_json::Value, node: serde_json::Value) {
     let new_idx = nodes.len() - 1;
     json["scenes"][scene_idx]["nodes"] = serde_json::json!([new_idx]);
 }
+
+/// Standard base64 (for data URIs in generated scenes).
+pub fn base64(bytes: &[u8]) -> String {
+    use base64::Engine;
+    base64::engine::general_purpose::STANDARD.encode(bytes)
+}
