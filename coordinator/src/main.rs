@@ -106,15 +106,26 @@ fn main() -> Result<()> {
                 bar.finish_and_clear();
             }
             let est = report.film.error_estimate();
+            if report.film.rejected > 0 {
+                tracing::warn!(
+                    rejected = report.film.rejected,
+                    "samples were NaN, infinite or absurdly large and were counted as zero; reproduce one with `worker debug-sample`"
+                );
+            }
+            let est_text = if est.rel_mse.is_finite() {
+                format!("{:.3e}", est.rel_mse)
+            } else {
+                "unknown (needs 2 spp)".to_string()
+            };
             eprintln!(
-                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s, BVH {:.3} s; estimated relMSE {:.3e}; wrote {}",
+                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s, BVH {:.3} s; estimated relMSE {}; wrote {}",
                 report.samples,
                 report.render_seconds,
                 report.samples as f64 / report.render_seconds / 1e6,
                 report.rays as f64 / report.render_seconds / 1e6,
                 report.load_seconds,
                 report.build_seconds,
-                est.rel_mse,
+                est_text,
                 report.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
             );
             Ok(())

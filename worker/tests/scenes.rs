@@ -199,3 +199,39 @@ fn degenerate_triangles_change_nothing() {
     let (w, h, reference) = read_rgb(&shared().join("scenes/ref/cornell-box.exr"));
     assert_matches("degenerate", &film, &downsample(w, h, &reference, 2), CORNELL_REF_VAR / 4.0);
 }
+
+#[test]
+fn extreme_roughness_metalness_and_radiance_produce_no_nan() {
+    // The roughness/metalness sweep (roughness 0 to 1, metal and dielectric) lit by a very bright
+    // small emitter and a dim environment: every sample must be finite.
+    let path = shared()
+        .join("scenes/real/MetalRoughSpheresNoTextures/glTF/MetalRoughSpheresNoTextures.gltf");
+    let mut scene = common::gltf::load_path(&path).unwrap();
+    let mut bright = scene.materials[0].clone();
+    bright.emissive = glam::Vec3::splat(1.0e7);
+    bright.double_sided = true;
+    scene.materials.push(bright);
+    // Re-use the first instance's mesh as a tiny, very bright emitter far above the spheres.
+    let emitter = scene.meshes[scene.instances[0].mesh].clone();
+    scene.meshes.push(common::scene::Mesh { material: scene.materials.len() - 1, ..emitter });
+    scene.instances.push(common::scene::Instance {
+        mesh: scene.meshes.len() - 1,
+        node: 0,
+        transform: glam::DMat4::from_scale_rotation_translation(
+            glam::DVec3::splat(1e-3),
+            glam::DQuat::IDENTITY,
+            glam::DVec3::new(0.0, 30.0, 30.0),
+        ),
+    });
+    let settings = RenderSettings {
+        width: 48,
+        height: 48,
+        spp: 16,
+        environment: Some(common::settings::Environment::Color { color: [1e-3, 1e-3, 1e-3] }),
+        ..Default::default()
+    };
+    let film = render(&scene, &settings);
+    assert_eq!(film.rejected, 0, "non-finite or absurd samples");
+    assert!(film.mean_rgb().iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
+    assert!(film.mean_rgb().iter().flatten().any(|v| *v > 1e-3), "the emitter lights the spheres");
+}
