@@ -1,10 +1,11 @@
 //! The path tracer: next-event estimation and BSDF sampling combined with multiple importance
 //! sampling (power heuristic), Russian roulette, and a bounce limit.
 //!
-//! A loop, not recursion. Every bounce draws the same five sampler dimensions whatever happens,
-//! so dimension `k` always means the same thing for every sample of every pixel.
+//! A loop, not recursion. Every bounce draws the same four sampler dimensions whatever happens,
+//! so dimension `k` always means the same thing for every sample of every pixel. The light
+//! sample's first coordinate also chooses the light, so its strata span all lights together.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::{
     bsdf::Bsdf,
@@ -52,7 +53,6 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
     let mut prev_bsdf_pdf = 0.0f32;
     let lights = &scene.lights;
     loop {
-        let u_light_choice = sampler.next_1d();
         let u_light = sampler.next_2d();
         let u_lobe = sampler.next_1d();
         let u_bsdf = sampler.next_2d();
@@ -134,9 +134,9 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp);
 
         // Next-event estimation.
-        if let Some((light_idx, choice_pdf)) = lights.choose(u_light_choice) {
+        if let Some((light_idx, choice_pdf, u_x)) = lights.choose_remapped(u_light.x) {
             let light = &lights.lights[light_idx as usize];
-            if let Some(ls) = light.sample_li(p, u_light) {
+            if let Some(ls) = light.sample_li(p, Vec2::new(u_x, u_light.y)) {
                 let wi_local = frame.to_local(ls.wi);
                 // Reflection only: wi must leave on wo's side of the geometric surface too.
                 if wi_local.z > 0.0 && ls.wi.dot(ng) > 0.0 {

@@ -153,9 +153,56 @@ impl LightSampler {
         (p > 0.0).then_some((i as u32, p))
     }
 
+    /// Picks a light with `u` in [0, 1) and returns `u` stretched back to [0, 1) within the
+    /// chosen light's share, so that one stratified number both chooses and places the sample
+    /// (the strata of a 2D sample then cover all lights together).
+    #[inline]
+    pub fn choose_remapped(&self, u: f32) -> Option<(u32, f32, f32)> {
+        let (i, p) = self.choose(u)?;
+        let start = if i == 0 { 0.0 } else { self.cdf[i as usize - 1] };
+        let remapped = ((u - start) / p).clamp(0.0, 1.0 - f32::EPSILON / 2.0);
+        Some((i, p, remapped))
+    }
+
     /// Probability that `choose` returns light `i`.
     #[inline]
     pub fn probability(&self, i: u32) -> f32 {
         self.prob[i as usize]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn remapped_choice_spreads_each_lights_numbers_over_the_unit_interval() {
+        let light = |power: f32| {
+            Light::Point(PointLight { position: Vec3::ZERO, intensity: Vec3::splat(power) })
+        };
+        let sampler = LightSampler::new(vec![light(1.0), light(3.0), light(0.0), light(4.0)], 1.0);
+        let n = 8000;
+        let mut per_light: Vec<Vec<f32>> = vec![Vec::new(); 4];
+        for k in 0..n {
+            let u = (k as f32 + 0.5) / n as f32;
+            let (i, p, r) = sampler.choose_remapped(u).unwrap();
+            assert_eq!(p, sampler.probability(i));
+            assert!((0.0..1.0).contains(&r));
+            per_light[i as usize].push(r);
+        }
+        assert!(per_light[2].is_empty(), "a light without power is never chosen");
+        for (i, values) in per_light.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
+            let expected = sampler.probability(i as u32) * n as f32;
+            assert!(
+                (values.len() as f32 - expected).abs() <= 1.0,
+                "light {i}: {} picks",
+                values.len()
+            );
+            // Evenly spread: the k-th value sits in the k-th of len equal cells.
+            for (k, r) in values.iter().enumerate() {
+                let cell = (r * values.len() as f32) as usize;
+                assert!(cell.abs_diff(k) <= 1, "light {i}: value {k} = {r} out of its stratum");
+            }
+        }
     }
 }
