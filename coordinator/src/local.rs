@@ -32,6 +32,8 @@ pub struct RenderReport {
     pub build_seconds: f64,
     /// Seconds spent rendering (all frames).
     pub render_seconds: f64,
+    /// Seconds spent writing the EXR and PNG files.
+    pub write_seconds: f64,
     /// Rays traced.
     pub rays: u64,
     /// Samples taken.
@@ -69,6 +71,7 @@ pub fn render_file(
     let multi = settings.frames.end > settings.frames.start;
     let mut outputs = Vec::new();
     let mut render_seconds = 0.0;
+    let mut write_seconds = 0.0;
     let mut rays = 0;
     let mut samples = 0;
     let mut film = Film::new(settings.width, settings.height);
@@ -107,14 +110,25 @@ pub fn render_file(
             render_seconds: seconds,
             frame,
         };
+        let write_start = Instant::now();
         write_exr(&exr_path, &frame_film, &info)?;
         let png_path = exr_path.with_extension("png");
         write_png(&png_path, &frame_film, 0.0)?;
+        write_seconds += write_start.elapsed().as_secs_f64();
         outputs.push(exr_path);
         outputs.push(png_path);
         film = frame_film;
     }
-    Ok(RenderReport { outputs, load_seconds, build_seconds, render_seconds, rays, samples, film })
+    Ok(RenderReport {
+        outputs,
+        load_seconds,
+        build_seconds,
+        render_seconds,
+        write_seconds,
+        rays,
+        samples,
+        film,
+    })
 }
 
 /// `out.exr` -> `out_0007.exr` for frame 7.

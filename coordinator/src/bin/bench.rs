@@ -69,7 +69,7 @@ fn main() -> Result<()> {
     .map_err(anyhow::Error::msg)?;
     let out_dir = std::env::temp_dir().join(format!("renderfarm-bench-{}", std::process::id()));
     std::fs::create_dir_all(&out_dir)?;
-    println!("scene,spp,threads,seconds,samples_per_s,rays_per_s,rmse,relmse,est_relmse");
+    println!("scene,spp,threads,seconds,write_seconds,samples_per_s,rays_per_s,rmse,relmse,est_relmse");
     let mut rows = Vec::new();
     for &spp in &args.spp {
         let settings = RenderSettings { spp, ..base.clone() };
@@ -81,9 +81,10 @@ fn main() -> Result<()> {
         let image = report.film.mean_rgb();
         let (rmse, rel_mse) = metrics(&image, &reference);
         println!(
-            "cornell-box,{spp},{},{:.4},{:.0},{:.0},{:.6},{:.6e},{:.6e}",
+            "cornell-box,{spp},{},{:.4},{:.4},{:.0},{:.0},{:.6},{:.6e},{:.6e}",
             args.threads,
             seconds,
+            report.write_seconds,
             report.samples as f64 / report.render_seconds,
             report.rays as f64 / report.render_seconds,
             rmse,
