@@ -4,6 +4,7 @@
 //! - [`scene`]: the scene model (plain data, f64 placements).
 //! - [`gltf`]: glTF 2.0 loading and validation into a [`scene::Scene`].
 //! - [`settings`]: render settings (the JSON of PRODUCT.md) with validation.
+//! - [`envmap`]: equirectangular environment maps (HDR, EXR) and their direction convention.
 //! - [`film`]: per-pixel partial sums that merge exactly, variance and error estimates.
 //! - [`protocol`]: task specifications and results.
 //!
@@ -11,6 +12,7 @@
 
 #![warn(missing_docs)]
 
+pub mod envmap;
 pub mod film;
 pub mod gltf;
 pub mod protocol;

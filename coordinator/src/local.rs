@@ -12,9 +12,13 @@ use std::{
 };
 
 use anyhow::{bail, Context, Result};
-use common::{film::Film, settings::RenderSettings};
+use common::{
+    envmap::EnvMap,
+    film::Film,
+    settings::{Environment, RenderSettings},
+};
 use sha2::{Digest, Sha256};
-use worker::render::{render_task, scene::prepare};
+use worker::render::{render_task, scene::prepare_with_environment};
 
 use crate::{
     output::{write_exr, write_png, FrameInfo},
@@ -46,7 +50,7 @@ pub struct RenderReport {
 pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
 /// Renders `scene_path` with `settings` on `workers` threads into `out` (frame ranges write
-/// `OUT_####.exr`).
+/// `OUT_####.exr`). A relative environment map path is relative to the working directory.
 pub fn render_file(
     scene_path: &Path,
     settings: &RenderSettings,
@@ -62,8 +66,16 @@ pub fn render_file(
     let scene = common::gltf::load_path(scene_path)
         .with_context(|| format!("loading {}", scene_path.display()))?;
     common::gltf::check_renderable(&scene).with_context(|| format!("{}", scene_path.display()))?;
+    let env_map = match &settings.environment {
+        Some(Environment::Map { map, .. }) => {
+            Some(EnvMap::load(Path::new(map)).context("loading settings.environment.map")?)
+        }
+        _ => None,
+    };
     let load_seconds = start.elapsed().as_secs_f64();
-    let prepared = prepare(&scene, settings).context("preparing the scene")?;
+    let prepared = prepare_with_environment(&scene, settings, env_map.as_ref())
+        .context("preparing the scene")?;
+    drop(env_map);
     let build_seconds = prepared.build_seconds;
     drop(scene);
 

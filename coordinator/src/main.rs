@@ -1,10 +1,13 @@
 //! `coordinator`: command-line entry point (flags only; the work is in the library).
 
-use std::{io::IsTerminal, path::PathBuf};
+use std::{
+    io::IsTerminal,
+    path::{Path, PathBuf},
+};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use common::settings::RenderSettings;
+use common::settings::{Environment, RenderSettings};
 use coordinator::local::render_file;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -73,9 +76,17 @@ fn main() -> Result<()> {
                 Some(path) => {
                     let text = std::fs::read_to_string(&path)
                         .with_context(|| format!("reading {}", path.display()))?;
-                    RenderSettings::from_json(&text)
+                    let mut s = RenderSettings::from_json(&text)
                         .map_err(anyhow::Error::msg)
-                        .with_context(|| format!("{}", path.display()))?
+                        .with_context(|| format!("{}", path.display()))?;
+                    // A map named in a settings file is relative to that file.
+                    if let Some(Environment::Map { map, .. }) = &mut s.environment {
+                        if Path::new(map.as_str()).is_relative() {
+                            let dir = path.parent().unwrap_or(Path::new("."));
+                            *map = dir.join(&*map).to_string_lossy().into_owned();
+                        }
+                    }
+                    s
                 }
                 None => RenderSettings::default(),
             };

@@ -85,3 +85,41 @@ fn bad_input_fails_with_a_message() {
         assert!(stderr.contains(needle), "{args:?}: message does not name {needle}: {stderr}");
     }
 }
+
+#[test]
+fn environment_map_is_found_beside_the_settings_file() {
+    let dir = std::env::temp_dir().join(format!("renderfarm-cli-env-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let hdr = repo().join("../shared/scenes/real/environments/studio_small_05_1k.hdr");
+    std::fs::copy(&hdr, dir.join("sky.hdr")).unwrap();
+    let settings = dir.join("settings.json");
+    std::fs::write(
+        &settings,
+        r#"{"width": 24, "height": 16, "spp": 4, "environment": {"map": "sky.hdr", "intensity": 2.0}}"#,
+    )
+    .unwrap();
+    let out = dir.join("env.exr");
+    let output = coordinator()
+        .args(["render", "scenes/cornell-box.gltf", "--settings"])
+        .arg(&settings)
+        .arg("-o")
+        .arg(&out)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(out.exists());
+
+    std::fs::remove_file(dir.join("sky.hdr")).unwrap();
+    let output = coordinator()
+        .args(["render", "scenes/cornell-box.gltf", "--settings"])
+        .arg(&settings)
+        .arg("-o")
+        .arg(&out)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("sky.hdr") && !stderr.contains("panicked"), "{stderr}");
+}

@@ -69,7 +69,9 @@ fn main() -> Result<()> {
     .map_err(anyhow::Error::msg)?;
     let out_dir = std::env::temp_dir().join(format!("renderfarm-bench-{}", std::process::id()));
     std::fs::create_dir_all(&out_dir)?;
-    println!("scene,spp,threads,seconds,write_seconds,samples_per_s,rays_per_s,rmse,relmse,est_relmse");
+    println!(
+        "scene,spp,threads,seconds,write_seconds,samples_per_s,rays_per_s,rmse,relmse,est_relmse"
+    );
     let mut rows = Vec::new();
     for &spp in &args.spp {
         let settings = RenderSettings { spp, ..base.clone() };

@@ -13,7 +13,6 @@ use super::{
     light::Light,
     material,
     sampler::Sampler,
-    sampling::uniform_sphere_pdf,
     scene::{PreparedScene, NONE},
 };
 
@@ -65,14 +64,20 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
             scene.accel.intersect(&ray, f32::INFINITY)
         };
         let Some(hit) = hit else {
-            if let (Some(env), Some(env_idx)) = (scene.environment, lights.environment) {
+            if let (Some(env), Some(env_idx)) = (&scene.environment, lights.environment) {
                 let weight = if depth == 0 {
-                    1.0
+                    if scene.environment_visible {
+                        1.0
+                    } else {
+                        0.0
+                    }
                 } else {
-                    let light_pdf = lights.probability(env_idx) * uniform_sphere_pdf();
+                    let light_pdf = lights.probability(env_idx) * env.pdf(ray.dir);
                     power_heuristic(prev_bsdf_pdf, light_pdf)
                 };
-                radiance += beta * env * weight;
+                if weight > 0.0 {
+                    radiance += beta * env.radiance(ray.dir) * weight;
+                }
             }
             break;
         };

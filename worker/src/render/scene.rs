@@ -5,9 +5,10 @@
 //! The world is translated so that the chosen camera sits at the origin, in f64, before rounding
 //! to f32: precision is then best where the camera looks, whatever the scene's absolute position.
 
-use std::time::Instant;
+use std::{sync::Arc, time::Instant};
 
 use common::{
+    envmap::EnvMap,
     scene::{AlphaMode, Material, Projection, PunctualKind, Scene, Texture},
     settings::{Environment, RenderSettings},
 };
@@ -17,8 +18,8 @@ use super::{
     accel::Accel,
     camera::{Camera, CameraModel},
     light::{
-        DirectionalLight, Light, LightSampler, PointLight, SpotLight, TriangleLight,
-        UniformEnvironment,
+        DirectionalLight, Environment as EnvironmentLight, Light, LightSampler, MapEnvironment,
+        PointLight, SpotLight, TriangleLight,
     },
     material::{self, SurfacePoint},
 };
@@ -65,8 +66,10 @@ pub struct PreparedScene {
     pub alpha_tested: bool,
     /// Lights and the distribution to choose them.
     pub lights: LightSampler,
-    /// Uniform environment radiance seen by escaping rays.
-    pub environment: Option<Vec3>,
+    /// What escaping rays see (also a light in `lights`), if anything.
+    pub environment: Option<Arc<EnvironmentLight>>,
+    /// Whether camera rays see the environment (`environment.visible`).
+    pub environment_visible: bool,
     /// Maximum number of bounces.
     pub max_depth: u32,
     /// Seconds spent building the BVH.
@@ -78,8 +81,13 @@ pub struct PreparedScene {
 #[error("{0}")]
 pub struct PrepareError(pub String);
 
-/// Builds the render-ready scene.
-pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene, PrepareError> {
+/// Builds the render-ready scene. A settings environment map must be given already decoded
+/// (`env_map`; see `common::envmap::EnvMap::load`): preparing does no I/O.
+pub fn prepare_with_environment(
+    scene: &Scene,
+    settings: &RenderSettings,
+    env_map: Option<&EnvMap>,
+) -> Result<PreparedScene, PrepareError> {
     let camera_model = match &settings.camera {
         Some(name) => scene
             .cameras
@@ -215,20 +223,23 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
             }),
         });
     }
-    let environment = match &settings.environment {
-        None => None,
+    let (environment, environment_visible) = match &settings.environment {
+        None => (None, true),
         Some(Environment::Color { color }) => {
             let radiance = Vec3::from_array(*color);
-            (radiance.max_element() > 0.0).then_some(radiance)
+            ((radiance.max_element() > 0.0).then_some(EnvironmentLight::Uniform(radiance)), true)
         }
-        Some(Environment::Map { map, .. }) => {
-            return Err(PrepareError(format!(
-                "settings.environment: environment maps (`{map}`) are not supported yet; use a uniform colour"
-            )))
+        Some(Environment::Map { map, intensity, rotation_deg, visible }) => {
+            let decoded = env_map.ok_or_else(|| {
+                PrepareError(format!("settings.environment: the map `{map}` was not loaded"))
+            })?;
+            let prepared = MapEnvironment::new(decoded, *intensity, *rotation_deg);
+            ((prepared.mean_luminance() > 0.0).then_some(EnvironmentLight::Map(prepared)), *visible)
         }
     };
-    if let Some(radiance) = environment {
-        lights.push(Light::Environment(UniformEnvironment { radiance }));
+    let environment = environment.map(Arc::new);
+    if let Some(env) = &environment {
+        lights.push(Light::Environment(Arc::clone(env)));
     }
     let scene_radius = scene_radius(&accel).max(1e-6);
     let alpha_tested = scene.materials.iter().any(|m| {
@@ -248,9 +259,15 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
         alpha_tested,
         lights: LightSampler::new(lights, scene_radius),
         environment,
+        environment_visible,
         max_depth: settings.max_depth,
         build_seconds,
     })
+}
+
+/// Builds the render-ready scene for settings without an environment map.
+pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene, PrepareError> {
+    prepare_with_environment(scene, settings, None)
 }
 
 impl PreparedScene {

@@ -11,7 +11,10 @@ use common::{
     scene::Scene,
     settings::RenderSettings,
 };
-use worker::render::{render_task, scene::prepare};
+use worker::render::{
+    render_task,
+    scene::{prepare, PreparedScene},
+};
 
 /// The `shared/` folder beside the repository.
 pub fn shared() -> PathBuf {
@@ -32,7 +35,11 @@ pub fn settings(name: &str) -> RenderSettings {
 
 /// Renders every pixel of frame 0 for samples [0, spp), tiles spread over two threads.
 pub fn render(scene: &Scene, settings: &RenderSettings) -> Film {
-    let prepared = prepare(scene, settings).expect("prepare");
+    render_prepared(&prepare(scene, settings).expect("prepare"), settings)
+}
+
+/// `render` for an already prepared scene.
+pub fn render_prepared(prepared: &PreparedScene, settings: &RenderSettings) -> Film {
     let mut tasks = Vec::new();
     let tile = 32;
     for y0 in (0..settings.height).step_by(tile) {
@@ -57,7 +64,7 @@ pub fn render(scene: &Scene, settings: &RenderSettings) -> Film {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let Some(task) = tasks.get(i) else { break };
-                let result = render_task(&prepared, settings.seed, task);
+                let result = render_task(prepared, settings.seed, task);
                 film.lock().unwrap().merge_tile(&result.tile);
             });
         }

@@ -7,16 +7,16 @@
 //! BSDF-sampled rays.
 
 mod area;
+mod environment;
 mod punctual;
 
 pub use area::TriangleLight;
+pub use environment::{Environment, MapEnvironment};
 pub use punctual::{spot_falloff, DirectionalLight, PointLight, SpotLight};
 
-use std::f32::consts::PI;
+use std::{f32::consts::PI, sync::Arc};
 
 use glam::{Vec2, Vec3};
-
-use crate::render::sampling::{sample_uniform_sphere, uniform_sphere_pdf};
 
 /// A light's contribution toward a receiving point.
 #[derive(Clone, Copy, Debug)]
@@ -39,15 +39,8 @@ pub struct LightSample {
     pub is_delta: bool,
 }
 
-/// A uniform environment: the same radiance from every direction.
-#[derive(Clone, Copy, Debug)]
-pub struct UniformEnvironment {
-    /// Radiance.
-    pub radiance: Vec3,
-}
-
 /// Any light source.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum Light {
     /// An emissive triangle.
     Triangle(TriangleLight),
@@ -57,8 +50,8 @@ pub enum Light {
     Spot(SpotLight),
     /// A directional light.
     Directional(DirectionalLight),
-    /// A uniform environment.
-    Environment(UniformEnvironment),
+    /// The environment (shared with `PreparedScene::environment`).
+    Environment(Arc<Environment>),
 }
 
 impl Light {
@@ -71,16 +64,19 @@ impl Light {
             Light::Point(l) => l.sample_li(p),
             Light::Spot(l) => l.sample_li(p),
             Light::Directional(l) => l.sample_li(),
-            Light::Environment(env) => Some(LightSample {
-                li: env.radiance,
-                wi: sample_uniform_sphere(u),
-                point: None,
-                normal: Vec3::ZERO,
-                point_error: Vec3::ZERO,
-                barycentrics: [0.0; 3],
-                pdf: uniform_sphere_pdf(),
-                is_delta: false,
-            }),
+            Light::Environment(env) => {
+                let (wi, li, pdf) = env.sample(u)?;
+                Some(LightSample {
+                    li,
+                    wi,
+                    point: None,
+                    normal: Vec3::ZERO,
+                    point_error: Vec3::ZERO,
+                    barycentrics: [0.0; 3],
+                    pdf,
+                    is_delta: false,
+                })
+            }
         }
     }
 
@@ -95,7 +91,7 @@ impl Light {
             Light::Spot(l) => lum(l.intensity) * l.cone_solid_angle_weight(),
             Light::Directional(l) => lum(l.irradiance) * PI * scene_radius * scene_radius,
             Light::Environment(env) => {
-                lum(env.radiance) * 4.0 * PI * PI * scene_radius * scene_radius
+                env.mean_luminance().max(0.0) * 4.0 * PI * PI * scene_radius * scene_radius
             }
         }
     }

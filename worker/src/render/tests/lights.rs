@@ -5,11 +5,13 @@ use std::f64::consts::PI;
 
 use glam::{DVec2, Vec2, Vec3};
 
+use super::chi2::{assert_fits, Spherical};
 use super::chi2::{chi2_statistic, sidak_alpha, Chi2Test, Gnomonic, Rng};
 use crate::render::light::{
-    spot_falloff, DirectionalLight, Light, LightSampler, PointLight, SpotLight, TriangleLight,
-    UniformEnvironment,
+    spot_falloff, DirectionalLight, Environment, Light, LightSampler, MapEnvironment, PointLight,
+    SpotLight, TriangleLight,
 };
+use common::envmap::EnvMap;
 
 /// A triangle light seen from a receiver.
 struct TriangleCase {
@@ -59,7 +61,7 @@ const TRIANGLES: [TriangleCase; 5] = [
 ];
 
 /// Chi-square tests in this file.
-pub(super) const N_CHI2: usize = TRIANGLES.len() + 1;
+pub(super) const N_CHI2: usize = TRIANGLES.len() + 1 + 2;
 
 /// Distance along unit `dir` from `origin` to triangle `p` (Möller-Trumbore in f64), if it hits.
 fn hit_distance(p: [Vec3; 3], origin: Vec3, dir: Vec3) -> Option<f64> {
@@ -220,7 +222,7 @@ fn light_sampler_choose_matches_probability() {
         Light::Point(PointLight { position: Vec3::ONE, intensity: Vec3::new(1.0, 2.0, 3.0) }),
         Light::Spot(SpotLight { intensity: Vec3::splat(10.0), ..spot(10.0, 30.0) }),
         Light::Directional(DirectionalLight { to_light: Vec3::Y, irradiance: Vec3::splat(0.1) }),
-        Light::Environment(UniformEnvironment { radiance: Vec3::splat(0.05) }),
+        Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(0.05)))),
     ];
     let sampler = LightSampler::new(lights, 5.0);
     let k = sampler.lights.len();
@@ -248,4 +250,58 @@ fn light_sampler_choose_matches_probability() {
     // The edges of [0, 1) pick the first and the last light with power.
     assert_eq!(sampler.choose(0.0).map(|c| c.0), Some(0));
     assert_eq!(sampler.choose(1.0 - f32::EPSILON / 2.0).map(|c| c.0), Some(k as u32 - 1));
+}
+
+/// A 64x32 map with a smooth gradient, a bright 3x3-texel "sun" and a black band, so that the
+/// sampled density varies over two orders of magnitude (a much smaller, brighter sun defeats the
+/// harness's quadrature of the expected counts, not the sampler).
+fn test_map() -> EnvMap {
+    let (w, h) = (64u32, 32u32);
+    let texels = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            if (40..43).contains(&x) && (9..12).contains(&y) {
+                Vec3::new(60.0, 50.0, 40.0)
+            } else if (20..24).contains(&y) {
+                Vec3::ZERO
+            } else {
+                Vec3::new(0.2 + x as f32 / 64.0, 0.5, 1.0 - y as f32 / 40.0)
+            }
+        })
+        .collect();
+    EnvMap { width: w, height: h, texels }
+}
+
+#[test]
+fn environment_map_sampling_matches_pdf() {
+    for (name, rotation) in [("env_map", 0.0f32), ("env_map_rotated", 70.0)] {
+        let env = MapEnvironment::new(&test_map(), 2.0, rotation);
+        assert_fits(
+            name,
+            Spherical::sphere(),
+            |u| env.sample(Vec2::new(u.x, u.y)).map(|(d, _, _)| d),
+            |d| env.pdf(d),
+        );
+    }
+}
+
+#[test]
+fn environment_map_sample_returns_the_radiance_and_density_of_its_direction() {
+    let env = MapEnvironment::new(&test_map(), 2.0, 33.0);
+    let mut rng = Rng::from_name("env_map_consistency");
+    for _ in 0..10_000 {
+        let u = Vec2::new(rng.next_f32(), rng.next_f32());
+        let Some((d, radiance, pdf)) = env.sample(u) else { continue };
+        assert!((d.length() - 1.0).abs() < 1e-4);
+        assert_eq!(radiance, env.radiance(d), "direction {d}");
+        assert!((pdf / env.pdf(d) - 1.0).abs() < 1e-3, "pdf {pdf} vs {}", env.pdf(d));
+    }
+    // The black band is never sampled and has zero density.
+    let dark = EnvMap::uv_to_direction(0.3, 22.5 / 32.0);
+    let rotated = {
+        let (s, c) = 33f32.to_radians().sin_cos();
+        Vec3::new(c * dark.x + s * dark.z, dark.y, -s * dark.x + c * dark.z)
+    };
+    assert_eq!(env.pdf(rotated), 0.0);
+    assert_eq!(env.radiance(rotated), Vec3::ZERO);
 }
