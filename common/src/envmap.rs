@@ -92,6 +92,16 @@ fn decode_hdr(bytes: &[u8]) -> Result<EnvMap, String> {
 }
 
 fn decode_exr(bytes: &[u8]) -> std::result::Result<EnvMap, String> {
+    let (width, height, texels) = read_exr_rgb(bytes, MAX_TEXELS)?;
+    Ok(EnvMap { width: width as u32, height: height as u32, texels })
+}
+
+/// The `R`, `G`, `B` channels of the first layer of an OpenEXR file, row-major from the top:
+/// (width, height, texels). Refuses images over `max_texels`.
+pub fn read_exr_rgb(
+    bytes: &[u8],
+    max_texels: u64,
+) -> std::result::Result<(usize, usize, Vec<Vec3>), String> {
     use exr::prelude::*;
     let image = read()
         .no_deep_data()
@@ -103,8 +113,8 @@ fn decode_exr(bytes: &[u8]) -> std::result::Result<EnvMap, String> {
         .map_err(|e| e.to_string())?;
     let layer = &image.layer_data;
     let (width, height) = (layer.size.width(), layer.size.height());
-    if width as u64 * height as u64 > MAX_TEXELS {
-        return Err(format!("{width}x{height} is larger than {MAX_TEXELS} texels"));
+    if width as u64 * height as u64 > max_texels {
+        return Err(format!("{width}x{height} is larger than {max_texels} texels"));
     }
     let channel = |name: &str| -> std::result::Result<Vec<f32>, String> {
         layer
@@ -117,7 +127,7 @@ fn decode_exr(bytes: &[u8]) -> std::result::Result<EnvMap, String> {
     };
     let (r, g, b) = (channel("R")?, channel("G")?, channel("B")?);
     let texels = (0..width * height).map(|i| Vec3::new(r[i], g[i], b[i])).collect();
-    Ok(EnvMap { width: width as u32, height: height as u32, texels })
+    Ok((width, height, texels))
 }
 
 #[cfg(test)]

@@ -101,25 +101,9 @@ pub fn write_png(path: &Path, film: &Film, exposure: f32) -> Result<()> {
 
 /// Reads the mean RGB of an EXR written by `write_exr` (or any RGB EXR), row-major.
 pub fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let (w, h, texels) = common::envmap::read_exr_rgb(&bytes, u64::MAX)
+        .map_err(anyhow::Error::msg)
         .with_context(|| format!("reading {}", path.display()))?;
-    let layer = &image.layer_data;
-    let (w, h) = (layer.size.width(), layer.size.height());
-    let find = |name: &str| {
-        layer
-            .channel_data
-            .list
-            .iter()
-            .find(|c| c.name.to_string() == name)
-            .map(|c| c.sample_data.values_as_f32().collect::<Vec<f32>>())
-            .with_context(|| format!("{}: no channel {name}", path.display()))
-    };
-    let (r, g, b) = (find("R")?, find("G")?, find("B")?);
-    Ok((w, h, (0..w * h).map(|i| [r[i], g[i], b[i]]).collect()))
+    Ok((w, h, texels.iter().map(|t| t.to_array()).collect()))
 }

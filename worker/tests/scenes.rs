@@ -273,3 +273,42 @@ fn furnace_under_a_constant_environment_map_matches_the_uniform_one() {
     let (m, v) = (centre.mean()[1], centre.variance_of_mean()[1]);
     assert!((m - 0.8).abs() <= 4.0 * v.sqrt() + 1e-6, "centre {m} +- {}", v.sqrt());
 }
+
+#[test]
+fn every_real_asset_renders_without_nan() {
+    // Every Khronos sample shipped in shared/ (textures, normal maps, vertex colours, instancing,
+    // sparse accessors, cameras, lights, alpha masks) renders a small image with finite values.
+    let root = shared().join("scenes/real");
+    let mut rendered = 0;
+    for asset in std::fs::read_dir(&root).unwrap() {
+        let asset = asset.unwrap().path();
+        for variant in ["glTF", "glTF-Binary", "glTF-Embedded"] {
+            let Ok(files) = std::fs::read_dir(asset.join(variant)) else { continue };
+            for file in files {
+                let path = file.unwrap().path();
+                let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+                if ext != "gltf" && ext != "glb" {
+                    continue;
+                }
+                let scene = common::gltf::load_path(&path)
+                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let settings = RenderSettings {
+                    width: 12,
+                    height: 8,
+                    spp: 2,
+                    environment: Some(common::settings::Environment::Color { color: [0.5; 3] }),
+                    ..Default::default()
+                };
+                let film = render(&scene, &settings);
+                assert_eq!(film.rejected, 0, "{}: non-finite samples", path.display());
+                assert!(
+                    film.mean_rgb().iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+                    "{}",
+                    path.display()
+                );
+                rendered += 1;
+            }
+        }
+    }
+    assert!(rendered >= 40, "only {rendered} assets found");
+}

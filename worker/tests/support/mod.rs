@@ -74,30 +74,10 @@ pub fn render_prepared(prepared: &PreparedScene, settings: &RenderSettings) -> F
 
 /// Reads the R, G, B channels of an EXR, row-major.
 pub fn read_rgb(path: &Path) -> (usize, usize, Vec<[f32; 3]>) {
-    use exr::prelude::*;
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let (w, h, texels) = common::envmap::read_exr_rgb(&bytes, u64::MAX)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let layer = &image.layer_data;
-    let (w, h) = (layer.size.width(), layer.size.height());
-    let channel = |name: &str| -> Vec<f32> {
-        layer
-            .channel_data
-            .list
-            .iter()
-            .find(|c| c.name.to_string() == name)
-            .unwrap_or_else(|| panic!("{}: no channel {name}", path.display()))
-            .sample_data
-            .values_as_f32()
-            .collect()
-    };
-    let (r, g, b) = (channel("R"), channel("G"), channel("B"));
-    (w, h, (0..w * h).map(|i| [r[i], g[i], b[i]]).collect())
+    (w, h, texels.iter().map(|t| t.to_array()).collect())
 }
 
 /// Result of comparing a rendered film against an expected image.
