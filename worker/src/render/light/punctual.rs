@@ -62,29 +62,17 @@ pub struct SpotLight {
 }
 
 impl SpotLight {
-    /// Toward the light, attenuated by the cone.
+    /// Toward the light, attenuated by the cone: a point light seen through the falloff.
     #[inline]
     pub fn sample_li(&self, p: Vec3) -> Option<LightSample> {
-        let d = self.position - p;
-        let dist2 = d.length_squared();
-        if !(dist2 > 0.0) {
-            return None;
-        }
-        let wi = d / dist2.sqrt();
-        let falloff = spot_falloff(self.direction.dot(-wi), self.cos_inner, self.cos_outer);
+        let point = PointLight { position: self.position, intensity: self.intensity };
+        let mut ls = point.sample_li(p)?;
+        let falloff = spot_falloff(self.direction.dot(-ls.wi), self.cos_inner, self.cos_outer);
         if falloff <= 0.0 {
             return None;
         }
-        Some(LightSample {
-            li: self.intensity * falloff / dist2,
-            wi,
-            point: Some(self.position),
-            normal: Vec3::ZERO,
-            point_error: Vec3::ZERO,
-            barycentrics: [0.0; 3],
-            pdf: 1.0,
-            is_delta: true,
-        })
+        ls.li *= falloff;
+        Some(ls)
     }
 
     /// The integral of the falloff over the sphere of directions (emitted power / intensity).
