@@ -99,26 +99,22 @@ fn environment_map_is_found_beside_the_settings_file() {
     )
     .unwrap();
     let out = dir.join("env.exr");
-    let output = coordinator()
-        .args(["render", "scenes/cornell-box.gltf", "--settings"])
-        .arg(&settings)
-        .arg("-o")
-        .arg(&out)
-        .current_dir(repo())
-        .output()
-        .unwrap();
+    let render = || {
+        coordinator()
+            .args(["render", "scenes/cornell-box.gltf", "--settings"])
+            .arg(&settings)
+            .arg("-o")
+            .arg(&out)
+            .current_dir(repo())
+            .output()
+            .unwrap()
+    };
+    let output = render();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert!(out.exists());
 
     std::fs::remove_file(dir.join("sky.hdr")).unwrap();
-    let output = coordinator()
-        .args(["render", "scenes/cornell-box.gltf", "--settings"])
-        .arg(&settings)
-        .arg("-o")
-        .arg(&out)
-        .current_dir(repo())
-        .output()
-        .unwrap();
+    let output = render();
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success());
     assert!(stderr.contains("sky.hdr") && !stderr.contains("panicked"), "{stderr}");

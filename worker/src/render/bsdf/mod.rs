@@ -71,11 +71,4 @@ impl Bsdf {
             Bsdf::MetalRough(b) => b.sample(wo, u_lobe, u),
         }
     }
-
-    /// Whether the BSDF is worth light sampling (always true for these rough models; a
-    /// near-mirror still gets MIS weights that favour BSDF sampling).
-    #[inline]
-    pub fn has_non_specular(&self) -> bool {
-        true
-    }
 }
