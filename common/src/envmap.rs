@@ -36,12 +36,18 @@ pub const MAX_TEXELS: u64 = 1 << 26;
 impl EnvMap {
     /// Reads `.hdr` or `.exr` (recognised from the bytes).
     pub fn load(path: &Path) -> Result<EnvMap, EnvMapError> {
-        let fail = |reason: String| EnvMapError { path: path.display().to_string(), reason };
-        let bytes = std::fs::read(path).map_err(|e| fail(e.to_string()))?;
+        let bytes = std::fs::read(path)
+            .map_err(|e| EnvMapError { path: path.display().to_string(), reason: e.to_string() })?;
+        Self::from_bytes(&path.display().to_string(), &bytes)
+    }
+
+    /// Decodes `.hdr` or `.exr` bytes (recognised from the bytes); `name` appears in errors.
+    pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<EnvMap, EnvMapError> {
+        let fail = |reason: String| EnvMapError { path: name.to_string(), reason };
         let map = if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
-            decode_exr(&bytes)
+            decode_exr(bytes)
         } else if bytes.starts_with(b"#?") {
-            decode_hdr(&bytes)
+            decode_hdr(bytes)
         } else {
             Err("not a Radiance HDR or OpenEXR file".to_string())
         }

@@ -85,6 +85,38 @@ impl PixelSums {
         }
     }
 
+    /// Checks that these sums could come from `n` real samples of which `n_odd` have odd
+    /// indices: the counts match, sums of squares are non-negative and no smaller than the
+    /// squared sums allow (Cauchy-Schwarz), and no sample exceeded [`MAX_SAMPLE_VALUE`].
+    pub fn check(&self, n: u32, n_odd: u32) -> Result<(), String> {
+        if self.n != n || self.n_odd != n_odd {
+            return Err(format!(
+                "{} samples ({} odd), the task has {n} ({n_odd} odd)",
+                self.n, self.n_odd
+            ));
+        }
+        let max = MAX_SAMPLE_VALUE as f64;
+        for c in 0..3 {
+            let s = self.sum[c] as f64 / SUM_SCALE;
+            let q = self.sum_sq[c] as f64 / SQ_SCALE;
+            let s_odd = self.sum_odd[c] as f64 / SUM_SCALE;
+            if self.sum_sq[c] < 0 {
+                return Err(format!("channel {c}: negative sum of squares"));
+            }
+            // Truncation to fixed point loses at most one unit of the square per sample.
+            let nf = n as f64;
+            if s * s > nf * q * (1.0 + 1e-9) + nf * nf * (2.0 / SQ_SCALE) {
+                return Err(format!("channel {c}: sum {s:e} impossible with sum of squares {q:e}"));
+            }
+            if s.abs() > n as f64 * max || s_odd.abs() > n_odd as f64 * max {
+                return Err(format!(
+                    "channel {c}: sum {s:e} beyond {n} samples of at most {max:e}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Mean radiance per channel (0 with no samples).
     pub fn mean(&self) -> [f64; 3] {
         if self.n == 0 {
@@ -248,9 +280,17 @@ impl Film {
 
     /// The image-level error predicted from per-pixel variances.
     pub fn error_estimate(&self) -> ErrorEstimate {
+        ErrorEstimate::of_pixels(&self.pixels)
+    }
+}
+
+impl ErrorEstimate {
+    /// The predicted error of a set of pixels (a film or a tile): per pixel the variance of the
+    /// mean from the half difference (or the sample variance before both halves have samples).
+    pub fn of_pixels(pixels: &[PixelSums]) -> ErrorEstimate {
         let mut sum_var = 0.0;
         let mut sum_rel = 0.0;
-        for p in &self.pixels {
+        for p in pixels {
             let mean = p.mean();
             let var = p.half_difference_variance().unwrap_or_else(|| p.variance_of_mean());
             for c in 0..3 {
@@ -258,7 +298,7 @@ impl Film {
                 sum_rel += var[c] / (mean[c] * mean[c] + 0.01);
             }
         }
-        let n = (self.pixels.len() * 3).max(1) as f64;
+        let n = (pixels.len() * 3).max(1) as f64;
         ErrorEstimate { rmse: (sum_var / n).sqrt(), rel_mse: sum_rel / n }
     }
 }

@@ -3,6 +3,7 @@
 //! # Layout
 //! - [`scene`]: the scene model (plain data, f64 placements).
 //! - [`gltf`]: glTF 2.0 loading and validation into a [`scene::Scene`].
+//! - [`bundle`]: uploaded scene bundles (`.glb`, `.gltf`, `.zip`) resolved only inside themselves.
 //! - [`settings`]: render settings (the JSON of PRODUCT.md) with validation.
 //! - [`envmap`]: equirectangular environment maps (HDR, EXR) and their direction convention.
 //! - [`film`]: per-pixel partial sums that merge exactly, variance and error estimates.
@@ -12,6 +13,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bundle;
 pub mod envmap;
 pub mod film;
 pub mod gltf;

@@ -49,3 +49,116 @@ pub struct TaskResult {
     /// Rays traced (camera, bounce and shadow rays), for throughput figures.
     pub rays: u64,
 }
+
+impl TaskResult {
+    /// Checks that this result really answers `spec`: same task, one pixel sum per pixel of the
+    /// tile, every pixel holding exactly the task's samples, and sums that some set of real
+    /// sample values could have produced. The message names the first problem found.
+    pub fn check_answers(&self, spec: &TaskSpec) -> Result<(), String> {
+        if self.spec != *spec {
+            return Err(format!(
+                "the result is for task {:?}, but the lease is for {:?}",
+                self.spec, spec
+            ));
+        }
+        if self.tile.rect != spec.rect {
+            return Err(format!(
+                "tile is {:?}, the task's tile is {:?}",
+                self.tile.rect, spec.rect
+            ));
+        }
+        if self.tile.pixels.len() != spec.rect.area() {
+            return Err(format!(
+                "{} pixel sums for a {}x{} tile ({} pixels)",
+                self.tile.pixels.len(),
+                spec.rect.width,
+                spec.rect.height,
+                spec.rect.area()
+            ));
+        }
+        let n = spec.samples.len();
+        // Odd indices in [start, end).
+        let n_odd = spec.samples.end / 2 - spec.samples.start / 2;
+        for (i, p) in self.tile.pixels.iter().enumerate() {
+            let (x, y) = (i as u32 % spec.rect.width, i as u32 / spec.rect.width);
+            p.check(n, n_odd).map_err(|e| format!("pixel ({x}, {y}) of the tile: {e}"))?;
+        }
+        let max_rejected = n as u64 * spec.rect.area() as u64;
+        if self.tile.rejected > max_rejected {
+            return Err(format!(
+                "{} refused samples, more than the task's {max_rejected}",
+                self.tile.rejected
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Encodes a task result for the wire (bincode, standard configuration).
+pub fn encode_result(result: &TaskResult) -> Vec<u8> {
+    bincode::serde::encode_to_vec(result, bincode::config::standard())
+        .expect("a task result always encodes")
+}
+
+/// Decodes a task result; a truncated or malformed body gives a message, never a panic.
+/// The decoder allocates at most 1 GiB, whatever the body claims.
+pub fn decode_result(bytes: &[u8]) -> Result<TaskResult, String> {
+    let config = bincode::config::standard().with_limit::<{ 1 << 30 }>();
+    let (result, used): (TaskResult, usize) = bincode::serde::decode_from_slice(bytes, config)
+        .map_err(|e| format!("undecodable task result ({} bytes): {e}", bytes.len()))?;
+    if used != bytes.len() {
+        return Err(format!("{} trailing bytes after the task result", bytes.len() - used));
+    }
+    Ok(result)
+}
+
+/// `POST /api/v1/workers`: a worker joins.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JoinRequest {
+    /// A human-readable name (host name and process id by default).
+    pub name: String,
+    /// Render threads the worker will use.
+    pub threads: u32,
+    /// The worker's version, for the workers list.
+    #[serde(default)]
+    pub version: String,
+}
+
+/// The answer to a join.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JoinResponse {
+    /// The worker's id, sent with every later request.
+    pub id: String,
+    /// A lease not renewed for this long is given to another worker.
+    pub lease_timeout_s: f64,
+    /// How often to renew a lease while rendering.
+    pub heartbeat_s: f64,
+}
+
+/// A leased task: `POST /api/v1/workers/{id}/lease` answers this (or 204: no work now).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LeaseGrant {
+    /// The lease id: the result, heartbeats and failure reports name it.
+    pub lease: String,
+    /// The job the task belongs to.
+    pub job: String,
+    /// SHA-256 of the scene bundle (fetch it from `/api/v1/scenes/{hash}`).
+    pub scene: String,
+    /// The job's render settings.
+    pub settings: crate::settings::RenderSettings,
+    /// What to render.
+    pub task: TaskSpec,
+    /// Seconds until the lease expires unless renewed.
+    pub lease_timeout_s: f64,
+}
+
+/// `POST /api/v1/leases/{lease}/fail`: the worker could not render the task.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FailReport {
+    /// Why.
+    pub error: String,
+}
+
+/// Header carrying the worker id on heartbeats, results and failure reports.
+pub const WORKER_HEADER: &str = "x-worker-id";

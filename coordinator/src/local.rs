@@ -1,27 +1,35 @@
-//! The embedded default: one process renders a job with N local worker threads and writes the
-//! EXR and PNG. Workers pull tasks in progressive order; results merge exactly, so the image is
-//! the same for any number of workers.
+//! The embedded default, `coordinator render`: one process runs the farm service on a loopback
+//! port (its state in a temporary folder) and N local workers that join it over HTTP, exactly as
+//! a cluster would; the scene is uploaded as a bundle and the finished frames written as EXR and
+//! PNG. [`render_direct`] renders the same images without the service, as a benchmark baseline.
 
 use std::{
     path::{Path, PathBuf},
     sync::{
-        atomic::{AtomicUsize, Ordering},
+        atomic::{AtomicBool, AtomicUsize, Ordering},
         Mutex,
     },
-    time::Instant,
+    time::{Duration, Instant},
 };
 
 use anyhow::{bail, Context, Result};
 use common::{
+    bundle::Bundle,
     envmap::EnvMap,
     film::Film,
+    gltf::{DirResolver, Resolver},
     settings::{Environment, RenderSettings},
 };
 use sha2::{Digest, Sha256};
-use worker::render::{render_task, scene::prepare_with_environment};
+use worker::{
+    client::{self, JoinConfig},
+    render::{render_task, scene::prepare_with_environment},
+};
 
 use crate::{
+    farm::job::{JobState, JobStatus},
     output::{write_exr, write_png, FrameInfo},
+    service::ServiceConfig,
     split::frame_tasks,
 };
 
@@ -30,9 +38,9 @@ use crate::{
 pub struct RenderReport {
     /// Files written (EXR then PNG per frame).
     pub outputs: Vec<PathBuf>,
-    /// Seconds spent loading and parsing the scene.
+    /// Seconds spent loading and parsing the scene (and packing its bundle).
     pub load_seconds: f64,
-    /// Seconds spent building the BVH.
+    /// Seconds spent building the BVH (0 when the workers build it, inside the render time).
     pub build_seconds: f64,
     /// Seconds spent rendering (all frames).
     pub render_seconds: f64,
@@ -46,12 +54,13 @@ pub struct RenderReport {
     pub film: Film,
 }
 
-/// Progress callback: (tasks done, tasks total).
+/// Progress callback: (work done, work total).
 pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
-/// Renders `scene_path` with `settings` on `workers` threads into `out` (frame ranges write
-/// `OUT_####.exr`). A relative environment map path is relative to the working directory.
-pub fn render_file(
+/// Renders `scene_path` with `settings` on `workers` threads in this process, without the farm
+/// (no HTTP, no database): the baseline the benchmark compares the farm path with. Same images,
+/// bit for bit.
+pub fn render_direct(
     scene_path: &Path,
     settings: &RenderSettings,
     workers: usize,
@@ -152,4 +161,190 @@ fn numbered(out: &Path, frame: i64) -> PathBuf {
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Resolves files in a folder (never outside it) and remembers what it handed out, so that
+/// exactly the files a scene uses go into its bundle.
+struct RecordingResolver {
+    inner: DirResolver,
+    read: Mutex<Vec<(String, Vec<u8>)>>,
+}
+
+impl Resolver for RecordingResolver {
+    fn read(&self, uri: &str) -> std::result::Result<Vec<u8>, String> {
+        let bytes = self.inner.read(uri)?;
+        let mut read = self.read.lock().unwrap_or_else(|p| p.into_inner());
+        if !read.iter().any(|(u, _)| u == uri) {
+            read.push((uri.to_string(), bytes.clone()));
+        }
+        Ok(bytes)
+    }
+}
+
+/// A scene file (and the environment map the settings name) as one uploadable bundle: the file
+/// itself when it is self-contained, else a zip of it and exactly the files it uses. Returns the
+/// bundle and the settings with the map renamed to its place in the bundle.
+pub fn bundle_scene(
+    scene_path: &Path,
+    settings: &RenderSettings,
+) -> Result<(Vec<u8>, RenderSettings)> {
+    let bytes = std::fs::read(scene_path)
+        .with_context(|| format!("reading scene {}", scene_path.display()))?;
+    let dir = match scene_path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let resolver = RecordingResolver { inner: DirResolver::new(dir), read: Mutex::new(Vec::new()) };
+    let scene = common::gltf::load_slice(&bytes, &resolver)
+        .with_context(|| format!("loading {}", scene_path.display()))?;
+    common::gltf::check_renderable(&scene).with_context(|| format!("{}", scene_path.display()))?;
+    let mut files = resolver.read.into_inner().unwrap_or_else(|p| p.into_inner());
+    let mut settings = settings.clone();
+    if let Some(Environment::Map { map, .. }) = &mut settings.environment {
+        let path = PathBuf::from(&*map);
+        let env_bytes = std::fs::read(&path)
+            .with_context(|| format!("settings.environment.map: reading {}", path.display()))?;
+        EnvMap::from_bytes(map, &env_bytes).context("settings.environment.map")?;
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        *map = format!("__environment__/{name}");
+        files.push((map.clone(), env_bytes));
+    }
+    if files.is_empty() {
+        return Ok((bytes, settings));
+    }
+    let ext = if bytes.starts_with(b"glTF") { "glb" } else { "gltf" };
+    files.insert(0, (format!("scene.{ext}"), bytes));
+    Ok((Bundle::pack(&files)?, settings))
+}
+
+fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
+    match e {
+        ureq::Error::Status(code, resp) => {
+            let text = resp.into_string().unwrap_or_default();
+            let msg = serde_json::from_str::<serde_json::Value>(&text)
+                .ok()
+                .and_then(|v| v["error"].as_str().map(str::to_string))
+                .unwrap_or(text);
+            anyhow::anyhow!("{what}: {msg} (HTTP {code})")
+        }
+        other => anyhow::anyhow!("{what}: {other}"),
+    }
+}
+
+/// Renders `scene_path` with `settings` on `workers` local workers into `out` (frame ranges
+/// write `OUT_####.exr`) through the farm: an in-process coordinator on a loopback port, the
+/// workers joining it over HTTP. A relative environment map path is relative to the working
+/// directory. `progress` gets (samples done, samples planned).
+pub fn render_file(
+    scene_path: &Path,
+    settings: &RenderSettings,
+    workers: usize,
+    out: &Path,
+    progress: Progress<'_>,
+) -> Result<RenderReport> {
+    settings.validate()?;
+    let start = Instant::now();
+    let (bundle, job_settings) = bundle_scene(scene_path, settings)?;
+    let load_seconds = start.elapsed().as_secs_f64();
+    let data = tempfile::Builder::new().prefix("renderfarm-").tempdir()?;
+    let mut config = ServiceConfig::new(data.path().to_path_buf());
+    config.farm.max_spp = common::settings::MAX_SPP;
+    let service = crate::service::spawn("127.0.0.1:0", config)?;
+    let url = service.url();
+    let agent = ureq::AgentBuilder::new().timeout(Duration::from_secs(600)).build();
+    let scene: serde_json::Value = agent
+        .post(&format!("{url}/api/v1/scenes"))
+        .set("content-type", "application/octet-stream")
+        .send_bytes(&bundle)
+        .map_err(|e| http_error("uploading the scene", e))?
+        .into_json()?;
+    let scene_hash = scene["scene"].as_str().context("upload answer without a hash")?.to_string();
+    let job: serde_json::Value = agent
+        .post(&format!("{url}/api/v1/jobs"))
+        .send_json(serde_json::json!({ "scene": scene_hash, "settings": job_settings }))
+        .map_err(|e| http_error("creating the job", e))?
+        .into_json()?;
+    let id = job["id"].as_str().context("job answer without an id")?.to_string();
+    let render_start = Instant::now();
+    let stop = AtomicBool::new(false);
+    let status = std::thread::scope(|s| -> Result<JobStatus> {
+        let handles: Vec<_> = (0..workers.max(1))
+            .map(|i| {
+                let config = JoinConfig {
+                    url: url.clone(),
+                    threads: 1,
+                    name: format!("local-{i}"),
+                    wait_s: 1.0,
+                };
+                let stop = &stop;
+                s.spawn(move || client::run(&config, stop))
+            })
+            .collect();
+        let farm = service.farm();
+        let status = loop {
+            let status = farm
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .status(&id)
+                .map_err(|e| anyhow::anyhow!(e.message))?;
+            progress(
+                status.samples_done as usize,
+                (status.samples_planned - status.samples_saved) as usize,
+            );
+            if status.state.is_final() || handles.iter().all(|h| h.is_finished()) {
+                break status;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        stop.store(true, Ordering::Relaxed);
+        for h in handles {
+            h.join().map_err(|_| anyhow::anyhow!("a local worker panicked"))??;
+        }
+        Ok(status)
+    })?;
+    let render_seconds = render_start.elapsed().as_secs_f64();
+    match status.state {
+        JobState::Done => {}
+        JobState::Failed => bail!("the render failed: {}", status.error.unwrap_or_default()),
+        other => bail!("the render stopped: job is {}", other.name()),
+    }
+    let multi = settings.frames.end > settings.frames.start;
+    let write_start = Instant::now();
+    let mut outputs = Vec::new();
+    let mut film = Film::new(settings.width, settings.height);
+    let farm = service.farm();
+    let rays = farm.lock().unwrap_or_else(|p| p.into_inner()).counters.rays;
+    for &frame in &status.frames {
+        let (frame_film, _) = farm
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .film(&id, frame)
+            .map_err(|e| anyhow::anyhow!(e.message))?;
+        let exr_path = if multi { numbered(out, frame) } else { out.to_path_buf() };
+        let info = FrameInfo {
+            settings_json: serde_json::to_string(&status.settings)?,
+            scene_hash: scene_hash.clone(),
+            render_seconds: status.elapsed_s,
+            frame,
+        };
+        write_exr(&exr_path, &frame_film, &info)?;
+        let png_path = exr_path.with_extension("png");
+        write_png(&png_path, &frame_film, 0.0)?;
+        outputs.push(exr_path);
+        outputs.push(png_path);
+        film = frame_film;
+    }
+    let write_seconds = write_start.elapsed().as_secs_f64();
+    drop(farm);
+    service.stop()?;
+    Ok(RenderReport {
+        outputs,
+        load_seconds,
+        build_seconds: 0.0,
+        render_seconds,
+        write_seconds,
+        rays,
+        samples: status.samples_done,
+        film,
+    })
 }

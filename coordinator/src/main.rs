@@ -3,12 +3,16 @@
 use std::{
     io::IsTerminal,
     path::{Path, PathBuf},
+    time::Duration,
 };
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use common::settings::{Environment, RenderSettings};
-use coordinator::local::render_file;
+use coordinator::{
+    local::render_file,
+    service::{serve_on, ServiceConfig},
+};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser)]
@@ -49,18 +53,59 @@ enum Command {
         #[arg(long)]
         settings: Option<PathBuf>,
     },
+    /// Run the farm service: REST API, worker protocol, metrics and dashboard.
+    Serve {
+        /// Address to listen on.
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        listen: String,
+        /// Folder for the database and the uploaded scenes (created if missing).
+        #[arg(long, default_value = "farm-data")]
+        data: PathBuf,
+        /// Seconds before an unrenewed lease is given to another worker.
+        #[arg(long, default_value_t = 30.0)]
+        lease_timeout: f64,
+        /// Largest spp a job may ask for.
+        #[arg(long, default_value_t = 65536)]
+        max_spp: u32,
+        /// Largest upload (scene or result) in MiB.
+        #[arg(long, default_value_t = 1024)]
+        max_upload_mib: usize,
+    },
 }
 
 fn main() -> Result<()> {
+    let cli = Cli::parse();
+    // `render` reports only problems (the farm's chatter is for the service's log).
+    let default_filter = match cli.command {
+        Command::Render { .. } => "warn",
+        Command::Serve { .. } => "coordinator=info,worker=info,common=info",
+    };
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| "coordinator=info,worker=info,common=info".into()),
+                .unwrap_or_else(|_| default_filter.into()),
         )
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
     match cli.command {
+        Command::Serve { listen, data, lease_timeout, max_spp, max_upload_mib } => {
+            anyhow::ensure!(
+                lease_timeout.is_finite() && lease_timeout > 0.0,
+                "--lease-timeout must be a positive number of seconds"
+            );
+            let mut config = ServiceConfig::new(data);
+            config.farm.lease_timeout = Duration::from_secs_f64(lease_timeout);
+            config.farm.max_spp = max_spp;
+            config.max_upload_bytes = max_upload_mib << 20;
+            let runtime = tokio::runtime::Runtime::new()?;
+            runtime.block_on(async {
+                let listener = tokio::net::TcpListener::bind(&listen)
+                    .await
+                    .with_context(|| format!("listening on {listen}"))?;
+                tracing::info!("coordinator listening on http://{}", listener.local_addr()?);
+                serve_on(listener, config, shutdown_signal()).await
+            })
+        }
         Command::Render {
             scene,
             output,
@@ -101,8 +146,10 @@ fn main() -> Result<()> {
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = ProgressBar::new(0);
                 bar.set_style(
-                    ProgressStyle::with_template("{bar:40} {pos}/{len} tasks {elapsed} eta {eta}")
-                        .expect("valid template"),
+                    ProgressStyle::with_template(
+                        "{bar:40} {percent}% of samples {elapsed} eta {eta}",
+                    )
+                    .expect("valid template"),
                 );
                 bar
             });
@@ -142,4 +189,24 @@ fn main() -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Completes on SIGTERM or Ctrl-C.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = term => {},
+    }
+    tracing::info!("shutting down");
 }

@@ -22,6 +22,12 @@ pub struct FrameInfo {
 
 /// Writes `film` as an EXR at `path`.
 pub fn write_exr(path: &Path, film: &Film, info: &FrameInfo) -> Result<()> {
+    let bytes = exr_bytes(film, info)?;
+    std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Encodes `film` as the EXR file of PRODUCT.md.
+pub fn exr_bytes(film: &Film, info: &FrameInfo) -> Result<Vec<u8>> {
     let size = (film.width as usize, film.height as usize);
     let n = film.pixels.len();
     let mut mean = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
@@ -63,11 +69,9 @@ pub fn write_exr(path: &Path, film: &Film, info: &FrameInfo) -> Result<()> {
     other.insert(Text::from("renderfarm.rejected_samples"), text(film.rejected.to_string()));
     other.insert(Text::from("renderfarm.est_rel_mse"), text(format!("{:.6e}", estimate.rel_mse)));
     let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels);
-    Image::from_layer(layer)
-        .write()
-        .to_file(path)
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    let mut out = std::io::Cursor::new(Vec::new());
+    Image::from_layer(layer).write().to_buffered(&mut out).context("encoding the EXR")?;
+    Ok(out.into_inner())
 }
 
 /// sRGB transfer of a linear value in [0, 1].
@@ -81,6 +85,12 @@ fn srgb_encode(v: f32) -> f32 {
 
 /// Writes an 8-bit sRGB PNG preview of `film`, scaled by 2^`exposure`.
 pub fn write_png(path: &Path, film: &Film, exposure: f32) -> Result<()> {
+    let bytes = png_bytes(film, exposure)?;
+    std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Encodes an 8-bit sRGB PNG preview of `film`, scaled by 2^`exposure`.
+pub fn png_bytes(film: &Film, exposure: f32) -> Result<Vec<u8>> {
     let scale = exposure.exp2();
     let mut bytes = Vec::with_capacity(film.pixels.len() * 3);
     for p in &film.pixels {
@@ -89,14 +99,14 @@ pub fn write_png(path: &Path, film: &Film, exposure: f32) -> Result<()> {
             bytes.push((srgb_encode(v) * 255.0 + 0.5) as u8);
         }
     }
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), film.width, film.height);
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, film.width, film.height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
     let mut writer = encoder.write_header().context("writing PNG header")?;
     writer.write_image_data(&bytes).context("writing PNG data")?;
-    Ok(())
+    writer.finish().context("finishing the PNG")?;
+    Ok(out)
 }
 
 /// Reads the mean RGB of an EXR written by `write_exr` (or any RGB EXR), row-major.

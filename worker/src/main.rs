@@ -1,9 +1,13 @@
-//! `worker`: command-line entry point. Today it reproduces single samples for debugging
-//! (`worker debug-sample`); joining a coordinator over HTTP comes with the farm service.
+//! `worker`: command-line entry point. `worker --join URL` renders tasks for a coordinator until
+//! SIGTERM or SIGINT (then finishes the task in hand and leaves); `worker debug-sample`
+//! reproduces a single sample for debugging.
 
-use std::path::PathBuf;
+use std::{
+    path::PathBuf,
+    sync::{atomic::AtomicBool, Arc},
+};
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use common::settings::RenderSettings;
 use glam::{UVec2, Vec2};
@@ -12,8 +16,20 @@ use worker::render::{integrator, sampler::Sampler, scene::prepare};
 #[derive(Parser)]
 #[command(version, about = "Distributed path-tracing render farm: worker")]
 struct Cli {
+    /// Join the coordinator at this URL (e.g. http://coordinator:8080) and render its tasks.
+    #[arg(long, value_name = "URL")]
+    join: Option<String>,
+    /// Render threads (default: one per core).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Name shown in the coordinator's workers list (default: host name and process id).
+    #[arg(long)]
+    name: Option<String>,
+    /// Longest a lease request waits for work, in seconds.
+    #[arg(long, default_value_t = 20.0)]
+    wait: f64,
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Subcommand)]
@@ -45,7 +61,33 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    let command = match (cli.command, cli.join) {
+        (Some(_), Some(_)) => bail!("--join and a subcommand cannot be used together"),
+        (None, None) => bail!("nothing to do: use --join URL, or a subcommand (see --help)"),
+        (None, Some(url)) => {
+            let threads = cli.threads.unwrap_or_else(|| {
+                std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+            });
+            let name = cli.name.unwrap_or_else(|| {
+                let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+                    .map(|h| h.trim().to_string())
+                    .unwrap_or_else(|_| "worker".into());
+                format!("{host}-{}", std::process::id())
+            });
+            let stop = Arc::new(AtomicBool::new(false));
+            for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+                signal_hook::flag::register(signal, stop.clone())
+                    .context("installing the signal handler")?;
+            }
+            let config = worker::client::JoinConfig { url, threads, name, wait_s: cli.wait };
+            let stats = worker::client::run(&config, &stop)?;
+            tracing::info!(merged = stats.merged, refused = stats.refused, "worker stopped");
+            return Ok(());
+        }
+        (Some(command), None) => command,
+    };
+    match command {
         Command::DebugSample { scene, x, y, sample, settings, frame } => {
             let settings = match settings {
                 Some(path) => RenderSettings::from_json(

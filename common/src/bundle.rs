@@ -1,0 +1,274 @@
+//! Scene bundles: what a user uploads and a worker downloads, as one byte string.
+//!
+//! A bundle is a `.glb`, a `.gltf` whose buffers and images are `data:` URIs, or a `.zip` of a
+//! folder holding one `.gltf`/`.glb` and the files it names (and, optionally, the environment
+//! map the settings name). The format is recognised from the bytes, never from a name. Files are
+//! resolved only inside the archive, relative to the scene file's folder; an entry whose name
+//! would escape the archive (`..`, absolute paths) is refused, and the archive's size is bounded
+//! before anything is inflated beyond it.
+
+use std::{
+    collections::HashMap,
+    io::{Cursor, Read, Write},
+};
+
+use crate::{
+    envmap::EnvMap,
+    gltf::{check_renderable, load_slice, NoFiles, Resolver, SceneError},
+    scene::Scene,
+};
+
+/// The formats a bundle can have.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// Binary glTF.
+    Glb,
+    /// glTF JSON with `data:` URIs only.
+    Gltf,
+    /// A zip archive of a folder.
+    Zip,
+}
+
+impl Format {
+    /// Recognises the format from the first bytes, or says what the bytes look like instead.
+    pub fn detect(bytes: &[u8]) -> Result<Format, SceneError> {
+        if bytes.starts_with(b"glTF") {
+            Ok(Format::Glb)
+        } else if bytes.starts_with(b"PK\x03\x04") || bytes.starts_with(b"PK\x05\x06") {
+            Ok(Format::Zip)
+        } else if bytes.iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b == b'{')
+            || bytes.starts_with(&[0xEF, 0xBB, 0xBF])
+        {
+            Ok(Format::Gltf)
+        } else if bytes.is_empty() {
+            Err(SceneError("the upload is empty".into()))
+        } else {
+            Err(SceneError(
+                "not a scene: expected a .glb (magic \"glTF\"), a .gltf (a JSON object) or a .zip"
+                    .into(),
+            ))
+        }
+    }
+
+    /// The name used in the API (`glb`, `gltf`, `zip`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Glb => "glb",
+            Format::Gltf => "gltf",
+            Format::Zip => "zip",
+        }
+    }
+}
+
+/// Limits applied while opening an archive.
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    /// Largest total size of the inflated files.
+    pub max_unpacked_bytes: u64,
+    /// Most entries.
+    pub max_entries: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_unpacked_bytes: 4 << 30, max_entries: 10_000 }
+    }
+}
+
+/// An opened bundle: the scene file's bytes and, for an archive, the other files by path.
+#[derive(Clone, Debug)]
+pub struct Bundle {
+    /// The format of the original bytes.
+    pub format: Format,
+    /// Path of the scene file inside the archive (empty for a bare `.glb`/`.gltf`).
+    pub main_path: String,
+    main: Vec<u8>,
+    /// Folder of the scene file inside the archive, with a trailing `/` (or empty).
+    dir: String,
+    files: HashMap<String, Vec<u8>>,
+}
+
+impl Bundle {
+    /// Opens the bytes of an upload.
+    pub fn open(bytes: &[u8], limits: Limits) -> Result<Bundle, SceneError> {
+        let format = Format::detect(bytes)?;
+        if format != Format::Zip {
+            return Ok(Bundle {
+                format,
+                main_path: String::new(),
+                main: bytes.to_vec(),
+                dir: String::new(),
+                files: HashMap::new(),
+            });
+        }
+        let zip_err = |e: zip::result::ZipError| SceneError(format!("zip: {e}"));
+        let mut archive = zip::ZipArchive::new(Cursor::new(bytes)).map_err(zip_err)?;
+        if archive.len() > limits.max_entries {
+            return Err(SceneError(format!(
+                "zip: {} entries, more than the limit of {}",
+                archive.len(),
+                limits.max_entries
+            )));
+        }
+        let mut files = HashMap::new();
+        let mut total = 0u64;
+        for i in 0..archive.len() {
+            let mut entry = archive.by_index(i).map_err(zip_err)?;
+            if entry.is_dir() {
+                continue;
+            }
+            let raw = entry.name().to_string();
+            let Some(path) = entry.enclosed_name() else {
+                return Err(SceneError(format!("zip: entry '{raw}' points outside the archive")));
+            };
+            let name = path
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+                .join("/");
+            if name.starts_with("__MACOSX/") {
+                continue;
+            }
+            let budget = limits.max_unpacked_bytes.saturating_sub(total);
+            let mut data = Vec::with_capacity(entry.size().min(budget) as usize);
+            (&mut entry)
+                .take(budget + 1)
+                .read_to_end(&mut data)
+                .map_err(|e| SceneError(format!("zip: entry '{name}': {e}")))?;
+            total += data.len() as u64;
+            if total > limits.max_unpacked_bytes {
+                return Err(SceneError(format!(
+                    "zip: unpacks to more than the limit of {} bytes",
+                    limits.max_unpacked_bytes
+                )));
+            }
+            files.insert(name, data);
+        }
+        let mut scenes: Vec<&String> = files
+            .keys()
+            .filter(|k| {
+                let lower = k.to_ascii_lowercase();
+                lower.ends_with(".gltf") || lower.ends_with(".glb")
+            })
+            .collect();
+        scenes.sort_by_key(|k| (k.matches('/').count(), k.to_string()));
+        let main_path = match scenes.as_slice() {
+            [] => return Err(SceneError("zip: holds no .gltf or .glb file".into())),
+            [one] => (*one).clone(),
+            [a, b, ..] if a.matches('/').count() < b.matches('/').count() => (*a).clone(),
+            many => {
+                let names: Vec<&str> = many.iter().map(|s| s.as_str()).collect();
+                return Err(SceneError(format!(
+                    "zip: holds several scene files at the same depth ({}); upload one scene per archive",
+                    names.join(", ")
+                )));
+            }
+        };
+        let main = files.remove(&main_path).unwrap_or_default();
+        let dir = match main_path.rfind('/') {
+            Some(i) => main_path[..=i].to_string(),
+            None => String::new(),
+        };
+        Ok(Bundle { format, main_path, main, dir, files })
+    }
+
+    /// Loads the scene and checks that it has something to render.
+    pub fn load_scene(&self) -> Result<Scene, SceneError> {
+        let scene = if self.format == Format::Zip {
+            load_slice(&self.main, self)
+        } else {
+            load_slice(&self.main, &NoFiles)
+        }
+        .map_err(|e| match self.main_path.as_str() {
+            "" => e,
+            path => SceneError(format!("{path}: {e}")),
+        })?;
+        check_renderable(&scene)?;
+        Ok(scene)
+    }
+
+    /// Loads the environment map at `path` (relative to the scene file's folder).
+    pub fn load_envmap(&self, path: &str) -> Result<EnvMap, String> {
+        let bytes = self.read(path)?;
+        EnvMap::from_bytes(path, &bytes).map_err(|e| e.to_string())
+    }
+
+    /// Builds a zip archive (stored, uncompressed) from `(path, bytes)` pairs.
+    pub fn pack(files: &[(String, Vec<u8>)]) -> std::io::Result<Vec<u8>> {
+        let mut writer = zip::ZipWriter::new(Cursor::new(Vec::new()));
+        let options = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Stored)
+            .large_file(files.iter().any(|(_, b)| b.len() as u64 >= u32::MAX as u64));
+        for (name, bytes) in files {
+            writer.start_file(name.as_str(), options).map_err(std::io::Error::other)?;
+            writer.write_all(bytes)?;
+        }
+        Ok(writer.finish().map_err(std::io::Error::other)?.into_inner())
+    }
+}
+
+impl Resolver for Bundle {
+    fn read(&self, uri: &str) -> Result<Vec<u8>, String> {
+        let mut parts: Vec<&str> = Vec::new();
+        for seg in self.dir.split('/').chain(uri.split('/')) {
+            match seg {
+                "" | "." => {}
+                ".." => {
+                    if parts.pop().is_none() {
+                        return Err(format!("'{uri}' points outside the bundle"));
+                    }
+                }
+                s => parts.push(s),
+            }
+        }
+        let key = parts.join("/");
+        self.files
+            .get(&key)
+            .cloned()
+            .ok_or_else(|| format!("'{uri}' is not in the uploaded bundle"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn detects_formats_from_bytes() {
+        assert_eq!(Format::detect(b"glTF\x02\0\0\0").unwrap(), Format::Glb);
+        assert_eq!(Format::detect(b"  {\"asset\":{}}").unwrap(), Format::Gltf);
+        assert_eq!(Format::detect(b"PK\x03\x04rest").unwrap(), Format::Zip);
+        assert!(Format::detect(b"").unwrap_err().0.contains("empty"));
+        assert!(Format::detect(b"GIF89a").unwrap_err().0.contains("not a scene"));
+    }
+
+    #[test]
+    fn zip_resolves_inside_the_archive_only() {
+        let packed = Bundle::pack(&[
+            ("scene/a.gltf".into(), b"{}".to_vec()),
+            ("scene/buf/b.bin".into(), vec![1, 2, 3]),
+            ("top.bin".into(), vec![9]),
+        ])
+        .unwrap();
+        let bundle = Bundle::open(&packed, Limits::default()).unwrap();
+        assert_eq!(bundle.main_path, "scene/a.gltf");
+        assert_eq!(bundle.read("buf/b.bin").unwrap(), vec![1, 2, 3]);
+        assert_eq!(bundle.read("../top.bin").unwrap(), vec![9]);
+        assert!(bundle.read("../../etc/passwd").unwrap_err().contains("outside"));
+        assert!(bundle.read("missing.bin").unwrap_err().contains("not in the uploaded bundle"));
+    }
+
+    #[test]
+    fn zip_limits_and_ambiguity_are_refused() {
+        let two =
+            Bundle::pack(&[("a.gltf".into(), b"{}".to_vec()), ("b.glb".into(), vec![])]).unwrap();
+        assert!(Bundle::open(&two, Limits::default()).unwrap_err().0.contains("several"));
+        let big = Bundle::pack(&[("a.gltf".into(), vec![b' '; 1000])]).unwrap();
+        let limits = Limits { max_unpacked_bytes: 100, max_entries: 10 };
+        assert!(Bundle::open(&big, limits).unwrap_err().0.contains("limit"));
+        let none = Bundle::pack(&[("readme.txt".into(), vec![])]).unwrap();
+        assert!(Bundle::open(&none, Limits::default()).unwrap_err().0.contains("no .gltf"));
+        let truncated = &two[..two.len() / 2];
+        assert!(Bundle::open(truncated, Limits::default()).unwrap_err().0.starts_with("zip:"));
+    }
+}

@@ -1,0 +1,603 @@
+//! One job's scheduling state: its frames, their tiles, and each tile's tasks.
+//!
+//! Task `k` of a tile covers samples `[k * samples_per_task, min((k + 1) * samples_per_task,
+//! spp))`. A task is open (to be leased), leased, or merged; a result is accepted only for a
+//! leased task, which it turns merged, so no sample is ever counted twice. Sums merge exactly
+//! (integer arithmetic), so the order results arrive in does not matter.
+//!
+//! Adaptive sampling decides a tile's task `k` only from that tile's tasks `0..k`, all merged:
+//! the decision, and so the image, is the same whatever the timing. Before
+//! [`MIN_ADAPTIVE_SAMPLES`] a tile is never stopped (the estimate needs samples to be trusted).
+
+use std::{collections::HashMap, time::Instant};
+
+use common::{
+    film::{ErrorEstimate, Film, TileAccum},
+    protocol::{SampleRange, TaskSpec},
+    settings::RenderSettings,
+};
+use serde::Serialize;
+
+use crate::split::tiles;
+
+/// A tile's error estimate is trusted for stopping from this many samples per pixel on.
+pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;
+
+/// The life of a job.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JobState {
+    /// Waiting for its first task to be leased.
+    Queued,
+    /// At least one task has been leased.
+    Running,
+    /// Every frame is complete.
+    Done,
+    /// Stopped by an error (see the job's `error`).
+    Failed,
+    /// Stopped by a user.
+    Cancelled,
+}
+
+impl JobState {
+    /// The name used in the API and the database.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Done => "done",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+        }
+    }
+
+    /// Parses [`JobState::name`].
+    pub fn parse(s: &str) -> Option<JobState> {
+        Some(match s {
+            "queued" => JobState::Queued,
+            "running" => JobState::Running,
+            "done" => JobState::Done,
+            "failed" => JobState::Failed,
+            "cancelled" => JobState::Cancelled,
+            _ => return None,
+        })
+    }
+
+    /// True once nothing more will happen to the job.
+    pub fn is_final(self) -> bool {
+        matches!(self, JobState::Done | JobState::Failed | JobState::Cancelled)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum TaskState {
+    Open,
+    Leased,
+    Merged,
+}
+
+/// Names one task of a job: frame index (0 = the first frame of the range), tile, task number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct TaskKey {
+    /// Index into the job's frames.
+    pub frame: u32,
+    /// Index into the frame's tiles.
+    pub tile: u32,
+    /// Task number within the tile.
+    pub k: u32,
+}
+
+/// One tile's merged sums and task states.
+#[derive(Clone, Debug)]
+pub struct Tile {
+    /// Merged sums of the merged tasks.
+    pub sums: TileAccum,
+    tasks: Vec<TaskState>,
+    /// Number of merged tasks.
+    pub merged: u32,
+    /// Adaptive sampling stopped this tile.
+    pub converged: bool,
+    /// Estimated relative MSE of the merged sums.
+    pub rel_mse: f64,
+}
+
+impl Tile {
+    /// Indices of the merged tasks.
+    pub fn merged_tasks(&self) -> Vec<u32> {
+        (0..self.tasks.len() as u32)
+            .filter(|&k| self.tasks[k as usize] == TaskState::Merged)
+            .collect()
+    }
+
+    fn first_open(&self) -> Option<u32> {
+        self.tasks.iter().position(|&t| t == TaskState::Open).map(|k| k as u32)
+    }
+
+    fn is_complete(&self) -> bool {
+        self.converged || self.merged as usize == self.tasks.len()
+    }
+}
+
+/// One frame of a job.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// The frame number (animation time = number / fps).
+    pub number: i64,
+    /// Its tiles, row-major.
+    pub tiles: Vec<Tile>,
+}
+
+/// A job and everything the scheduler knows about it.
+#[derive(Debug)]
+pub struct Job {
+    /// Its id.
+    pub id: String,
+    /// Creation order (older jobs first among equals).
+    pub seq: u64,
+    /// SHA-256 of the scene bundle.
+    pub scene: String,
+    /// The settings, validated.
+    pub settings: RenderSettings,
+    /// Higher runs first.
+    pub priority: i32,
+    /// Where it is in its life.
+    pub state: JobState,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// Creation time, seconds since the Unix epoch.
+    pub created_unix: f64,
+    /// Running seconds accumulated before the current run (coordinator restarts).
+    pub elapsed_before: f64,
+    running_since: Option<Instant>,
+    /// The frames.
+    pub frames: Vec<Frame>,
+    /// Tasks per tile (the last one may cover fewer samples).
+    pub tasks_per_tile: u32,
+    /// Leases out now.
+    pub in_flight: u32,
+    /// Samples merged (pixel samples).
+    pub samples_done: u64,
+    tiles_open: usize,
+    failures: HashMap<TaskKey, u32>,
+    expiries: HashMap<TaskKey, u32>,
+    /// The time limit has passed: no more tasks are issued.
+    pub time_up: bool,
+}
+
+/// A job's public status.
+#[derive(Clone, Debug, Serialize)]
+pub struct JobStatus {
+    /// The job id.
+    pub id: String,
+    /// The scene hash.
+    pub scene: String,
+    /// Scheduling priority.
+    pub priority: i32,
+    /// `queued`, `running`, `done`, `failed` or `cancelled`.
+    pub state: JobState,
+    /// Fraction of the planned samples merged (tiles stopped by adaptivity count as complete).
+    pub progress: f64,
+    /// Pixel samples merged.
+    pub samples_done: u64,
+    /// Pixel samples a uniform render would take.
+    pub samples_planned: u64,
+    /// Pixel samples adaptive sampling did not need to take (so far: tiles already stopped).
+    pub samples_saved: u64,
+    /// Estimated relative RMSE (sqrt of the estimated relative MSE) of the merged image.
+    pub est_rel_error: Option<f64>,
+    /// Seconds spent running.
+    pub elapsed_s: f64,
+    /// Estimated seconds left.
+    pub eta_s: Option<f64>,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// The frame numbers.
+    pub frames: Vec<i64>,
+    /// Tasks leased now.
+    pub tasks_in_flight: u32,
+    /// The render settings.
+    pub settings: RenderSettings,
+    /// Creation time, seconds since the Unix epoch.
+    pub created_unix: f64,
+}
+
+/// A job refuses more than this many tasks (absurd settings would only fill memory).
+pub const MAX_TASKS_PER_JOB: u64 = 4_000_000;
+
+impl Job {
+    /// A new job with nothing rendered. `settings` must be valid.
+    pub fn new(
+        id: String,
+        seq: u64,
+        scene: String,
+        settings: RenderSettings,
+        priority: i32,
+        created_unix: f64,
+    ) -> Result<Job, String> {
+        let tasks_per_tile = settings.spp.div_ceil(settings.samples_per_task);
+        let rects = tiles(settings.width, settings.height, settings.tile_size);
+        let n_frames = (settings.frames.end - settings.frames.start + 1) as u64;
+        let total = n_frames * rects.len() as u64 * tasks_per_tile as u64;
+        if total > MAX_TASKS_PER_JOB {
+            return Err(format!(
+                "{total} tasks ({n_frames} frames x {} tiles x {tasks_per_tile} sample ranges) is over the limit of {MAX_TASKS_PER_JOB}: raise tile_size or samples_per_task",
+                rects.len()
+            ));
+        }
+        let frames: Vec<Frame> = (settings.frames.start..=settings.frames.end)
+            .map(|number| Frame {
+                number,
+                tiles: rects
+                    .iter()
+                    .map(|&rect| Tile {
+                        sums: TileAccum::new(rect),
+                        tasks: vec![TaskState::Open; tasks_per_tile as usize],
+                        merged: 0,
+                        converged: false,
+                        rel_mse: f64::INFINITY,
+                    })
+                    .collect(),
+            })
+            .collect();
+        let tiles_open = frames.iter().map(|f| f.tiles.len()).sum();
+        Ok(Job {
+            id,
+            seq,
+            scene,
+            settings,
+            priority,
+            state: JobState::Queued,
+            error: None,
+            created_unix,
+            elapsed_before: 0.0,
+            running_since: None,
+            frames,
+            tasks_per_tile,
+            in_flight: 0,
+            samples_done: 0,
+            tiles_open,
+            failures: HashMap::new(),
+            expiries: HashMap::new(),
+            time_up: false,
+        })
+    }
+
+    /// The specification of task `key`.
+    pub fn spec(&self, key: TaskKey) -> TaskSpec {
+        let spt = self.settings.samples_per_task;
+        let start = key.k * spt;
+        TaskSpec {
+            frame: self.frames[key.frame as usize].number,
+            rect: self.frames[key.frame as usize].tiles[key.tile as usize].sums.rect,
+            samples: SampleRange { start, end: (start + spt).min(self.settings.spp) },
+        }
+    }
+
+    /// Seconds spent running (accumulated over coordinator restarts).
+    pub fn elapsed(&self) -> f64 {
+        self.elapsed_before + self.running_since.map_or(0.0, |t| t.elapsed().as_secs_f64())
+    }
+
+    fn adaptive_target(&self) -> Option<f64> {
+        self.settings.target_rel_error.map(|e| e * e)
+    }
+
+    fn min_adaptive_tasks(&self) -> u32 {
+        MIN_ADAPTIVE_SAMPLES.div_ceil(self.settings.samples_per_task).max(1)
+    }
+
+    /// The task to lease next, if any: the lowest task number over all tiles (so the whole image
+    /// refines progressively), among equals the tile with the highest estimated error, then the
+    /// first. A tile under adaptive control gets task `k` only once tasks `0..k` are merged.
+    pub fn next_task(&self) -> Option<TaskKey> {
+        if self.state.is_final() || self.time_up {
+            return None;
+        }
+        let adaptive = self.adaptive_target().is_some();
+        let min_tasks = self.min_adaptive_tasks();
+        let mut best: Option<(u32, f64, TaskKey)> = None;
+        for (f, frame) in self.frames.iter().enumerate() {
+            for (t, tile) in frame.tiles.iter().enumerate() {
+                if tile.converged {
+                    continue;
+                }
+                let Some(k) = tile.first_open() else { continue };
+                if adaptive && k >= min_tasks && tile.merged != k {
+                    continue; // waiting for the data that decides this task
+                }
+                let better = match best {
+                    None => true,
+                    Some((bk, be, _)) => k < bk || (k == bk && tile.rel_mse > be),
+                };
+                if better {
+                    best = Some((k, tile.rel_mse, TaskKey { frame: f as u32, tile: t as u32, k }));
+                }
+            }
+        }
+        best.map(|(_, _, key)| key)
+    }
+
+    /// Marks `key` leased.
+    pub fn lease(&mut self, key: TaskKey) {
+        let slot =
+            &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
+        debug_assert_eq!(*slot, TaskState::Open);
+        *slot = TaskState::Leased;
+        self.in_flight += 1;
+        if self.state == JobState::Queued {
+            self.state = JobState::Running;
+        }
+        if self.running_since.is_none() {
+            self.running_since = Some(Instant::now());
+        }
+    }
+
+    /// Puts a leased task back to be leased again (expired lease, worker left or failed).
+    /// Returns how many times this has happened to the task for this `reason_is_failure` kind.
+    pub fn release(&mut self, key: TaskKey, failure: bool) -> u32 {
+        let slot =
+            &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
+        if *slot == TaskState::Leased {
+            *slot = TaskState::Open;
+            self.in_flight -= 1;
+        }
+        let counter = if failure { &mut self.failures } else { &mut self.expiries };
+        let n = counter.entry(key).or_default();
+        *n += 1;
+        *n
+    }
+
+    /// Returns a leased task without counting it against the task (the worker left cleanly).
+    pub fn give_back(&mut self, key: TaskKey) {
+        let slot =
+            &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
+        if *slot == TaskState::Leased {
+            *slot = TaskState::Open;
+            self.in_flight -= 1;
+        }
+    }
+
+    /// Merges the sums of the leased task `key` (the caller has checked that they answer it).
+    pub fn merge(&mut self, key: TaskKey, tile: &TileAccum, samples: u64) {
+        let min_tasks = self.min_adaptive_tasks();
+        let target = self.adaptive_target();
+        let t = &mut self.frames[key.frame as usize].tiles[key.tile as usize];
+        debug_assert_eq!(t.tasks[key.k as usize], TaskState::Leased);
+        t.tasks[key.k as usize] = TaskState::Merged;
+        t.sums.merge(tile);
+        t.merged += 1;
+        t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        self.in_flight -= 1;
+        self.samples_done += samples;
+        Self::decide(t, min_tasks, target);
+        if t.is_complete() {
+            self.tiles_open -= 1;
+        }
+        self.finish_if_complete();
+    }
+
+    /// The adaptive decision for a tile whose tasks `0..merged` are merged.
+    fn decide(t: &mut Tile, min_tasks: u32, target: Option<f64>) {
+        let Some(target) = target else { return };
+        let prefix_merged = t.tasks[..t.merged as usize].iter().all(|&s| s == TaskState::Merged);
+        if prefix_merged
+            && t.merged >= min_tasks
+            && (t.merged as usize) < t.tasks.len()
+            && t.rel_mse <= target
+        {
+            t.converged = true;
+        }
+    }
+
+    /// Records that tasks `merged` of tile `key` are merged with these sums (restoring state
+    /// from the database).
+    pub fn restore_tile(&mut self, frame: u32, tile: u32, merged: &[u32], sums: TileAccum) {
+        let min_tasks = self.min_adaptive_tasks();
+        let target = self.adaptive_target();
+        let t = &mut self.frames[frame as usize].tiles[tile as usize];
+        let was_complete = t.is_complete();
+        for &k in merged {
+            t.tasks[k as usize] = TaskState::Merged;
+        }
+        t.merged = merged.len() as u32;
+        self.samples_done += sums.pixels.iter().map(|p| p.n as u64).sum::<u64>();
+        t.sums = sums;
+        t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        Self::decide(t, min_tasks, target);
+        if !was_complete && t.is_complete() {
+            self.tiles_open -= 1;
+        }
+    }
+
+    /// Moves the job to `Done` when no tile needs more samples, or when the time limit has
+    /// passed and nothing is in flight.
+    pub fn finish_if_complete(&mut self) {
+        if self.state.is_final() {
+            return;
+        }
+        if self.tiles_open == 0 || (self.time_up && self.in_flight == 0) {
+            self.set_final(JobState::Done, None);
+        }
+    }
+
+    /// Ends the job.
+    pub fn set_final(&mut self, state: JobState, error: Option<String>) {
+        if let Some(t) = self.running_since.take() {
+            self.elapsed_before += t.elapsed().as_secs_f64();
+        }
+        self.state = state;
+        self.error = error;
+    }
+
+    /// Checks the time limit; returns true when it has just passed.
+    pub fn check_time_limit(&mut self) -> bool {
+        match self.settings.time_limit_s {
+            Some(limit) if !self.time_up && !self.state.is_final() && self.elapsed() >= limit => {
+                self.time_up = true;
+                self.finish_if_complete();
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Whether task `key` is leased now.
+    pub fn is_leased(&self, key: TaskKey) -> bool {
+        self.frames
+            .get(key.frame as usize)
+            .and_then(|f| f.tiles.get(key.tile as usize))
+            .and_then(|t| t.tasks.get(key.k as usize))
+            .is_some_and(|&s| s == TaskState::Leased)
+    }
+
+    /// Whether task `key` is merged.
+    pub fn is_merged(&self, key: TaskKey) -> bool {
+        self.frames
+            .get(key.frame as usize)
+            .and_then(|f| f.tiles.get(key.tile as usize))
+            .and_then(|t| t.tasks.get(key.k as usize))
+            .is_some_and(|&s| s == TaskState::Merged)
+    }
+
+    /// The merged film of frame index `f`.
+    pub fn film(&self, f: usize) -> Film {
+        let mut film = Film::new(self.settings.width, self.settings.height);
+        for tile in &self.frames[f].tiles {
+            film.merge_tile(&tile.sums);
+        }
+        film
+    }
+
+    /// The job's status.
+    pub fn status(&self) -> JobStatus {
+        let pixels = self.settings.width as u64 * self.settings.height as u64;
+        let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
+        let mut saved = 0u64;
+        let mut rel_sum = 0.0;
+        let mut rel_known = true;
+        for frame in &self.frames {
+            for tile in &frame.tiles {
+                let area = tile.sums.rect.area() as u64;
+                if tile.converged {
+                    let taken: u64 = (tile.merged * self.settings.samples_per_task)
+                        .min(self.settings.spp) as u64;
+                    saved += area * (self.settings.spp as u64 - taken);
+                }
+                rel_known &= tile.rel_mse.is_finite();
+                rel_sum += tile.rel_mse * area as f64;
+            }
+        }
+        let effective = planned - saved;
+        let progress =
+            if effective == 0 { 1.0 } else { self.samples_done as f64 / effective as f64 };
+        let elapsed = self.elapsed();
+        let eta = match self.state {
+            JobState::Running if self.samples_done > 0 => Some(
+                elapsed * (effective - self.samples_done.min(effective)) as f64
+                    / self.samples_done as f64,
+            ),
+            s if s.is_final() => Some(0.0),
+            _ => None,
+        };
+        let total_pixels = (pixels * self.frames.len() as u64).max(1) as f64;
+        JobStatus {
+            id: self.id.clone(),
+            scene: self.scene.clone(),
+            priority: self.priority,
+            state: self.state,
+            progress: progress.clamp(0.0, 1.0),
+            samples_done: self.samples_done,
+            samples_planned: planned,
+            samples_saved: saved,
+            est_rel_error: rel_known.then(|| (rel_sum / total_pixels).sqrt()),
+            elapsed_s: elapsed,
+            eta_s: eta,
+            error: self.error.clone(),
+            frames: self.frames.iter().map(|f| f.number).collect(),
+            tasks_in_flight: self.in_flight,
+            settings: self.settings.clone(),
+            created_unix: self.created_unix,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn job(spp: u32, spt: u32, target: Option<f64>) -> Job {
+        let settings = RenderSettings {
+            width: 64,
+            height: 32,
+            tile_size: 32,
+            spp,
+            samples_per_task: spt,
+            target_rel_error: target,
+            ..Default::default()
+        };
+        Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap()
+    }
+
+    fn fake_result(job: &Job, key: TaskKey, value: f32) -> TileAccum {
+        let spec = job.spec(key);
+        let mut acc = TileAccum::new(spec.rect);
+        for y in 0..spec.rect.height {
+            for x in 0..spec.rect.width {
+                for s in spec.samples.start..spec.samples.end {
+                    acc.add_sample(x, y, s, [value; 3]);
+                }
+            }
+        }
+        acc
+    }
+
+    #[test]
+    fn tasks_are_issued_progressively_and_complete_the_job() {
+        let mut j = job(100, 32, None);
+        let mut order = Vec::new();
+        while let Some(key) = j.next_task() {
+            j.lease(key);
+            order.push(key);
+        }
+        assert_eq!(order.len(), 2 * 4);
+        assert!(order.windows(2).all(|w| w[0].k <= w[1].k), "progressive order: {order:?}");
+        for key in order {
+            let r = fake_result(&j, key, 0.5);
+            j.merge(key, &r, r.pixels.iter().map(|p| p.n as u64).sum());
+        }
+        assert_eq!(j.state, JobState::Done);
+        assert_eq!(j.samples_done, 64 * 32 * 100);
+        assert!(j.film(0).pixels.iter().all(|p| p.n == 100));
+    }
+
+    #[test]
+    fn released_tasks_are_leased_again() {
+        let mut j = job(64, 32, None);
+        let a = j.next_task().unwrap();
+        j.lease(a);
+        assert_eq!(j.release(a, false), 1);
+        assert_eq!(j.next_task(), Some(a));
+        assert_eq!(j.in_flight, 0);
+    }
+
+    #[test]
+    fn adaptive_stops_converged_tiles_from_merged_data_only() {
+        // A constant image has zero estimated error: every tile stops at the minimum.
+        let mut j = job(256, 8, Some(0.01));
+        let mut leased = Vec::new();
+        while let Some(key) = j.next_task() {
+            j.lease(key);
+            leased.push(key);
+        }
+        // Without merged data only the first MIN_ADAPTIVE_SAMPLES are issued.
+        assert_eq!(leased.len(), 2 * 2);
+        for key in leased {
+            let r = fake_result(&j, key, 0.25);
+            j.merge(key, &r, r.pixels.iter().map(|p| p.n as u64).sum());
+        }
+        assert_eq!(j.state, JobState::Done);
+        let status = j.status();
+        assert_eq!(status.samples_saved, 64 * 32 * (256 - 16));
+        assert_eq!(status.progress, 1.0);
+    }
+}

@@ -1,0 +1,719 @@
+//! The farm's state machine: scenes, jobs, leases and workers, kept in memory and persisted in
+//! the [`store`]. Synchronous and free of HTTP: the service wraps it in a mutex.
+//!
+//! Exactly-once merging: a task has at most one live lease; a result is merged only for a live
+//! lease held by the worker that sends it, and the merge turns the task merged and drops the
+//! lease, so a duplicate, a result for an expired or reassigned lease, or one for a cancelled
+//! job is refused (409) without touching the sums.
+
+pub mod job;
+pub mod store;
+
+use std::{
+    collections::{BTreeMap, HashMap},
+    path::PathBuf,
+    time::{Duration, Instant},
+};
+
+use anyhow::Result;
+use common::{
+    bundle::{Bundle, Format, Limits},
+    film::Film,
+    protocol::{JoinRequest, JoinResponse, LeaseGrant, TaskResult},
+    settings::{Environment, RenderSettings},
+};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use job::{Job, JobState, JobStatus, TaskKey};
+use store::Store;
+
+/// Seconds since the Unix epoch.
+pub fn now_unix() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Lower-case hex of `bytes`.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn random_id() -> String {
+    format!("{:016x}", rand::random::<u64>())
+}
+
+/// Tunables of the farm.
+#[derive(Clone, Debug)]
+pub struct FarmConfig {
+    /// Where the database and scenes live.
+    pub data_dir: PathBuf,
+    /// A lease not renewed for this long is given to another worker.
+    pub lease_timeout: Duration,
+    /// A task whose worker reports failure this many times fails its job.
+    pub max_task_failures: u32,
+    /// A task whose lease expires this many times fails its job.
+    pub max_task_expiries: u32,
+    /// Largest accepted `spp`.
+    pub max_spp: u32,
+    /// Largest accepted width x height.
+    pub max_pixels: u64,
+}
+
+impl FarmConfig {
+    /// Defaults for a data folder.
+    pub fn new(data_dir: PathBuf) -> Self {
+        FarmConfig {
+            data_dir,
+            lease_timeout: Duration::from_secs(30),
+            max_task_failures: 3,
+            max_task_expiries: 5,
+            max_spp: 65536,
+            max_pixels: 16384 * 16384,
+        }
+    }
+}
+
+/// An API error: an HTTP status and a message naming the problem.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FarmError {
+    /// HTTP status code.
+    pub status: u16,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl FarmError {
+    /// A `status` error.
+    pub fn new(status: u16, message: impl Into<String>) -> Self {
+        FarmError { status, message: message.into() }
+    }
+}
+
+impl From<anyhow::Error> for FarmError {
+    fn from(e: anyhow::Error) -> Self {
+        FarmError::new(500, format!("internal error: {e:#}"))
+    }
+}
+
+type FarmResult<T> = Result<T, FarmError>;
+
+struct Lease {
+    job: String,
+    key: TaskKey,
+    worker: String,
+    deadline: Instant,
+}
+
+/// A worker as the coordinator sees it.
+#[derive(Clone, Debug, Serialize)]
+pub struct WorkerInfo {
+    /// Its id.
+    pub id: String,
+    /// Its name.
+    pub name: String,
+    /// Render threads.
+    pub threads: u32,
+    /// Its version.
+    pub version: String,
+    /// Seconds since it joined.
+    pub joined_s_ago: f64,
+    /// Seconds since it was last heard from.
+    pub last_seen_s_ago: f64,
+    /// Tasks it has had merged.
+    pub tasks_done: u64,
+    /// Pixel samples it has had merged.
+    pub samples_done: u64,
+    /// Leases it holds now.
+    pub leases: u32,
+    #[serde(skip)]
+    joined: Option<Instant>,
+    #[serde(skip)]
+    last_seen: Option<Instant>,
+}
+
+/// Counters for `/metrics`.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Counters {
+    /// Tasks leased.
+    pub tasks_leased: u64,
+    /// Results merged.
+    pub tasks_merged: u64,
+    /// Leases that expired.
+    pub tasks_expired: u64,
+    /// Results refused.
+    pub results_refused: u64,
+    /// Failures reported by workers.
+    pub tasks_failed: u64,
+    /// Pixel samples merged.
+    pub samples_merged: u64,
+    /// Bytes of results merged.
+    pub bytes_merged: u64,
+    /// Seconds spent merging and committing results.
+    pub merge_seconds: f64,
+    /// Rays traced by merged tasks.
+    pub rays: u64,
+}
+
+/// What an upload became.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneInfo {
+    /// SHA-256 of the bytes, hex.
+    pub scene: String,
+    /// `glb`, `gltf` or `zip`.
+    pub format: String,
+    /// Size of the upload.
+    pub bytes: u64,
+    /// Triangles after loading.
+    pub triangles: u64,
+    /// Camera names.
+    pub cameras: Vec<String>,
+    /// False when the same bytes were already stored.
+    pub created: bool,
+}
+
+/// The whole state.
+pub struct Farm {
+    config: FarmConfig,
+    store: Store,
+    jobs: BTreeMap<String, Job>,
+    next_seq: u64,
+    leases: HashMap<String, Lease>,
+    workers: HashMap<String, WorkerInfo>,
+    /// Counters for `/metrics`.
+    pub counters: Counters,
+    started: Instant,
+}
+
+impl Farm {
+    /// Opens the data folder and resumes every unfinished job from the database.
+    pub fn open(config: FarmConfig) -> Result<Farm> {
+        let store = Store::open(&config.data_dir)?;
+        let mut jobs = BTreeMap::new();
+        let mut next_seq = 0;
+        for stored in store.jobs()? {
+            next_seq = next_seq.max(stored.seq + 1);
+            let mut job = match Job::new(
+                stored.id.clone(),
+                stored.seq,
+                stored.scene,
+                stored.settings,
+                stored.priority,
+                stored.created_unix,
+            ) {
+                Ok(job) => job,
+                Err(e) => {
+                    tracing::error!(job = %stored.id, "cannot restore job: {e}");
+                    continue;
+                }
+            };
+            job.elapsed_before = stored.elapsed_s;
+            for tile in store.tiles(&stored.id)? {
+                job.restore_tile(tile.frame, tile.tile, &tile.merged, tile.sums);
+            }
+            if stored.state.is_final() {
+                job.set_final(stored.state, stored.error);
+            } else {
+                job.state = if job.samples_done > 0 { JobState::Running } else { JobState::Queued };
+                job.finish_if_complete();
+                tracing::info!(job = %job.id, samples = job.samples_done, "resuming job");
+            }
+            jobs.insert(stored.id, job);
+        }
+        Ok(Farm {
+            config,
+            store,
+            jobs,
+            next_seq,
+            leases: HashMap::new(),
+            workers: HashMap::new(),
+            counters: Counters::default(),
+            started: Instant::now(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &FarmConfig {
+        &self.config
+    }
+
+    /// Seconds since this process opened the farm.
+    pub fn uptime(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// Checks and stores an upload (call [`validate_upload`] first, outside any lock).
+    pub fn put_scene(&mut self, bytes: &[u8], info: &mut SceneInfo) -> FarmResult<()> {
+        info.created = self.store.scene_format(&info.scene)?.is_none();
+        self.store.put_scene(&info.scene, &info.format, bytes)?;
+        Ok(())
+    }
+
+    /// The bytes of a stored scene.
+    pub fn scene_bytes(&self, hash: &str) -> FarmResult<Vec<u8>> {
+        if !is_hash(hash) || self.store.scene_format(hash)?.is_none() {
+            return Err(FarmError::new(404, format!("no scene {hash}")));
+        }
+        std::fs::read(self.store.scene_path(hash))
+            .map_err(|e| FarmError::new(500, format!("scene {hash}: {e}")))
+    }
+
+    /// Checks settings against the farm's limits (the scene-dependent checks are
+    /// [`validate_job_scene`]).
+    pub fn check_settings(&self, settings: &RenderSettings) -> FarmResult<()> {
+        settings.validate().map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
+        if settings.spp > self.config.max_spp {
+            return Err(FarmError::new(
+                422,
+                format!(
+                    "settings: spp: {} is over this coordinator's limit of {}",
+                    settings.spp, self.config.max_spp
+                ),
+            ));
+        }
+        let pixels = settings.width as u64 * settings.height as u64;
+        if pixels > self.config.max_pixels {
+            return Err(FarmError::new(
+                422,
+                format!(
+                    "settings: width x height = {pixels} pixels is over the limit of {}",
+                    self.config.max_pixels
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Creates a job on a stored scene.
+    pub fn create_job(
+        &mut self,
+        scene: &str,
+        settings: RenderSettings,
+        priority: i32,
+    ) -> FarmResult<JobStatus> {
+        self.check_settings(&settings)?;
+        if !is_hash(scene) || self.store.scene_format(scene)?.is_none() {
+            return Err(FarmError::new(
+                404,
+                format!("no scene {scene}: upload it to /api/v1/scenes first"),
+            ));
+        }
+        let id = random_id();
+        let job =
+            Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, now_unix())
+                .map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
+        self.store.insert_job(&job)?;
+        self.next_seq += 1;
+        let status = job.status();
+        tracing::info!(job = %id, scene, priority, "job created");
+        self.jobs.insert(id, job);
+        Ok(status)
+    }
+
+    fn job(&self, id: &str) -> FarmResult<&Job> {
+        self.jobs.get(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))
+    }
+
+    /// A job's status.
+    pub fn status(&self, id: &str) -> FarmResult<JobStatus> {
+        Ok(self.job(id)?.status())
+    }
+
+    /// Every job's status, oldest first.
+    pub fn list(&self) -> Vec<JobStatus> {
+        let mut jobs: Vec<&Job> = self.jobs.values().collect();
+        jobs.sort_by_key(|j| j.seq);
+        jobs.into_iter().map(Job::status).collect()
+    }
+
+    /// Counts of jobs by state.
+    pub fn job_counts(&self) -> BTreeMap<&'static str, u64> {
+        let mut out = BTreeMap::new();
+        for s in ["queued", "running", "done", "failed", "cancelled"] {
+            out.insert(s, 0);
+        }
+        for j in self.jobs.values() {
+            *out.entry(j.state.name()).or_default() += 1;
+        }
+        out
+    }
+
+    /// The merged film of frame `number` of job `id` (also while it runs), with its job's
+    /// settings and scene hash.
+    pub fn film(&self, id: &str, number: i64) -> FarmResult<(Film, JobStatus)> {
+        let job = self.job(id)?;
+        let f = job.frames.iter().position(|f| f.number == number).ok_or_else(|| {
+            FarmError::new(
+                404,
+                format!(
+                    "job {id} has frames {}..={}, not {number}",
+                    job.settings.frames.start, job.settings.frames.end
+                ),
+            )
+        })?;
+        Ok((job.film(f), job.status()))
+    }
+
+    /// Cancels a job: its leases are dropped and results for them refused.
+    pub fn cancel(&mut self, id: &str) -> FarmResult<JobStatus> {
+        let job =
+            self.jobs.get_mut(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))?;
+        if job.state.is_final() {
+            return Err(FarmError::new(409, format!("job {id} is already {}", job.state.name())));
+        }
+        job.set_final(JobState::Cancelled, None);
+        job.in_flight = 0;
+        self.store.update_job(job)?;
+        let status = job.status();
+        self.drop_leases_of(id);
+        tracing::info!(job = %id, "job cancelled");
+        Ok(status)
+    }
+
+    fn drop_leases_of(&mut self, job: &str) {
+        let dropped: Vec<String> =
+            self.leases.iter().filter(|(_, l)| l.job == job).map(|(id, _)| id.clone()).collect();
+        for id in dropped {
+            if let Some(l) = self.leases.remove(&id) {
+                if let Some(w) = self.workers.get_mut(&l.worker) {
+                    w.leases = w.leases.saturating_sub(1);
+                }
+            }
+        }
+    }
+
+    /// A worker joins.
+    pub fn join(&mut self, req: JoinRequest) -> JoinResponse {
+        let id = random_id();
+        let now = Instant::now();
+        tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker joined");
+        self.workers.insert(
+            id.clone(),
+            WorkerInfo {
+                id: id.clone(),
+                name: req.name,
+                threads: req.threads,
+                version: req.version,
+                joined_s_ago: 0.0,
+                last_seen_s_ago: 0.0,
+                tasks_done: 0,
+                samples_done: 0,
+                leases: 0,
+                joined: Some(now),
+                last_seen: Some(now),
+            },
+        );
+        let timeout = self.config.lease_timeout.as_secs_f64();
+        JoinResponse { id, lease_timeout_s: timeout, heartbeat_s: timeout / 4.0 }
+    }
+
+    /// A worker leaves: its leases are given back at once (not counted against the tasks).
+    pub fn leave(&mut self, worker: &str) -> FarmResult<()> {
+        if self.workers.remove(worker).is_none() {
+            return Err(FarmError::new(404, format!("unknown worker {worker}")));
+        }
+        let held: Vec<String> = self
+            .leases
+            .iter()
+            .filter(|(_, l)| l.worker == worker)
+            .map(|(id, _)| id.clone())
+            .collect();
+        for id in held {
+            let l = self.leases.remove(&id).expect("listed above");
+            if let Some(job) = self.jobs.get_mut(&l.job) {
+                job.give_back(l.key);
+            }
+        }
+        tracing::info!(worker, "worker left");
+        Ok(())
+    }
+
+    fn touch(&mut self, worker: &str) -> FarmResult<&mut WorkerInfo> {
+        let w = self.workers.get_mut(worker).ok_or_else(|| {
+            FarmError::new(
+                404,
+                format!("unknown worker {worker}: join again (POST /api/v1/workers)"),
+            )
+        })?;
+        w.last_seen = Some(Instant::now());
+        Ok(w)
+    }
+
+    /// Leases the most urgent task to `worker`: the highest-priority job first; among equal
+    /// priorities the job with the fewest leases out (fair sharing), then the oldest.
+    pub fn lease(&mut self, worker: &str) -> FarmResult<Option<LeaseGrant>> {
+        self.touch(worker)?;
+        let mut best: Option<(&Job, TaskKey)> = None;
+        for job in self.jobs.values() {
+            let Some(key) = job.next_task() else { continue };
+            let better = match best {
+                None => true,
+                Some((b, _)) => {
+                    (job.priority, std::cmp::Reverse(job.in_flight), std::cmp::Reverse(job.seq))
+                        > (b.priority, std::cmp::Reverse(b.in_flight), std::cmp::Reverse(b.seq))
+                }
+            };
+            if better {
+                best = Some((job, key));
+            }
+        }
+        let Some((job, key)) = best else { return Ok(None) };
+        let job_id = job.id.clone();
+        let job = self.jobs.get_mut(&job_id).expect("found above");
+        let was_queued = job.state == JobState::Queued;
+        job.lease(key);
+        let grant = LeaseGrant {
+            lease: random_id(),
+            job: job_id.clone(),
+            scene: job.scene.clone(),
+            settings: job.settings.clone(),
+            task: job.spec(key),
+            lease_timeout_s: self.config.lease_timeout.as_secs_f64(),
+        };
+        if was_queued {
+            self.store.update_job(job)?;
+        }
+        self.leases.insert(
+            grant.lease.clone(),
+            Lease {
+                job: job_id,
+                key,
+                worker: worker.to_string(),
+                deadline: Instant::now() + self.config.lease_timeout,
+            },
+        );
+        self.counters.tasks_leased += 1;
+        if let Some(w) = self.workers.get_mut(worker) {
+            w.leases += 1;
+        }
+        Ok(Some(grant))
+    }
+
+    fn live_lease(&self, lease: &str, worker: &str) -> FarmResult<&Lease> {
+        let l = self.leases.get(lease).ok_or_else(|| {
+            FarmError::new(
+                409,
+                format!("lease {lease} is not live (expired, already answered, its job ended, or the coordinator restarted)"),
+            )
+        })?;
+        if l.worker != worker {
+            return Err(FarmError::new(403, format!("lease {lease} belongs to another worker")));
+        }
+        Ok(l)
+    }
+
+    /// Renews a lease; returns seconds until it expires.
+    pub fn heartbeat(&mut self, lease: &str, worker: &str) -> FarmResult<f64> {
+        self.touch(worker)?;
+        self.live_lease(lease, worker)?;
+        let timeout = self.config.lease_timeout;
+        self.leases.get_mut(lease).expect("checked").deadline = Instant::now() + timeout;
+        Ok(timeout.as_secs_f64())
+    }
+
+    /// Merges the result of a live lease, exactly once, and commits it before returning.
+    pub fn submit(
+        &mut self,
+        lease: &str,
+        worker: &str,
+        result: &TaskResult,
+        bytes: u64,
+    ) -> FarmResult<()> {
+        let start = Instant::now();
+        let refuse = |farm: &mut Farm, e: FarmError| {
+            farm.counters.results_refused += 1;
+            Err(e)
+        };
+        if let Err(e) = self.touch(worker) {
+            return refuse(self, e);
+        }
+        let (job_id, key) = match self.live_lease(lease, worker) {
+            Ok(l) => (l.job.clone(), l.key),
+            Err(e) => return refuse(self, e),
+        };
+        let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
+        if let Err(e) = result.check_answers(&job.spec(key)) {
+            return refuse(self, FarmError::new(422, format!("result refused: {e}")));
+        }
+        let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
+        job.merge(key, &result.tile, samples);
+        self.leases.remove(lease);
+        let job = &self.jobs[&job_id];
+        if let Err(e) = self.store.commit_tile(job, key.frame, key.tile) {
+            // The sums in memory are ahead of the database: fail loudly rather than go on.
+            tracing::error!("committing a merged result failed: {e:#}");
+            return Err(e.into());
+        }
+        if job.state == JobState::Done {
+            tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(), "job done");
+        }
+        let c = &mut self.counters;
+        c.tasks_merged += 1;
+        c.samples_merged += samples;
+        c.bytes_merged += bytes;
+        c.rays += result.rays;
+        c.merge_seconds += start.elapsed().as_secs_f64();
+        if let Some(w) = self.workers.get_mut(worker) {
+            w.tasks_done += 1;
+            w.samples_done += samples;
+            w.leases = w.leases.saturating_sub(1);
+        }
+        Ok(())
+    }
+
+    /// A worker could not render its task: the task is leased again, or after
+    /// `max_task_failures` reports its job fails with the reason.
+    pub fn fail(&mut self, lease: &str, worker: &str, error: &str) -> FarmResult<()> {
+        self.touch(worker)?;
+        let (job_id, key) = {
+            let l = self.live_lease(lease, worker)?;
+            (l.job.clone(), l.key)
+        };
+        self.leases.remove(lease);
+        if let Some(w) = self.workers.get_mut(worker) {
+            w.leases = w.leases.saturating_sub(1);
+        }
+        self.counters.tasks_failed += 1;
+        let max = self.config.max_task_failures;
+        let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
+        let spec = job.spec(key);
+        let n = job.release(key, true);
+        tracing::warn!(job = %job_id, worker, "task failed ({n}/{max}): {error}");
+        if n >= max {
+            let reason = format!(
+                "task frame {} tile ({}, {}) samples {}..{} failed {n} times; last error: {error}",
+                spec.frame, spec.rect.x0, spec.rect.y0, spec.samples.start, spec.samples.end
+            );
+            job.set_final(JobState::Failed, Some(reason));
+            self.store.update_job(job)?;
+            self.drop_leases_of(&job_id);
+        }
+        Ok(())
+    }
+
+    /// Expires overdue leases, applies time limits and forgets silent workers. Returns true when
+    /// tasks became available.
+    pub fn tick(&mut self) -> bool {
+        let now = Instant::now();
+        let mut freed = false;
+        let overdue: Vec<String> = self
+            .leases
+            .iter()
+            .filter(|(_, l)| l.deadline <= now)
+            .map(|(id, _)| id.clone())
+            .collect();
+        for id in overdue {
+            let l = self.leases.remove(&id).expect("listed above");
+            self.counters.tasks_expired += 1;
+            if let Some(w) = self.workers.get_mut(&l.worker) {
+                w.leases = w.leases.saturating_sub(1);
+            }
+            let max = self.config.max_task_expiries;
+            let Some(job) = self.jobs.get_mut(&l.job) else { continue };
+            let spec = job.spec(l.key);
+            let n = job.release(l.key, false);
+            tracing::warn!(job = %l.job, worker = %l.worker, "lease expired ({n}/{max})");
+            freed = true;
+            if n >= max {
+                let reason = format!(
+                    "task frame {} tile ({}, {}) samples {}..{}: its lease expired {n} times (workers died or hung on it)",
+                    spec.frame, spec.rect.x0, spec.rect.y0, spec.samples.start, spec.samples.end
+                );
+                job.set_final(JobState::Failed, Some(reason));
+                let _ = self.store.update_job(job);
+                self.drop_leases_of(&l.job);
+            }
+        }
+        for job in self.jobs.values_mut() {
+            if job.check_time_limit() {
+                tracing::info!(job = %job.id, "time limit reached: no more tasks are issued");
+                let _ = self.store.update_job(job);
+            }
+        }
+        let silent = self.config.lease_timeout * 3;
+        self.workers.retain(|_, w| w.last_seen.is_some_and(|t| now.duration_since(t) < silent));
+        freed
+    }
+
+    /// The workers, with their ages filled in.
+    pub fn workers(&self) -> Vec<WorkerInfo> {
+        let mut out: Vec<WorkerInfo> = self
+            .workers
+            .values()
+            .map(|w| {
+                let mut w = w.clone();
+                w.joined_s_ago = w.joined.map_or(0.0, |t| t.elapsed().as_secs_f64());
+                w.last_seen_s_ago = w.last_seen.map_or(0.0, |t| t.elapsed().as_secs_f64());
+                w
+            })
+            .collect();
+        out.sort_by(|a, b| a.name.cmp(&b.name).then(a.id.cmp(&b.id)));
+        out
+    }
+
+    /// Leases out now.
+    pub fn leases_out(&self) -> usize {
+        self.leases.len()
+    }
+}
+
+/// True for 64 lower-case hex digits.
+pub fn is_hash(s: &str) -> bool {
+    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
+/// Checks an upload: a known format, a loadable scene with something to render. Slow for large
+/// scenes: call it outside the farm lock.
+pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<SceneInfo> {
+    let format = Format::detect(bytes).map_err(|e| FarmError::new(422, e.0))?;
+    if let Some(d) = declared {
+        if d != format {
+            return Err(FarmError::new(
+                415,
+                format!(
+                    "the Content-Type says {} but the body is a {} file",
+                    d.name(),
+                    format.name()
+                ),
+            ));
+        }
+    }
+    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
+    let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+    let triangles = scene.triangle_count() as u64;
+    Ok(SceneInfo {
+        scene: hex(&Sha256::digest(bytes)),
+        format: format.name().to_string(),
+        bytes: bytes.len() as u64,
+        triangles,
+        cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
+        created: true,
+    })
+}
+
+/// The scene-dependent checks of a job: the named camera exists and the environment map, if
+/// any, is in the bundle and decodes. Slow: call it outside the farm lock.
+pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
+    let bundle =
+        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
+    if let Some(name) = &settings.camera {
+        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+        if !scene.cameras.iter().any(|c| &c.name == name) {
+            let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
+            return Err(FarmError::new(
+                422,
+                format!(
+                    "settings: camera: no camera named '{name}' (the scene has: {})",
+                    names.join(", ")
+                ),
+            ));
+        }
+    }
+    if let Some(Environment::Map { map, .. }) = &settings.environment {
+        bundle
+            .load_envmap(map)
+            .map_err(|e| FarmError::new(422, format!("settings: environment.map: {e}")))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,234 @@
+//! What the coordinator must not lose, in SQLite (WAL mode) under `--data`: scenes (files,
+//! content-addressed by SHA-256), jobs, and each tile's merged sums with the set of tasks merged
+//! into them.
+//!
+//! A result is merged in memory and written in one transaction (tile sums + merged task set +
+//! job counters) before the worker hears "merged", so after a `kill -9` the database holds
+//! exactly the merged tasks: the tasks that were leased but not yet committed are simply leased
+//! again. WAL with `synchronous = NORMAL` survives a process crash at any point; only a power
+//! loss may lose the last transactions (which are then re-rendered, never double counted).
+
+use std::{
+    io::Write,
+    path::{Path, PathBuf},
+};
+
+use anyhow::{Context, Result};
+use common::{film::TileAccum, settings::RenderSettings};
+use rusqlite::{params, Connection, OptionalExtension};
+
+use super::job::{Job, JobState};
+
+/// The database and the scene folder.
+pub struct Store {
+    db: Connection,
+    scenes_dir: PathBuf,
+}
+
+/// A job row as stored.
+pub struct StoredJob {
+    /// Id.
+    pub id: String,
+    /// Creation order.
+    pub seq: u64,
+    /// Scene hash.
+    pub scene: String,
+    /// Settings.
+    pub settings: RenderSettings,
+    /// Priority.
+    pub priority: i32,
+    /// State.
+    pub state: JobState,
+    /// Failure reason.
+    pub error: Option<String>,
+    /// Creation time (Unix seconds).
+    pub created_unix: f64,
+    /// Running seconds so far.
+    pub elapsed_s: f64,
+}
+
+/// A tile row as stored.
+pub struct StoredTile {
+    /// Frame index.
+    pub frame: u32,
+    /// Tile index.
+    pub tile: u32,
+    /// Merged task numbers.
+    pub merged: Vec<u32>,
+    /// Merged sums.
+    pub sums: TileAccum,
+}
+
+fn bincode_config() -> impl bincode::config::Config {
+    bincode::config::standard()
+}
+
+impl Store {
+    /// Opens (creating) the store under `dir`.
+    pub fn open(dir: &Path) -> Result<Store> {
+        let scenes_dir = dir.join("scenes");
+        std::fs::create_dir_all(&scenes_dir)
+            .with_context(|| format!("creating {}", scenes_dir.display()))?;
+        let path = dir.join("farm.sqlite");
+        let db = Connection::open(&path).with_context(|| format!("opening {}", path.display()))?;
+        db.pragma_update(None, "journal_mode", "WAL")?;
+        db.pragma_update(None, "synchronous", "NORMAL")?;
+        db.execute_batch(
+            "CREATE TABLE IF NOT EXISTS scenes (
+                 hash TEXT PRIMARY KEY, format TEXT NOT NULL, bytes INTEGER NOT NULL,
+                 created REAL NOT NULL);
+             CREATE TABLE IF NOT EXISTS jobs (
+                 id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
+                 settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
+                 error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL);
+             CREATE TABLE IF NOT EXISTS tiles (
+                 job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
+                 merged BLOB NOT NULL, sums BLOB NOT NULL,
+                 PRIMARY KEY (job, frame, tile));",
+        )
+        .context("creating the schema")?;
+        Ok(Store { db, scenes_dir })
+    }
+
+    /// Path of a stored scene's bytes.
+    pub fn scene_path(&self, hash: &str) -> PathBuf {
+        self.scenes_dir.join(hash)
+    }
+
+    /// Whether a scene is stored, and its format.
+    pub fn scene_format(&self, hash: &str) -> Result<Option<String>> {
+        Ok(self
+            .db
+            .query_row("SELECT format FROM scenes WHERE hash = ?1", [hash], |r| r.get(0))
+            .optional()?)
+    }
+
+    /// Stores a scene's bytes (atomically: a temporary file renamed into place) and its row.
+    pub fn put_scene(&self, hash: &str, format: &str, bytes: &[u8]) -> Result<()> {
+        let path = self.scene_path(hash);
+        if !path.exists() {
+            let mut tmp = tempfile::NamedTempFile::new_in(&self.scenes_dir)?;
+            tmp.write_all(bytes)?;
+            tmp.as_file().sync_all()?;
+            tmp.persist(&path).map_err(|e| e.error)?;
+        }
+        self.db.execute(
+            "INSERT OR IGNORE INTO scenes (hash, format, bytes, created) VALUES (?1, ?2, ?3, ?4)",
+            params![hash, format, bytes.len() as i64, super::now_unix()],
+        )?;
+        Ok(())
+    }
+
+    /// Inserts a new job.
+    pub fn insert_job(&self, job: &Job) -> Result<()> {
+        self.db.execute(
+            "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created, elapsed_s)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            params![
+                job.id,
+                job.seq as i64,
+                job.scene,
+                serde_json::to_string(&job.settings)?,
+                job.priority,
+                job.state.name(),
+                job.error,
+                job.created_unix,
+                job.elapsed(),
+            ],
+        )?;
+        Ok(())
+    }
+
+    /// Updates a job's state, error and elapsed time.
+    pub fn update_job(&self, job: &Job) -> Result<()> {
+        self.db.execute(
+            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4 WHERE id = ?1",
+            params![job.id, job.state.name(), job.error, job.elapsed()],
+        )?;
+        Ok(())
+    }
+
+    /// Writes one tile's merged state and the job's counters in one transaction.
+    pub fn commit_tile(&mut self, job: &Job, frame: u32, tile: u32) -> Result<()> {
+        let t = &job.frames[frame as usize].tiles[tile as usize];
+        let merged = bincode::encode_to_vec(t.merged_tasks(), bincode_config())?;
+        let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
+        let tx = self.db.transaction()?;
+        tx.execute(
+            "INSERT INTO tiles (job, frame, tile, merged, sums) VALUES (?1, ?2, ?3, ?4, ?5)
+             ON CONFLICT (job, frame, tile) DO UPDATE SET merged = ?4, sums = ?5",
+            params![job.id, frame, tile, merged, sums],
+        )?;
+        tx.execute(
+            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4 WHERE id = ?1",
+            params![job.id, job.state.name(), job.error, job.elapsed()],
+        )?;
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// Every job, oldest first.
+    pub fn jobs(&self) -> Result<Vec<StoredJob>> {
+        let mut stmt = self.db.prepare(
+            "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s
+             FROM jobs ORDER BY seq",
+        )?;
+        let rows = stmt.query_map([], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, String>(2)?,
+                r.get::<_, String>(3)?,
+                r.get::<_, i32>(4)?,
+                r.get::<_, String>(5)?,
+                r.get::<_, Option<String>>(6)?,
+                r.get::<_, f64>(7)?,
+                r.get::<_, f64>(8)?,
+            ))
+        })?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (id, seq, scene, settings, priority, state, error, created_unix, elapsed_s) = row?;
+            let settings = RenderSettings::from_json(&settings)
+                .map_err(|e| anyhow::anyhow!("job {id}: stored settings: {e}"))?;
+            let state = JobState::parse(&state)
+                .with_context(|| format!("job {id}: unknown state '{state}'"))?;
+            out.push(StoredJob {
+                id,
+                seq: seq as u64,
+                scene,
+                settings,
+                priority,
+                state,
+                error,
+                created_unix,
+                elapsed_s,
+            });
+        }
+        Ok(out)
+    }
+
+    /// The stored tiles of a job.
+    pub fn tiles(&self, job: &str) -> Result<Vec<StoredTile>> {
+        let mut stmt =
+            self.db.prepare("SELECT frame, tile, merged, sums FROM tiles WHERE job = ?1")?;
+        let rows = stmt.query_map([job], |r| {
+            Ok((
+                r.get::<_, u32>(0)?,
+                r.get::<_, u32>(1)?,
+                r.get::<_, Vec<u8>>(2)?,
+                r.get::<_, Vec<u8>>(3)?,
+            ))
+        })?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (frame, tile, merged, sums) = row?;
+            let (merged, _): (Vec<u32>, usize) =
+                bincode::decode_from_slice(&merged, bincode_config())?;
+            let (sums, _): (TileAccum, usize) =
+                bincode::serde::decode_from_slice(&sums, bincode_config())?;
+            out.push(StoredTile { frame, tile, merged, sums });
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,536 @@
+//! `coordinator serve`: the farm over HTTP (axum). The REST API of PRODUCT.md for users and the
+//! worker protocol, both under `/api/v1` and described by `/api/v1/openapi.json`; `/healthz`,
+//! `/metrics` (Prometheus text) and a dashboard at `/`.
+//!
+//! Every error is a 4xx/5xx with a JSON body `{"error": "..."}` naming the problem. The farm
+//! state sits behind one mutex; slow work (validating an upload, decoding a result, encoding an
+//! image) runs outside it on blocking threads, and a merge holds it only for the in-memory
+//! addition and the database commit.
+
+mod metrics;
+
+use std::{
+    net::SocketAddr,
+    sync::{Arc, Mutex, MutexGuard},
+    time::Duration,
+};
+
+use anyhow::{Context, Result};
+use axum::{
+    body::Body,
+    extract::{Path, State},
+    http::{header, HeaderMap, HeaderValue, StatusCode},
+    response::{Html, IntoResponse, Response},
+    routing::{get, post},
+    Json, Router,
+};
+use common::{
+    bundle::Format,
+    protocol::{decode_result, FailReport, JoinRequest, WORKER_HEADER},
+    settings::RenderSettings,
+};
+use serde::Deserialize;
+use serde_json::json;
+use tokio::sync::Notify;
+
+use crate::{
+    farm::{validate_job_scene, validate_upload, Farm, FarmConfig, FarmError},
+    output::{exr_bytes, png_bytes, FrameInfo},
+};
+
+/// The service's settings.
+#[derive(Clone, Debug)]
+pub struct ServiceConfig {
+    /// The farm's settings.
+    pub farm: FarmConfig,
+    /// Largest accepted upload (scenes and results).
+    pub max_upload_bytes: usize,
+    /// How long a lease request may wait for work.
+    pub max_lease_wait: Duration,
+}
+
+impl ServiceConfig {
+    /// Defaults for a data folder.
+    pub fn new(data_dir: std::path::PathBuf) -> Self {
+        ServiceConfig {
+            farm: FarmConfig::new(data_dir),
+            max_upload_bytes: 1 << 30,
+            max_lease_wait: Duration::from_secs(30),
+        }
+    }
+}
+
+#[derive(Clone)]
+struct AppState {
+    farm: Arc<Mutex<Farm>>,
+    work: Arc<Notify>,
+    config: Arc<ServiceConfig>,
+}
+
+impl AppState {
+    fn lock(&self) -> MutexGuard<'_, Farm> {
+        self.farm.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+impl IntoResponse for FarmError {
+    fn into_response(self) -> Response {
+        let status = StatusCode::from_u16(self.status).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+        (status, Json(json!({ "error": self.message }))).into_response()
+    }
+}
+
+type ApiResult<T> = Result<T, FarmError>;
+
+/// Runs blocking work off the async threads.
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> ApiResult<T> + Send + 'static,
+) -> ApiResult<T> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| FarmError::new(500, format!("internal error: {e}")))?
+}
+
+/// Reads a whole body, with clear errors for oversize and truncated ones.
+async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
+    match axum::body::to_bytes(body, limit).await {
+        Ok(b) => Ok(b),
+        Err(e) => {
+            let text = format!("{e}");
+            let source = std::error::Error::source(&e).map(|s| s.to_string()).unwrap_or_default();
+            if text.contains("length limit") || source.contains("length limit") {
+                Err(FarmError::new(
+                    413,
+                    format!("the body is larger than the limit of {limit} bytes"),
+                ))
+            } else {
+                Err(FarmError::new(
+                    400,
+                    format!("the body was cut short or unreadable: {text} {source}"),
+                ))
+            }
+        }
+    }
+}
+
+fn content_type(headers: &HeaderMap) -> Option<String> {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(|v| v.split(';').next().unwrap_or("").trim().to_ascii_lowercase())
+}
+
+/// Reads a JSON body into `T`.
+async fn json_body<T: serde::de::DeserializeOwned>(
+    headers: &HeaderMap,
+    body: Body,
+) -> ApiResult<T> {
+    match content_type(headers).as_deref() {
+        Some("application/json") => {}
+        other => {
+            return Err(FarmError::new(
+                415,
+                format!("expected Content-Type application/json, got {}", other.unwrap_or("none")),
+            ))
+        }
+    }
+    let bytes = read_body(body, 1 << 20).await?;
+    serde_json::from_slice(&bytes).map_err(|e| FarmError::new(422, format!("request body: {e}")))
+}
+
+/// The router of the whole service.
+fn router(state: AppState) -> Router {
+    Router::new()
+        .route("/", get(dashboard))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics::metrics))
+        .route("/api/v1/openapi.json", get(openapi))
+        .route("/api/v1/scenes", post(upload_scene))
+        .route("/api/v1/scenes/{hash}", get(download_scene))
+        .route("/api/v1/jobs", post(create_job).get(list_jobs))
+        .route("/api/v1/jobs/{id}", get(job_status).delete(cancel_job))
+        .route("/api/v1/jobs/{id}/frames/{file}", get(frame_image))
+        .route("/api/v1/workers", get(list_workers).post(join))
+        .route("/api/v1/workers/{id}", axum::routing::delete(leave))
+        .route("/api/v1/workers/{id}/lease", post(lease))
+        .route("/api/v1/leases/{lease}/heartbeat", post(heartbeat))
+        .route("/api/v1/leases/{lease}/result", post(submit_result))
+        .route("/api/v1/leases/{lease}/fail", post(fail_task))
+        .fallback(|uri: axum::http::Uri| async move {
+            FarmError::new(404, format!("no such endpoint: {uri} (see /api/v1/openapi.json)"))
+        })
+        .method_not_allowed_fallback(
+            |method: axum::http::Method, uri: axum::http::Uri| async move {
+                FarmError::new(405, format!("{method} is not allowed on {uri}"))
+            },
+        )
+        .with_state(state)
+}
+
+/// A running service: its address and a handle to stop it.
+pub struct Running {
+    /// The address it listens on.
+    pub addr: SocketAddr,
+    farm: Arc<Mutex<Farm>>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+}
+
+impl Running {
+    /// The base URL (`http://addr`).
+    pub fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    /// The farm state, for an embedding process that wants to read it directly.
+    pub fn farm(&self) -> Arc<Mutex<Farm>> {
+        self.farm.clone()
+    }
+
+    /// Stops the service and waits for it.
+    pub fn stop(mut self) -> Result<()> {
+        self.shutdown()
+    }
+
+    fn shutdown(&mut self) -> Result<()> {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        match self.thread.take() {
+            Some(t) => t.join().map_err(|_| anyhow::anyhow!("service thread panicked"))?,
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        let _ = self.shutdown();
+    }
+}
+
+/// Starts the service on its own thread and runtime (used by `coordinator render`).
+pub fn spawn(listen: &str, config: ServiceConfig) -> Result<Running> {
+    let farm = Arc::new(Mutex::new(Farm::open(config.farm.clone())?));
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let listener = runtime
+        .block_on(tokio::net::TcpListener::bind(listen))
+        .with_context(|| format!("listening on {listen}"))?;
+    let addr = listener.local_addr()?;
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let shared = farm.clone();
+    let thread = std::thread::Builder::new().name("coordinator".into()).spawn(move || {
+        runtime.block_on(serve_farm(listener, shared, config, async {
+            let _ = rx.await;
+        }))
+    })?;
+    Ok(Running { addr, farm, stop: Some(tx), thread: Some(thread) })
+}
+
+/// Opens the farm under `config` and serves it on `listener` until `shutdown` completes.
+pub async fn serve_on(
+    listener: tokio::net::TcpListener,
+    config: ServiceConfig,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<()> {
+    let farm_config = config.farm.clone();
+    let farm = tokio::task::spawn_blocking(move || Farm::open(farm_config))
+        .await
+        .context("opening the farm")??;
+    tracing::info!(data = %config.farm.data_dir.display(), "farm state opened");
+    serve_farm(listener, Arc::new(Mutex::new(farm)), config, shutdown).await
+}
+
+async fn serve_farm(
+    listener: tokio::net::TcpListener,
+    farm: Arc<Mutex<Farm>>,
+    config: ServiceConfig,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<()> {
+    let state = AppState { farm, work: Arc::new(Notify::new()), config: Arc::new(config) };
+    let ticker = {
+        let state = state.clone();
+        tokio::spawn(async move {
+            let mut interval = tokio::time::interval(Duration::from_millis(250));
+            loop {
+                interval.tick().await;
+                let st = state.clone();
+                let freed =
+                    tokio::task::spawn_blocking(move || st.lock().tick()).await.unwrap_or(false);
+                if freed {
+                    state.work.notify_waiters();
+                }
+            }
+        })
+    };
+    let app = router(state);
+    let result = axum::serve(listener, app).with_graceful_shutdown(shutdown).await;
+    ticker.abort();
+    result.context("serving HTTP")
+}
+
+async fn dashboard() -> Html<&'static str> {
+    Html(include_str!("dashboard.html"))
+}
+
+async fn healthz() -> Json<serde_json::Value> {
+    Json(json!({ "status": "ok" }))
+}
+
+async fn openapi() -> Response {
+    (
+        [(header::CONTENT_TYPE, HeaderValue::from_static("application/json"))],
+        include_str!("openapi.json"),
+    )
+        .into_response()
+}
+
+async fn upload_scene(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let declared = match content_type(&headers).as_deref() {
+        Some("model/gltf-binary") => Some(Format::Glb),
+        Some("model/gltf+json") => Some(Format::Gltf),
+        Some("application/zip") | Some("application/x-zip-compressed") => Some(Format::Zip),
+        Some("application/octet-stream") | None => None,
+        Some(other) => {
+            return Err(FarmError::new(
+                415,
+                format!("Content-Type {other} is not a scene: use model/gltf-binary, model/gltf+json, application/zip or application/octet-stream"),
+            ))
+        }
+    };
+    let bytes = read_body(body, state.config.max_upload_bytes).await?;
+    let st = state.clone();
+    let info = blocking(move || {
+        let mut info = validate_upload(&bytes, declared)?;
+        st.lock().put_scene(&bytes, &mut info)?;
+        Ok(info)
+    })
+    .await?;
+    let status = if info.created { StatusCode::CREATED } else { StatusCode::OK };
+    Ok((status, Json(info)).into_response())
+}
+
+async fn download_scene(
+    State(state): State<AppState>,
+    Path(hash): Path<String>,
+) -> ApiResult<Response> {
+    let bytes = blocking(move || state.lock().scene_bytes(&hash)).await?;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))], bytes)
+        .into_response())
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CreateJob {
+    scene: String,
+    #[serde(default)]
+    settings: serde_json::Value,
+    #[serde(default)]
+    priority: i32,
+}
+
+async fn create_job(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let req: CreateJob = json_body(&headers, body).await?;
+    let settings_value = if req.settings.is_null() { json!({}) } else { req.settings };
+    let settings: RenderSettings = serde_json::from_value(settings_value)
+        .map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
+    let st = state.clone();
+    let status = blocking(move || {
+        st.lock().check_settings(&settings)?;
+        let bytes = st.lock().scene_bytes(&req.scene).map_err(|e| {
+            FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message))
+        })?;
+        validate_job_scene(&bytes, &settings)?;
+        st.lock().create_job(&req.scene, settings, req.priority)
+    })
+    .await?;
+    state.work.notify_waiters();
+    Ok((StatusCode::CREATED, Json(status)).into_response())
+}
+
+async fn list_jobs(State(state): State<AppState>) -> Json<serde_json::Value> {
+    Json(json!({ "jobs": state.lock().list() }))
+}
+
+async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    Ok(Json(state.lock().status(&id)?).into_response())
+}
+
+async fn cancel_job(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    let status = state.lock().cancel(&id)?;
+    Ok(Json(status).into_response())
+}
+
+async fn frame_image(
+    State(state): State<AppState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let (number, ext) = file
+        .rsplit_once('.')
+        .and_then(|(n, e)| Some((n.parse::<i64>().ok()?, e.to_ascii_lowercase())))
+        .ok_or_else(|| {
+            FarmError::new(404, format!("'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"))
+        })?;
+    if ext != "exr" && ext != "png" {
+        return Err(FarmError::new(404, format!("'{file}': frames are served as .exr or .png")));
+    }
+    let st = state.clone();
+    blocking(move || {
+        let (film, status) = st.lock().film(&id, number)?;
+        if ext == "exr" {
+            let info = FrameInfo {
+                settings_json: serde_json::to_string(&status.settings).unwrap_or_default(),
+                scene_hash: status.scene.clone(),
+                render_seconds: status.elapsed_s,
+                frame: number,
+            };
+            let bytes = exr_bytes(&film, &info)?;
+            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"))], bytes)
+                .into_response())
+        } else {
+            let bytes = png_bytes(&film, 0.0)?;
+            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], bytes)
+                .into_response())
+        }
+    })
+    .await
+}
+
+async fn list_workers(State(state): State<AppState>) -> Json<serde_json::Value> {
+    Json(json!({ "workers": state.lock().workers() }))
+}
+
+async fn join(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let req: JoinRequest = json_body(&headers, body).await?;
+    if req.threads == 0 || req.threads > 4096 {
+        return Err(FarmError::new(422, format!("threads: {} is not in 1..=4096", req.threads)));
+    }
+    let resp = state.lock().join(req);
+    Ok((StatusCode::CREATED, Json(resp)).into_response())
+}
+
+async fn leave(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    state.lock().leave(&id)?;
+    state.work.notify_waiters();
+    Ok(Json(json!({ "left": id })).into_response())
+}
+
+async fn lease(
+    State(state): State<AppState>,
+    Path(worker): Path<String>,
+    uri: axum::http::Uri,
+) -> ApiResult<Response> {
+    let mut wait_s = 0.0;
+    for pair in uri.query().unwrap_or("").split('&').filter(|p| !p.is_empty()) {
+        match pair.split_once('=') {
+            Some(("wait_s", v)) => {
+                wait_s = v.parse::<f64>().ok().filter(|w| w.is_finite()).ok_or_else(|| {
+                    FarmError::new(400, format!("wait_s: '{v}' is not a number of seconds"))
+                })?;
+            }
+            _ => {
+                return Err(FarmError::new(
+                    400,
+                    format!("unknown query parameter '{pair}' (only wait_s)"),
+                ))
+            }
+        }
+    }
+    let max = state.config.max_lease_wait.as_secs_f64();
+    let wait = Duration::from_secs_f64(wait_s.clamp(0.0, max));
+    let deadline = tokio::time::Instant::now() + wait;
+    loop {
+        let notified = state.work.notified();
+        tokio::pin!(notified);
+        notified.as_mut().enable();
+        if let Some(grant) = state.lock().lease(&worker)? {
+            return Ok(Json(grant).into_response());
+        }
+        if tokio::time::timeout_at(deadline, notified).await.is_err() {
+            return Ok(StatusCode::NO_CONTENT.into_response());
+        }
+    }
+}
+
+fn worker_id(headers: &HeaderMap) -> ApiResult<String> {
+    headers
+        .get(WORKER_HEADER)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string)
+        .ok_or_else(|| FarmError::new(400, format!("missing the {WORKER_HEADER} header")))
+}
+
+async fn heartbeat(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    let worker = worker_id(&headers)?;
+    let left = state.lock().heartbeat(&lease, &worker)?;
+    Ok(Json(json!({ "lease_timeout_s": left })).into_response())
+}
+
+async fn submit_result(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let worker = worker_id(&headers)?;
+    match content_type(&headers).as_deref() {
+        Some("application/octet-stream") => {}
+        other => {
+            return Err(FarmError::new(
+                415,
+                format!(
+                    "a result is a bincode body with Content-Type application/octet-stream, got {}",
+                    other.unwrap_or("none")
+                ),
+            ))
+        }
+    }
+    let bytes = read_body(body, state.config.max_upload_bytes).await?;
+    let st = state.clone();
+    blocking(move || {
+        let result = match decode_result(&bytes) {
+            Ok(r) => r,
+            Err(e) => {
+                st.lock().counters.results_refused += 1;
+                return Err(FarmError::new(400, format!("result refused: {e}")));
+            }
+        };
+        st.lock().submit(&lease, &worker, &result, bytes.len() as u64)
+    })
+    .await?;
+    state.work.notify_waiters();
+    Ok(Json(json!({ "merged": true })).into_response())
+}
+
+async fn fail_task(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let worker = worker_id(&headers)?;
+    let report: FailReport = json_body(&headers, body).await?;
+    state.lock().fail(&lease, &worker, &report.error)?;
+    state.work.notify_waiters();
+    Ok(Json(json!({ "released": true })).into_response())
+}

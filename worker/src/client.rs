@@ -1,0 +1,361 @@
+//! `worker --join URL`: the worker's side of the farm protocol.
+//!
+//! Join, then loop: long-poll for a lease, fetch and cache the scene by hash (the BVH is built
+//! once per scene and settings, not per task), render the task on all threads while a second
+//! thread renews the lease, and send the partial sums back as bincode. The worker keeps nothing
+//! that matters: if it dies, its lease expires and the task goes to another worker. When the
+//! coordinator forgets it (a restart), it joins again; when the coordinator is unreachable, it
+//! retries with a growing pause. After `stop` is raised it finishes the task in hand, sends it,
+//! leaves, and returns.
+
+use std::{
+    sync::{
+        atomic::{AtomicBool, Ordering},
+        Arc,
+    },
+    time::{Duration, Instant},
+};
+
+use anyhow::{bail, Result};
+use common::{
+    bundle::{Bundle, Limits},
+    protocol::{encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, WORKER_HEADER},
+    settings::Environment,
+};
+
+use crate::render::{
+    render_task_threads,
+    scene::{prepare_with_environment, PreparedScene},
+};
+
+/// How a worker joins.
+#[derive(Clone, Debug)]
+pub struct JoinConfig {
+    /// Base URL of the coordinator (`http://host:port`).
+    pub url: String,
+    /// Render threads.
+    pub threads: usize,
+    /// Name shown in the workers list.
+    pub name: String,
+    /// Longest a lease request waits for work, in seconds.
+    pub wait_s: f64,
+}
+
+/// What a worker did before it stopped.
+#[derive(Clone, Debug, Default)]
+pub struct WorkerStats {
+    /// Results the coordinator merged.
+    pub merged: u64,
+    /// Results it refused (stale leases and the like).
+    pub refused: u64,
+}
+
+enum CallError {
+    /// The coordinator answered with this status and message.
+    Status(u16, String),
+    /// No answer (connection refused, reset, timed out).
+    Transport(String),
+}
+
+impl std::fmt::Display for CallError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CallError::Status(code, msg) => write!(f, "HTTP {code}: {msg}"),
+            CallError::Transport(msg) => write!(f, "coordinator unreachable: {msg}"),
+        }
+    }
+}
+
+fn call_error(e: ureq::Error) -> CallError {
+    match e {
+        ureq::Error::Status(code, resp) => {
+            let text = resp.into_string().unwrap_or_default();
+            let msg = serde_json::from_str::<serde_json::Value>(&text)
+                .ok()
+                .and_then(|v| v.get("error").and_then(|e| e.as_str()).map(str::to_string))
+                .unwrap_or(text);
+            CallError::Status(code, msg)
+        }
+        ureq::Error::Transport(t) => CallError::Transport(t.to_string()),
+    }
+}
+
+struct Client {
+    agent: ureq::Agent,
+    base: String,
+}
+
+impl Client {
+    fn url(&self, path: &str) -> String {
+        format!("{}/api/v1{path}", self.base)
+    }
+
+    fn join(&self, req: &JoinRequest) -> Result<JoinResponse, CallError> {
+        let resp = self.agent.post(&self.url("/workers")).send_json(req).map_err(call_error)?;
+        resp.into_json().map_err(|e| CallError::Transport(e.to_string()))
+    }
+
+    fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError> {
+        let resp = self
+            .agent
+            .post(&self.url(&format!("/workers/{worker}/lease?wait_s={wait_s}")))
+            .set("content-type", "application/json")
+            .send_string("{}")
+            .map_err(call_error)?;
+        if resp.status() == 204 {
+            return Ok(None);
+        }
+        resp.into_json().map(Some).map_err(|e| CallError::Transport(e.to_string()))
+    }
+
+    fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {
+        let resp =
+            self.agent.get(&self.url(&format!("/scenes/{hash}"))).call().map_err(call_error)?;
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut resp.into_reader(), &mut bytes)
+            .map_err(|e| CallError::Transport(e.to_string()))?;
+        Ok(bytes)
+    }
+
+    fn post_lease(
+        &self,
+        worker: &str,
+        lease: &str,
+        what: &str,
+        body: Option<&[u8]>,
+        json: Option<&FailReport>,
+    ) -> Result<(), CallError> {
+        let req = self
+            .agent
+            .post(&self.url(&format!("/leases/{lease}/{what}")))
+            .set(WORKER_HEADER, worker);
+        let sent = match (body, json) {
+            (Some(bytes), _) => {
+                req.set("content-type", "application/octet-stream").send_bytes(bytes)
+            }
+            (None, Some(report)) => req.send_json(report),
+            (None, None) => req.call(),
+        };
+        sent.map(|_| ()).map_err(call_error)
+    }
+
+    fn leave(&self, worker: &str) -> Result<(), CallError> {
+        self.agent
+            .delete(&self.url(&format!("/workers/{worker}")))
+            .call()
+            .map(|_| ())
+            .map_err(call_error)
+    }
+}
+
+/// The scenes this worker has prepared, most recent first (a few jobs at once).
+struct SceneCache {
+    entries: Vec<(String, Arc<PreparedScene>)>,
+}
+
+impl SceneCache {
+    const CAPACITY: usize = 2;
+
+    fn get_or_prepare(
+        &mut self,
+        client: &Client,
+        grant: &LeaseGrant,
+    ) -> Result<Arc<PreparedScene>, String> {
+        let key = format!(
+            "{}/{}",
+            grant.scene,
+            serde_json::to_string(&grant.settings).map_err(|e| e.to_string())?
+        );
+        if let Some(i) = self.entries.iter().position(|(k, _)| *k == key) {
+            let entry = self.entries.remove(i);
+            self.entries.insert(0, entry.clone());
+            return Ok(entry.1);
+        }
+        let start = Instant::now();
+        let bytes = client
+            .scene(&grant.scene)
+            .map_err(|e| format!("fetching scene {}: {e}", grant.scene))?;
+        let bundle = Bundle::open(&bytes, Limits::default())
+            .map_err(|e| format!("scene {}: {e}", grant.scene))?;
+        let scene = bundle.load_scene().map_err(|e| format!("scene {}: {e}", grant.scene))?;
+        let env = match &grant.settings.environment {
+            Some(Environment::Map { map, .. }) => Some(
+                bundle.load_envmap(map).map_err(|e| format!("settings.environment.map: {e}"))?,
+            ),
+            _ => None,
+        };
+        let prepared = prepare_with_environment(&scene, &grant.settings, env.as_ref())
+            .map_err(|e| format!("preparing scene {}: {e}", grant.scene))?;
+        tracing::info!(
+            scene = %grant.scene,
+            triangles = scene.triangle_count(),
+            seconds = start.elapsed().as_secs_f64(),
+            "scene prepared"
+        );
+        let prepared = Arc::new(prepared);
+        self.entries.insert(0, (key, prepared.clone()));
+        self.entries.truncate(Self::CAPACITY);
+        Ok(prepared)
+    }
+}
+
+/// Joins the coordinator at `config.url` and renders tasks until `stop` is raised (then leaves
+/// cleanly). Returns an error only for what retrying cannot fix (the coordinator refuses the
+/// join).
+pub fn run(config: &JoinConfig, stop: &AtomicBool) -> Result<WorkerStats> {
+    let agent = ureq::AgentBuilder::new()
+        .timeout_connect(Duration::from_secs(5))
+        .timeout_read(Duration::from_secs_f64(config.wait_s + 60.0))
+        .timeout_write(Duration::from_secs(60))
+        .build();
+    let client = Client { agent, base: config.url.trim_end_matches('/').to_string() };
+    let request = JoinRequest {
+        name: config.name.clone(),
+        threads: config.threads as u32,
+        version: env!("CARGO_PKG_VERSION").to_string(),
+    };
+    let mut cache = SceneCache { entries: Vec::new() };
+    let mut stats = WorkerStats::default();
+    let mut me: Option<JoinResponse> = None;
+    let mut backoff = Duration::from_millis(200);
+    while !stop.load(Ordering::Relaxed) {
+        let Some(joined) = &me else {
+            match client.join(&request) {
+                Ok(j) => {
+                    tracing::info!(worker = %j.id, url = %client.base, "joined");
+                    me = Some(j);
+                    backoff = Duration::from_millis(200);
+                }
+                Err(CallError::Status(code, msg)) if (400..500).contains(&code) => {
+                    bail!("the coordinator refused to let this worker join: HTTP {code}: {msg}");
+                }
+                Err(e) => {
+                    tracing::warn!("joining: {e}; retrying in {backoff:?}");
+                    pause(stop, backoff);
+                    backoff = (backoff * 2).min(Duration::from_secs(5));
+                }
+            }
+            continue;
+        };
+        let worker = joined.id.clone();
+        let heartbeat = Duration::from_secs_f64(joined.heartbeat_s.max(0.05));
+        match client.lease(&worker, config.wait_s) {
+            Ok(None) => {}
+            Ok(Some(grant)) => {
+                backoff = Duration::from_millis(200);
+                match handle(&client, &worker, &grant, config.threads, heartbeat, &mut cache) {
+                    Ok(true) => stats.merged += 1,
+                    Ok(false) => stats.refused += 1,
+                    Err(e) => tracing::warn!(lease = %grant.lease, "{e}"),
+                }
+            }
+            Err(CallError::Status(404, msg)) => {
+                tracing::info!("coordinator forgot this worker ({msg}); joining again");
+                me = None;
+            }
+            Err(e) => {
+                tracing::warn!("leasing: {e}; retrying in {backoff:?}");
+                pause(stop, backoff);
+                backoff = (backoff * 2).min(Duration::from_secs(5));
+            }
+        }
+    }
+    if let Some(j) = me {
+        match client.leave(&j.id) {
+            Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
+            Err(e) => tracing::warn!("leaving: {e}"),
+        }
+    }
+    Ok(stats)
+}
+
+/// Sleeps up to `d`, waking early when `stop` is raised.
+fn pause(stop: &AtomicBool, d: Duration) {
+    let end = Instant::now() + d;
+    while !stop.load(Ordering::Relaxed) && Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(50).min(end - Instant::now()));
+    }
+}
+
+/// Renders one leased task and sends the result. Ok(true): merged; Ok(false): refused as stale.
+fn handle(
+    client: &Client,
+    worker: &str,
+    grant: &LeaseGrant,
+    threads: usize,
+    heartbeat: Duration,
+    cache: &mut SceneCache,
+) -> Result<bool, String> {
+    let prepared = match cache.get_or_prepare(client, grant) {
+        Ok(p) => p,
+        Err(e) => {
+            let report = FailReport { error: e.clone() };
+            let _ = client.post_lease(worker, &grant.lease, "fail", None, Some(&report));
+            return Err(e);
+        }
+    };
+    let done = AtomicBool::new(false);
+    let lost = AtomicBool::new(false);
+    let rendered = std::thread::scope(|s| {
+        s.spawn(|| {
+            let mut next = Instant::now() + heartbeat;
+            while !done.load(Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(20));
+                if Instant::now() < next {
+                    continue;
+                }
+                next = Instant::now() + heartbeat;
+                match client.post_lease(worker, &grant.lease, "heartbeat", None, None) {
+                    Ok(()) => {}
+                    Err(CallError::Status(code, msg)) => {
+                        tracing::warn!(lease = %grant.lease, "lease lost (HTTP {code}: {msg})");
+                        lost.store(true, Ordering::Relaxed);
+                        return;
+                    }
+                    Err(e) => tracing::warn!(lease = %grant.lease, "heartbeat: {e}"),
+                }
+            }
+        });
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            render_task_threads(&prepared, grant.settings.seed, &grant.task, threads)
+        }));
+        done.store(true, Ordering::Relaxed);
+        result
+    });
+    let result = match rendered {
+        Ok(r) => r,
+        Err(panic) => {
+            let msg = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            let report = FailReport { error: format!("the renderer panicked: {msg}") };
+            let _ = client.post_lease(worker, &grant.lease, "fail", None, Some(&report));
+            return Err(report.error);
+        }
+    };
+    if lost.load(Ordering::Relaxed) {
+        return Ok(false);
+    }
+    let body = encode_result(&result);
+    let mut attempt = 0;
+    loop {
+        match client.post_lease(worker, &grant.lease, "result", Some(&body), None) {
+            Ok(()) => return Ok(true),
+            Err(CallError::Status(code, msg)) if code == 409 || code == 404 => {
+                tracing::info!(lease = %grant.lease, "result not needed any more: {msg}");
+                return Ok(false);
+            }
+            Err(CallError::Status(code, msg)) => {
+                return Err(format!("result refused: HTTP {code}: {msg}"));
+            }
+            Err(e) if attempt < 5 => {
+                attempt += 1;
+                tracing::warn!(lease = %grant.lease, "sending the result: {e}; retrying");
+                std::thread::sleep(Duration::from_millis(200 << attempt));
+            }
+            Err(e) => return Err(format!("sending the result: {e}")),
+        }
+    }
+}
