@@ -521,21 +521,15 @@ impl Farm {
         bytes: u64,
     ) -> FarmResult<()> {
         let start = Instant::now();
-        let refuse = |farm: &mut Farm, e: FarmError| {
-            farm.counters.results_refused += 1;
-            Err(e)
-        };
-        if let Err(e) = self.touch(worker) {
-            return refuse(self, e);
-        }
-        let (job_id, key) = match self.live_lease(lease, worker) {
-            Ok(l) => (l.job.clone(), l.key),
-            Err(e) => return refuse(self, e),
+        self.touch(worker)?;
+        let (job_id, key) = {
+            let l = self.live_lease(lease, worker)?;
+            (l.job.clone(), l.key)
         };
         let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
-        if let Err(e) = result.check_answers(&job.spec(key)) {
-            return refuse(self, FarmError::new(422, format!("result refused: {e}")));
-        }
+        result
+            .check_answers(&job.spec(key))
+            .map_err(|e| FarmError::new(422, format!("result refused: {e}")))?;
         let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
         job.merge(key, &result.tile, samples);
         self.leases.remove(lease);

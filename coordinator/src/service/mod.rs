@@ -121,10 +121,13 @@ fn content_type(headers: &HeaderMap) -> Option<String> {
 }
 
 /// Reads a JSON body into `T`.
+/// The body is read before any header is judged, so that a client still sending it hears the
+/// answer instead of a broken connection.
 async fn json_body<T: serde::de::DeserializeOwned>(
     headers: &HeaderMap,
     body: Body,
 ) -> ApiResult<T> {
+    let bytes = read_body(body, 1 << 20).await?;
     match content_type(headers).as_deref() {
         Some("application/json") => {}
         other => {
@@ -134,8 +137,12 @@ async fn json_body<T: serde::de::DeserializeOwned>(
             ))
         }
     }
-    let bytes = read_body(body, 1 << 20).await?;
-    serde_json::from_slice(&bytes).map_err(|e| FarmError::new(422, format!("request body: {e}")))
+    let de = &mut serde_json::Deserializer::from_slice(&bytes);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let path = e.path().to_string();
+        let at = if path == "." { String::new() } else { format!("{path}: ") };
+        FarmError::new(422, format!("request body: {at}{}", e.into_inner()))
+    })
 }
 
 /// The router of the whole service.
@@ -294,6 +301,7 @@ async fn upload_scene(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
+    let bytes = read_body(body, state.config.max_upload_bytes).await?;
     let declared = match content_type(&headers).as_deref() {
         Some("model/gltf-binary") => Some(Format::Glb),
         Some("model/gltf+json") => Some(Format::Gltf),
@@ -306,7 +314,6 @@ async fn upload_scene(
             ))
         }
     };
-    let bytes = read_body(body, state.config.max_upload_bytes).await?;
     let st = state.clone();
     let info = blocking(move || {
         let mut info = validate_upload(&bytes, declared)?;
@@ -344,8 +351,12 @@ async fn create_job(
 ) -> ApiResult<Response> {
     let req: CreateJob = json_body(&headers, body).await?;
     let settings_value = if req.settings.is_null() { json!({}) } else { req.settings };
-    let settings: RenderSettings = serde_json::from_value(settings_value)
-        .map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
+    let settings: RenderSettings =
+        serde_path_to_error::deserialize(settings_value).map_err(|e| {
+            let path = e.path().to_string();
+            let at = if path == "." { String::new() } else { format!(".{path}") };
+            FarmError::new(422, format!("settings{at}: {}", e.into_inner()))
+        })?;
     let st = state.clone();
     let status = blocking(move || {
         st.lock().check_settings(&settings)?;
@@ -492,6 +503,20 @@ async fn submit_result(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
+    let answer = merge_result(state.clone(), lease, headers, body).await;
+    if answer.is_err() {
+        state.lock().counters.results_refused += 1;
+    }
+    answer
+}
+
+async fn merge_result(
+    state: AppState,
+    lease: String,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let bytes = read_body(body, state.config.max_upload_bytes).await?;
     let worker = worker_id(&headers)?;
     match content_type(&headers).as_deref() {
         Some("application/octet-stream") => {}
@@ -505,16 +530,10 @@ async fn submit_result(
             ))
         }
     }
-    let bytes = read_body(body, state.config.max_upload_bytes).await?;
     let st = state.clone();
     blocking(move || {
-        let result = match decode_result(&bytes) {
-            Ok(r) => r,
-            Err(e) => {
-                st.lock().counters.results_refused += 1;
-                return Err(FarmError::new(400, format!("result refused: {e}")));
-            }
-        };
+        let result = decode_result(&bytes)
+            .map_err(|e| FarmError::new(400, format!("result refused: {e}")))?;
         st.lock().submit(&lease, &worker, &result, bytes.len() as u64)
     })
     .await?;
@@ -528,8 +547,8 @@ async fn fail_task(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let worker = worker_id(&headers)?;
     let report: FailReport = json_body(&headers, body).await?;
+    let worker = worker_id(&headers)?;
     state.lock().fail(&lease, &worker, &report.error)?;
     state.work.notify_waiters();
     Ok(Json(json!({ "released": true })).into_response())

@@ -1,0 +1,321 @@
+//! The farm as users run it: `coordinator serve` and `worker --join` as real processes on
+//! loopback sockets. The image of a job is bitwise the image of `coordinator render` with the
+//! same settings, whatever happens to workers and to the coordinator; bad results are refused
+//! without anything being merged.
+
+use std::time::Duration;
+
+use common::{
+    film::{Rect, TileAccum},
+    protocol::{encode_result, TaskResult, TaskSpec},
+};
+use serde_json::{json, Value};
+use tests::*;
+
+const TIMEOUT: Duration = Duration::from_secs(240);
+
+fn settings(spp: u32, spt: u32) -> Value {
+    json!({
+        "width": 64, "height": 64, "spp": spp, "samples_per_task": spt, "tile_size": 32,
+        "max_depth": 16, "seed": 7
+    })
+}
+
+#[test]
+fn three_workers_give_the_image_of_coordinator_render() {
+    let dir = temp_dir("three");
+    let s = settings(128, 32);
+    let reference = render_reference(&dir, &s, 2);
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let _workers: Vec<Proc> =
+        (0..3).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
+    let scene = upload(&url, &cornell_zip());
+    let id = create_job(&url, &scene, &s, 0);
+    let status = wait_done(&url, &id, TIMEOUT);
+    assert_eq!(status["samples_done"], 64 * 64 * 128);
+    assert_eq!(status["progress"], 1.0);
+    let image = fetch_exr(&url, &id, 0);
+    assert_same_image(&reference, &image, "serve + 3 workers vs render");
+    assert!(sample_counts(&image).iter().all(|&n| n == 128));
+    let workers = get(&format!("{url}/api/v1/workers")).json();
+    assert_eq!(workers["workers"].as_array().unwrap().len(), 3, "{workers:#}");
+    assert_eq!(metric(&url, "renderfarm_tasks_merged_total"), 4.0 * 4.0);
+}
+
+#[test]
+fn a_worker_killed_mid_task_loses_nothing() {
+    let dir = temp_dir("kill-worker");
+    let s = settings(512, 128);
+    let reference = render_reference(&dir, &s, 2);
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &["--lease-timeout", "1"]);
+    let mut victim = start_worker(&url, 1, dir.join("victim.log"));
+    let _survivor = start_worker(&url, 1, dir.join("survivor.log"));
+    let scene = upload(&url, &cornell_zip());
+    let id = create_job(&url, &scene, &s, 0);
+    // Both workers hold leases from the first moment on; kill one while it renders.
+    wait_for(&url, &id, TIMEOUT, |st| st["tasks_in_flight"].as_u64() == Some(2));
+    victim.kill9();
+    let status = wait_done(&url, &id, TIMEOUT);
+    assert_eq!(status["samples_done"], 64 * 64 * 512);
+    let image = fetch_exr(&url, &id, 0);
+    assert_same_image(&reference, &image, "after a worker was killed");
+    assert!(sample_counts(&image).iter().all(|&n| n == 512));
+    assert!(
+        metric(&url, "renderfarm_tasks_expired_total") >= 1.0,
+        "the victim's lease never expired"
+    );
+}
+
+#[test]
+fn a_coordinator_killed_mid_job_resumes_and_counts_every_sample_once() {
+    let dir = temp_dir("kill-coordinator");
+    let s = settings(512, 32);
+    let reference = render_reference(&dir, &s, 2);
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let data = dir.join("data");
+    let mut coordinator = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    let _workers: Vec<Proc> =
+        (0..2).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
+    let scene = upload(&url, &cornell_zip());
+    let id = create_job(&url, &scene, &s, 0);
+    let planned = 64 * 64 * 512;
+    let before =
+        wait_for(&url, &id, TIMEOUT, |st| st["samples_done"].as_u64().unwrap() >= planned / 4);
+    assert_eq!(before["state"], "running");
+    coordinator.kill9();
+    std::thread::sleep(Duration::from_millis(500));
+    let _restarted = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    let resumed = job_status(&url, &id);
+    assert!(
+        resumed["samples_done"].as_u64().unwrap() >= before["samples_done"].as_u64().unwrap(),
+        "merged samples were lost: {resumed:#}"
+    );
+    let status = wait_done(&url, &id, TIMEOUT);
+    assert_eq!(status["samples_done"], planned);
+    let image = fetch_exr(&url, &id, 0);
+    assert_same_image(&reference, &image, "after the coordinator restarted");
+    assert!(sample_counts(&image).iter().all(|&n| n == 512), "a sample was lost or counted twice");
+}
+
+/// A result a worker could have sent for `spec`: every sample of every pixel has value `v`.
+fn result_for(spec: &TaskSpec, v: f32) -> TaskResult {
+    let mut tile = TileAccum::new(spec.rect);
+    for y in 0..spec.rect.height {
+        for x in 0..spec.rect.width {
+            for s in spec.samples.start..spec.samples.end {
+                tile.add_sample(x, y, s, [v; 3]);
+            }
+        }
+    }
+    TaskResult { spec: *spec, tile, rays: 0 }
+}
+
+#[test]
+fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
+    let dir = temp_dir("bad-results");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let scene = upload(&url, &cornell_zip());
+    let single =
+        json!({"width": 32, "height": 32, "spp": 32, "samples_per_task": 32, "tile_size": 32});
+    let job = create_job(&url, &scene, &single, 0);
+    let join = |name: &str| {
+        let a = post_json(&format!("{url}/api/v1/workers"), &json!({"name": name, "threads": 1}));
+        assert_eq!(a.status, 201, "{}", a.error());
+        a.json()["id"].as_str().unwrap().to_string()
+    };
+    let (w1, w2) = (join("w1"), join("w2"));
+    let grant = post_json(&format!("{url}/api/v1/workers/{w1}/lease?wait_s=5"), &json!({})).json();
+    let lease = grant["lease"].as_str().unwrap().to_string();
+    let spec: TaskSpec = serde_json::from_value(grant["task"].clone()).unwrap();
+    // Another job runs on a real worker meanwhile, undisturbed by what follows.
+    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let other = create_job(&url, &scene, &settings(64, 32), 0);
+
+    let result_url = format!("{url}/api/v1/leases/{lease}/result");
+    let send = |worker: &str, content_type: &str, body: &[u8]| {
+        post_bytes(&result_url, content_type, &[("x-worker-id", worker)], body)
+    };
+    let good = encode_result(&result_for(&spec, 0.5));
+
+    let a = send(&w1, "application/octet-stream", &good[..good.len() / 2]);
+    assert_eq!(
+        (a.status, a.error().contains("undecodable")),
+        (400, true),
+        "truncated: {}",
+        a.error()
+    );
+
+    let mut small = spec;
+    small.rect = Rect { width: 16, ..spec.rect };
+    let mut wrong_tile = result_for(&small, 0.5);
+    wrong_tile.spec = spec;
+    let a = send(&w1, "application/octet-stream", &encode_result(&wrong_tile));
+    assert_eq!((a.status, a.error().contains("tile")), (422, true), "wrong tile: {}", a.error());
+
+    let mut impossible = result_for(&spec, 0.5);
+    impossible.tile.pixels[5].sum_sq[1] = -1;
+    let a = send(&w1, "application/octet-stream", &encode_result(&impossible));
+    assert_eq!(a.status, 422, "impossible values: {}", a.error());
+    assert!(a.error().contains("pixel (5, 0)") && a.error().contains("negative"), "{}", a.error());
+
+    let mut inconsistent = result_for(&spec, 0.5);
+    inconsistent.tile.pixels[0].sum[0] *= 1000; // a mean far above what the squares allow
+    let a = send(&w1, "application/octet-stream", &encode_result(&inconsistent));
+    assert_eq!((a.status, a.error().contains("impossible")), (422, true), "{}", a.error());
+
+    let mut short = result_for(&spec, 0.5);
+    short.tile.pixels[3].n -= 1;
+    let a = send(&w1, "application/octet-stream", &encode_result(&short));
+    assert_eq!((a.status, a.error().contains("samples")), (422, true), "{}", a.error());
+
+    let a = send(&w2, "application/octet-stream", &good);
+    assert_eq!((a.status, a.error().contains("another worker")), (403, true), "{}", a.error());
+
+    let a = send(&w1, "application/json", &good);
+    assert_eq!(a.status, 415, "{}", a.error());
+
+    let a = post_bytes(&result_url, "application/octet-stream", &[], &good);
+    assert_eq!((a.status, a.error().contains("x-worker-id")), (400, true), "{}", a.error());
+
+    let a = post_bytes(
+        &format!("{url}/api/v1/leases/0123456789abcdef/result"),
+        "application/octet-stream",
+        &[("x-worker-id", &w1)],
+        &good,
+    );
+    assert_eq!(a.status, 409, "{}", a.error());
+
+    assert_eq!(job_status(&url, &job)["samples_done"], 0, "a refused result was merged");
+
+    let a = send(&w1, "application/octet-stream", &good);
+    assert_eq!(a.status, 200, "the honest result: {}", a.error());
+    let a = send(&w1, "application/octet-stream", &good);
+    assert_eq!((a.status, a.error().contains("not live")), (409, true), "duplicate: {}", a.error());
+    let done = job_status(&url, &job);
+    assert_eq!(done["samples_done"], 32 * 32 * 32, "{done:#}");
+    assert_eq!(done["state"], "done");
+    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 10.0);
+    wait_done(&url, &other, TIMEOUT);
+}
+
+#[test]
+fn bad_requests_get_a_json_error_naming_the_problem() {
+    let dir = temp_dir("bad-requests");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator =
+        start_coordinator(&dir.join("data"), port, &["--max-spp", "1024", "--max-upload-mib", "1"]);
+    let scenes = format!("{url}/api/v1/scenes");
+    let cases: Vec<(Answer, u16, &str)> = vec![
+        (post_bytes(&scenes, "application/octet-stream", &[], b"GIF89a..."), 422, "not a scene"),
+        (post_bytes(&scenes, "application/octet-stream", &[], b""), 422, "empty"),
+        (post_bytes(&scenes, "text/plain", &[], b"{}"), 415, "text/plain"),
+        (post_bytes(&scenes, "model/gltf-binary", &[], &cornell_zip()), 415, "zip"),
+        (post_bytes(&scenes, "application/octet-stream", &[], &vec![b' '; 2 << 20]), 413, "limit"),
+        (
+            post_bytes(&scenes, "model/gltf+json", &[], br#"{"asset":{"version":"2.0"},"buffers":[{"uri":"cornell-box.bin","byteLength":4}],"bufferViews":[{"buffer":0,"byteLength":4}],"accessors":[{"bufferView":0,"componentType":5126,"count":1,"type":"VEC3"}],"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]}"#),
+            422,
+            "cornell-box.bin",
+        ),
+        (post_bytes(&scenes, "application/zip", &[], &cornell_zip()[..500]), 422, "zip"),
+    ];
+    for (a, status, needle) in cases {
+        assert_eq!(a.status, status, "{}", a.error());
+        assert!(a.error().contains(needle), "expected '{needle}' in '{}'", a.error());
+    }
+    let scene = upload(&url, &cornell_zip());
+    assert_eq!(upload(&url, &cornell_zip()), scene, "the same bytes give the same hash");
+    let jobs = format!("{url}/api/v1/jobs");
+    let bad_jobs: Vec<(Value, u16, &str)> = vec![
+        (json!({"scene": "ab".repeat(32), "settings": {}}), 404, "no scene"),
+        (json!({"scene": scene, "settings": {"width": 0}}), 422, "width"),
+        (json!({"scene": scene, "settings": {"width": 100000}}), 422, "width"),
+        (json!({"scene": scene, "settings": {"spp": 5000}}), 422, "limit of 1024"),
+        (json!({"scene": scene, "settings": {"sppp": 5}}), 422, "sppp"),
+        (json!({"scene": scene, "settings": {"camera": "nope"}}), 422, "nope"),
+        (json!({"scene": scene, "settings": {"environment": {"map": "sky.hdr"}}}), 422, "sky.hdr"),
+        (
+            json!({"scene": scene, "settings": {"spp": 1024, "samples_per_task": 1, "tile_size": 1}}),
+            422,
+            "tasks",
+        ),
+        (json!({"scene": scene, "priority": "high"}), 422, "priority"),
+    ];
+    for (body, status, needle) in bad_jobs {
+        let a = post_json(&jobs, &body);
+        assert_eq!(a.status, status, "{body}: {}", a.error());
+        assert!(a.error().contains(needle), "{body}: expected '{needle}' in '{}'", a.error());
+    }
+    let a = post_bytes(&jobs, "application/json", &[], b"{\"scene\": ");
+    assert_eq!(a.status, 422, "{}", a.error());
+    let a = post_bytes(&jobs, "text/plain", &[], b"{}");
+    assert_eq!(a.status, 415, "{}", a.error());
+    for (path, status) in [
+        ("/api/v1/jobs/nope", 404),
+        ("/api/v1/jobs/nope/frames/0.exr", 404),
+        ("/api/v1/scenes/nope", 404),
+        ("/api/v1/nothing", 404),
+    ] {
+        let a = get(&format!("{url}{path}"));
+        assert_eq!(a.status, status, "{path}");
+        assert!(!a.error().is_empty(), "{path}: no JSON error");
+    }
+    let a = delete(&format!("{url}/api/v1/jobs/nope"));
+    assert_eq!((a.status, a.error().is_empty()), (404, false));
+    let a = delete(&format!("{url}/api/v1/scenes"));
+    assert_eq!((a.status, a.error().is_empty()), (405, false));
+    let a = post_json(&format!("{url}/api/v1/workers/nope/lease"), &json!({}));
+    assert_eq!((a.status, a.error().contains("join again")), (404, true));
+    let a = post_json(&format!("{url}/api/v1/workers"), &json!({"name": "x", "threads": 0}));
+    assert_eq!(a.status, 422);
+    // The service is still healthy and serves its documents.
+    assert_eq!(get(&format!("{url}/healthz")).status, 200);
+    let api = get(&format!("{url}/api/v1/openapi.json")).json();
+    assert_eq!(api["openapi"], "3.0.3");
+    for path in ["/api/v1/jobs", "/api/v1/leases/{lease}/result", "/api/v1/workers/{id}/lease"] {
+        assert!(api["paths"][path].is_object(), "{path} is not documented");
+    }
+    let page = String::from_utf8(get(&url).body).unwrap();
+    assert!(page.contains("jobs-table"));
+}
+
+#[test]
+fn workers_join_and_leave_mid_job_and_priorities_are_honoured() {
+    let dir = temp_dir("join-leave");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let scene = upload(&url, &cornell_zip());
+    let low = create_job(&url, &scene, &settings(256, 32), 0);
+    let high = create_job(&url, &scene, &settings(256, 32), 5);
+    let mut first = start_worker(&url, 1, dir.join("first.log"));
+    wait_for(&url, &high, TIMEOUT, |s| s["samples_done"].as_u64().unwrap() > 0);
+    assert_eq!(job_status(&url, &low)["samples_done"], 0, "the low-priority job ran first");
+    let _second = start_worker(&url, 1, dir.join("second.log"));
+    wait_for(&url, &high, TIMEOUT, |s| s["progress"].as_f64().unwrap() > 0.5);
+    assert!(
+        first.terminate(Duration::from_secs(60)),
+        "SIGTERM: the worker did not leave cleanly:\n{}",
+        first.log_text()
+    );
+    assert!(first.log_text().contains("left the farm"));
+    let names: Vec<Value> =
+        get(&format!("{url}/api/v1/workers")).json()["workers"].as_array().unwrap().clone();
+    assert_eq!(names.len(), 1, "the worker that left is still listed: {names:?}");
+    wait_done(&url, &high, TIMEOUT);
+    let low_then = job_status(&url, &low);
+    assert_ne!(low_then["state"], "done", "the low-priority job finished first");
+    wait_done(&url, &low, TIMEOUT);
+    assert_eq!(
+        metric(&url, "renderfarm_tasks_expired_total"),
+        0.0,
+        "a clean leave let a lease expire"
+    );
+}
