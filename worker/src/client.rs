@@ -294,17 +294,14 @@ fn handle(
             return Err(e);
         }
     };
-    let done = AtomicBool::new(false);
     let lost = AtomicBool::new(false);
+    // Dropping `done` wakes the heartbeat thread at once when the render ends.
+    let (done, wake) = std::sync::mpsc::channel::<()>();
     let rendered = std::thread::scope(|s| {
-        s.spawn(|| {
-            let mut next = Instant::now() + heartbeat;
-            while !done.load(Ordering::Relaxed) {
-                std::thread::sleep(Duration::from_millis(20));
-                if Instant::now() < next {
-                    continue;
-                }
-                next = Instant::now() + heartbeat;
+        let lost = &lost;
+        s.spawn(move || {
+            while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) = wake.recv_timeout(heartbeat)
+            {
                 match client.post_lease(worker, &grant.lease, "heartbeat", None, None) {
                     Ok(()) => {}
                     Err(CallError::Status(code, msg)) => {
@@ -319,7 +316,7 @@ fn handle(
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             render_task_threads(&prepared, grant.settings.seed, &grant.task, threads)
         }));
-        done.store(true, Ordering::Relaxed);
+        drop(done);
         result
     });
     let result = match rendered {

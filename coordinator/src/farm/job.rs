@@ -5,9 +5,15 @@
 //! leased task, which it turns merged, so no sample is ever counted twice. Sums merge exactly
 //! (integer arithmetic), so the order results arrive in does not matter.
 //!
-//! Adaptive sampling decides a tile's task `k` only from that tile's tasks `0..k`, all merged:
-//! the decision, and so the image, is the same whatever the timing. Before
-//! [`MIN_ADAPTIVE_SAMPLES`] a tile is never stopped (the estimate needs samples to be trusted).
+//! Adaptive sampling (`target_rel_error` T, a relative RMSE) spends samples where they lower
+//! the image's relative MSE most. Every tile first takes a pilot of [`MIN_ADAPTIVE_SAMPLES`]
+//! per pixel. When a frame's whole pilot is merged, the frame's stopping scale is fixed from it:
+//! with e_t the estimated relative MSE of tile t after n samples per pixel and v_t = e_t n its
+//! per-sample relative variance, the fewest samples reaching a mean error of T² give tile t
+//! n_t ∝ sqrt(v_t) (Lagrange), i.e. stop when e_t <= c² n with c = T² A / Σ a_t sqrt(v_t)
+//! (a_t tile areas, A their sum; with a 10% margin). After that, a tile's task `k` is decided
+//! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
+//! completed data, so the image is the same whatever the timing and the number of workers.
 
 use std::{collections::HashMap, time::Instant};
 
@@ -125,6 +131,8 @@ pub struct Frame {
     pub number: i64,
     /// Its tiles, row-major.
     pub tiles: Vec<Tile>,
+    /// Adaptive sampling: the stopping scale c, fixed once the pilot is merged.
+    pub scale: Option<f64>,
 }
 
 /// A job and everything the scheduler knows about it.
@@ -237,6 +245,7 @@ impl Job {
                         rel_mse: f64::INFINITY,
                     })
                     .collect(),
+                scale: None,
             })
             .collect();
         let tiles_open = frames.iter().map(|f| f.tiles.len()).sum();
@@ -302,7 +311,7 @@ impl Job {
                     continue;
                 }
                 let Some(k) = tile.first_open() else { continue };
-                if adaptive && k >= min_tasks && tile.merged != k {
+                if adaptive && k >= min_tasks && (frame.scale.is_none() || tile.merged != k) {
                     continue; // waiting for the data that decides this task
                 }
                 let better = match best {
@@ -359,8 +368,6 @@ impl Job {
 
     /// Merges the sums of the leased task `key` (the caller has checked that they answer it).
     pub fn merge(&mut self, key: TaskKey, tile: &TileAccum, samples: u64) {
-        let min_tasks = self.min_adaptive_tasks();
-        let target = self.adaptive_target();
         let t = &mut self.frames[key.frame as usize].tiles[key.tile as usize];
         debug_assert_eq!(t.tasks[key.k as usize], TaskState::Leased);
         t.tasks[key.k as usize] = TaskState::Merged;
@@ -369,33 +376,65 @@ impl Job {
         t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
         self.in_flight -= 1;
         self.samples_done += samples;
-        Self::decide(t, min_tasks, target);
-        if t.is_complete() {
-            self.tiles_open -= 1;
-        }
+        self.update_adaptive(key.frame as usize);
         self.finish_if_complete();
     }
 
-    /// The adaptive decision for a tile whose tasks `0..merged` are merged.
-    fn decide(t: &mut Tile, min_tasks: u32, target: Option<f64>) {
-        let Some(target) = target else { return };
-        let prefix_merged = t.tasks[..t.merged as usize].iter().all(|&s| s == TaskState::Merged);
-        if prefix_merged
-            && t.merged >= min_tasks
-            && (t.merged as usize) < t.tasks.len()
-            && t.rel_mse <= target
-        {
-            t.converged = true;
+    /// Fixes the frame's stopping scale once its pilot is merged, and stops the tiles that the
+    /// scale and their merged data say are done. Idempotent.
+    fn update_adaptive(&mut self, f: usize) {
+        let Some(target) = self.adaptive_target() else {
+            self.count_open_tiles();
+            return;
+        };
+        let min_tasks = self.min_adaptive_tasks();
+        let spt = self.settings.samples_per_task;
+        let spp = self.settings.spp;
+        let frame = &mut self.frames[f];
+        if frame.scale.is_none() {
+            let pilot_done = frame.tiles.iter().all(|t| {
+                t.tasks.len() as u32 <= min_tasks
+                    || t.tasks[..min_tasks as usize].iter().all(|&s| s == TaskState::Merged)
+            });
+            if !pilot_done {
+                self.count_open_tiles();
+                return;
+            }
+            let n = (min_tasks * spt).min(spp) as f64;
+            let (mut area, mut weighted) = (0.0, 0.0);
+            for t in &frame.tiles {
+                let a = t.sums.rect.area() as f64;
+                area += a;
+                weighted += a * (t.rel_mse.max(0.0) * n).sqrt();
+            }
+            frame.scale = Some(if weighted > 0.0 { target * area / weighted } else { 1.0 });
         }
+        let c = frame.scale.expect("set above");
+        for t in &mut frame.tiles {
+            let prefix = t.tasks[..t.merged as usize].iter().all(|&s| s == TaskState::Merged);
+            let n = (t.merged * spt).min(spp) as f64;
+            if !t.converged
+                && prefix
+                && t.merged >= min_tasks
+                && (t.merged as usize) < t.tasks.len()
+                && t.rel_mse <= c * c * n
+            {
+                t.converged = true;
+            }
+        }
+        self.count_open_tiles();
+    }
+
+    fn count_open_tiles(&mut self) {
+        self.tiles_open =
+            self.frames.iter().flat_map(|f| &f.tiles).filter(|t| !t.is_complete()).count();
     }
 
     /// Records that tasks `merged` of tile `key` are merged with these sums (restoring state
     /// from the database).
+    /// Call [`Job::restore_adaptive`] once every tile is restored.
     pub fn restore_tile(&mut self, frame: u32, tile: u32, merged: &[u32], sums: TileAccum) {
-        let min_tasks = self.min_adaptive_tasks();
-        let target = self.adaptive_target();
         let t = &mut self.frames[frame as usize].tiles[tile as usize];
-        let was_complete = t.is_complete();
         for &k in merged {
             t.tasks[k as usize] = TaskState::Merged;
         }
@@ -403,10 +442,22 @@ impl Job {
         self.samples_done += sums.pixels.iter().map(|p| p.n as u64).sum::<u64>();
         t.sums = sums;
         t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
-        Self::decide(t, min_tasks, target);
-        if !was_complete && t.is_complete() {
-            self.tiles_open -= 1;
+    }
+
+    /// Restores the frames' stopping scales (as stored: they were fixed from the pilot alone,
+    /// which the merged sums no longer show) and the tiles they stop.
+    pub fn restore_adaptive(&mut self, scales: &[Option<f64>]) {
+        for (frame, &scale) in self.frames.iter_mut().zip(scales) {
+            frame.scale = scale;
         }
+        for f in 0..self.frames.len() {
+            self.update_adaptive(f);
+        }
+    }
+
+    /// The frames' stopping scales, for the database.
+    pub fn scales(&self) -> Vec<Option<f64>> {
+        self.frames.iter().map(|f| f.scale).collect()
     }
 
     /// Moves the job to `Done` when no tile needs more samples, or when the time limit has

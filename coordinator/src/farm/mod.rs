@@ -212,6 +212,7 @@ impl Farm {
             for tile in store.tiles(&stored.id)? {
                 job.restore_tile(tile.frame, tile.tile, &tile.merged, tile.sums);
             }
+            job.restore_adaptive(&stored.scales);
             if stored.state.is_final() {
                 job.set_final(stored.state, stored.error);
             } else {

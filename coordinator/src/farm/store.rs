@@ -45,6 +45,8 @@ pub struct StoredJob {
     pub created_unix: f64,
     /// Running seconds so far.
     pub elapsed_s: f64,
+    /// Adaptive stopping scale per frame (fixed from each frame's pilot).
+    pub scales: Vec<Option<f64>>,
 }
 
 /// A tile row as stored.
@@ -57,6 +59,11 @@ pub struct StoredTile {
     pub merged: Vec<u32>,
     /// Merged sums.
     pub sums: TileAccum,
+}
+
+/// Scales as JSON. f64 round-trips exactly through serde_json's shortest representation.
+fn scales_json(job: &Job) -> String {
+    serde_json::to_string(&job.scales()).unwrap_or_else(|_| "[]".into())
 }
 
 fn bincode_config() -> impl bincode::config::Config {
@@ -80,7 +87,8 @@ impl Store {
              CREATE TABLE IF NOT EXISTS jobs (
                  id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
                  settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
-                 error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL);
+                 error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
+                 scales TEXT NOT NULL DEFAULT '[]');
              CREATE TABLE IF NOT EXISTS tiles (
                  job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
                  merged BLOB NOT NULL, sums BLOB NOT NULL,
@@ -142,8 +150,8 @@ impl Store {
     /// Updates a job's state, error and elapsed time.
     pub fn update_job(&self, job: &Job) -> Result<()> {
         self.db.execute(
-            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4 WHERE id = ?1",
-            params![job.id, job.state.name(), job.error, job.elapsed()],
+            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
+            params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)],
         )?;
         Ok(())
     }
@@ -160,8 +168,8 @@ impl Store {
             params![job.id, frame, tile, merged, sums],
         )?;
         tx.execute(
-            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4 WHERE id = ?1",
-            params![job.id, job.state.name(), job.error, job.elapsed()],
+            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
+            params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)],
         )?;
         tx.commit()?;
         Ok(())
@@ -170,7 +178,7 @@ impl Store {
     /// Every job, oldest first.
     pub fn jobs(&self) -> Result<Vec<StoredJob>> {
         let mut stmt = self.db.prepare(
-            "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s
+            "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s, scales
              FROM jobs ORDER BY seq",
         )?;
         let rows = stmt.query_map([], |r| {
@@ -184,11 +192,15 @@ impl Store {
                 r.get::<_, Option<String>>(6)?,
                 r.get::<_, f64>(7)?,
                 r.get::<_, f64>(8)?,
+                r.get::<_, String>(9)?,
             ))
         })?;
         let mut out = Vec::new();
         for row in rows {
-            let (id, seq, scene, settings, priority, state, error, created_unix, elapsed_s) = row?;
+            let (id, seq, scene, settings, priority, state, error, created_unix, elapsed_s, scales) =
+                row?;
+            let scales: Vec<Option<f64>> = serde_json::from_str(&scales)
+                .with_context(|| format!("job {id}: stored adaptive scales"))?;
             let settings = RenderSettings::from_json(&settings)
                 .map_err(|e| anyhow::anyhow!("job {id}: stored settings: {e}"))?;
             let state = JobState::parse(&state)
@@ -203,6 +215,7 @@ impl Store {
                 error,
                 created_unix,
                 elapsed_s,
+                scales,
             });
         }
         Ok(out)
