@@ -1,12 +1,19 @@
-//! Film arithmetic: per-pixel partial sums that merge exactly, and the statistics read from them.
+//! Film arithmetic: per-pixel running statistics that merge deterministically, and the statistics
+//! read from them.
 //!
-//! Each sample's RGB value is quantised once to fixed point (sum: 2^-48, square: 2^-32, truncated)
-//! and added
-//! into 128-bit integers. Integer addition is associative, so a pixel's sums are bit-for-bit the
-//! same however its samples were split into tasks and in whatever order the tasks are merged:
-//! this is what makes the farm's images reproducible. The quantisation step (3.6e-15) is far below
-//! any radiance a scene produces; values above `MAX_SAMPLE_VALUE` or non-finite are refused and
-//! counted as zero-valued samples instead (reported, never silently added).
+//! A pixel keeps, per channel, the mean of its samples and the sum of squared deviations from it
+//! (Welford's update for one sample, Chan et al.'s for merging two sets): numerically stable even
+//! for a bright pixel with a small spread, where sums of squares cancel. 80 bytes a pixel.
+//!
+//! Floating-point merging is deterministic but not associative, so the farm merges in a
+//! canonical order: a pixel's samples in index order within a task (one thread renders a pixel),
+//! and a tile's tasks in task order. Merging into an empty accumulator is exact (`0 + x = x`,
+//! `x * 1 = x`), so how the rows of a task are spread over threads does not change a bit. The
+//! image is then a pure function of the samples and the task decomposition (which the settings
+//! fix), never of timing, worker count or arrival order.
+//!
+//! Values above `MAX_SAMPLE_VALUE` or non-finite are refused and counted as zero-valued samples
+//! instead (reported, never silently added).
 //!
 //! Even and odd sample indices come from two independently scrambled sequences (see the
 //! worker's sampler), so the means of the two halves are independent estimates. Their difference
@@ -15,39 +22,22 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Fixed-point scale of the per-channel sums.
-const SUM_SCALE: f64 = (1u64 << 48) as f64;
-/// Fixed-point scale of the per-channel sums of squares.
-const SQ_SCALE: f64 = (1u64 << 32) as f64;
-/// Largest magnitude a single sample may have (keeps the 128-bit sums far from overflow:
-/// 2^79 / 2^40 = 2^39 samples of this size before the sum could overflow).
+/// Largest magnitude a single sample may have.
 pub const MAX_SAMPLE_VALUE: f32 = 1.0e12;
 
-/// Truncates a scaled sample to an integer. Any deterministic rounding keeps merging exact; this
-/// one converts through i64 (one instruction) whenever the value fits, which is almost always.
-#[inline]
-fn to_fixed(scaled: f64) -> i128 {
-    const LIMIT: f64 = (1u64 << 62) as f64;
-    if scaled.abs() < LIMIT {
-        scaled as i64 as i128
-    } else {
-        scaled as i128
-    }
-}
-
-/// Sums over the samples of one pixel.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+/// Running statistics of the samples of one pixel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PixelSums {
     /// Number of samples taken (including refused ones, which count as zero).
     pub n: u32,
-    /// Sum of sample values per channel, fixed point 2^-48.
-    pub sum: [i128; 3],
-    /// Sum of squared sample values per channel, fixed point 2^-32.
-    pub sum_sq: [i128; 3],
     /// Number of samples with an odd index.
     pub n_odd: u32,
-    /// Sum over the samples with an odd index, fixed point 2^-48.
-    pub sum_odd: [i128; 3],
+    /// Mean per channel.
+    pub mean: [f64; 3],
+    /// Sum of squared deviations from the mean per channel.
+    pub m2: [f64; 3],
+    /// Mean of the samples with an odd index per channel.
+    pub mean_odd: [f64; 3],
 }
 
 impl PixelSums {
@@ -55,39 +45,55 @@ impl PixelSums {
     /// is not finite or too large to be a radiance.
     #[inline]
     pub fn add(&mut self, sample_idx: u32, rgb: [f32; 3]) -> bool {
-        let odd = sample_idx & 1 == 1;
+        let ok = rgb.iter().all(|v| v.is_finite() && v.abs() <= MAX_SAMPLE_VALUE);
+        let rgb = if ok { rgb } else { [0.0; 3] };
         self.n += 1;
-        self.n_odd += odd as u32;
-        if !rgb.iter().all(|v| v.is_finite() && v.abs() <= MAX_SAMPLE_VALUE) {
-            return false;
+        let inv_n = 1.0 / self.n as f64;
+        let odd = sample_idx & 1 == 1;
+        if odd {
+            self.n_odd += 1;
         }
+        let inv_odd = 1.0 / self.n_odd.max(1) as f64;
         for c in 0..3 {
             let v = rgb[c] as f64;
-            let fixed = to_fixed(v * SUM_SCALE);
-            self.sum[c] += fixed;
+            let delta = v - self.mean[c];
+            self.mean[c] += delta * inv_n;
+            self.m2[c] += delta * (v - self.mean[c]);
             if odd {
-                self.sum_odd[c] += fixed;
+                self.mean_odd[c] += (v - self.mean_odd[c]) * inv_odd;
             }
-            self.sum_sq[c] += to_fixed(v * v * SQ_SCALE);
         }
-        true
+        ok
     }
 
-    /// Adds another pixel's sums (exact and associative).
+    /// Adds another pixel's samples (Chan et al.). Deterministic; exact when either is empty.
     #[inline]
     pub fn merge(&mut self, other: &PixelSums) {
+        if other.n == 0 {
+            return;
+        }
+        if self.n == 0 {
+            *self = *other;
+            return;
+        }
+        let (na, nb) = (self.n as f64, other.n as f64);
+        let n = na + nb;
+        let (oa, ob) = (self.n_odd as f64, other.n_odd as f64);
+        for c in 0..3 {
+            let delta = other.mean[c] - self.mean[c];
+            self.mean[c] += delta * (nb / n);
+            self.m2[c] += other.m2[c] + delta * delta * (na * nb / n);
+            if other.n_odd > 0 {
+                self.mean_odd[c] += (other.mean_odd[c] - self.mean_odd[c]) * (ob / (oa + ob));
+            }
+        }
         self.n += other.n;
         self.n_odd += other.n_odd;
-        for c in 0..3 {
-            self.sum[c] += other.sum[c];
-            self.sum_sq[c] += other.sum_sq[c];
-            self.sum_odd[c] += other.sum_odd[c];
-        }
     }
 
-    /// Checks that these sums could come from `n` real samples of which `n_odd` have odd
-    /// indices: the counts match, sums of squares are non-negative and no smaller than the
-    /// squared sums allow (Cauchy-Schwarz), and no sample exceeded [`MAX_SAMPLE_VALUE`].
+    /// Checks that these statistics could come from `n` real samples of which `n_odd` have odd
+    /// indices: the counts match, every value is finite, means lie within
+    /// [`MAX_SAMPLE_VALUE`], and squared deviations are non-negative.
     pub fn check(&self, n: u32, n_odd: u32) -> Result<(), String> {
         if self.n != n || self.n_odd != n_odd {
             return Err(format!(
@@ -97,21 +103,18 @@ impl PixelSums {
         }
         let max = MAX_SAMPLE_VALUE as f64;
         for c in 0..3 {
-            let s = self.sum[c] as f64 / SUM_SCALE;
-            let q = self.sum_sq[c] as f64 / SQ_SCALE;
-            let s_odd = self.sum_odd[c] as f64 / SUM_SCALE;
-            if self.sum_sq[c] < 0 {
-                return Err(format!("channel {c}: negative sum of squares"));
+            let values = [self.mean[c], self.m2[c], self.mean_odd[c]];
+            if values.iter().any(|v| !v.is_finite()) {
+                return Err(format!("channel {c}: a value is not finite ({values:?})"));
             }
-            // Truncation to fixed point loses at most one unit of the square per sample.
-            let nf = n as f64;
-            if s * s > nf * q * (1.0 + 1e-9) + nf * nf * (2.0 / SQ_SCALE) {
-                return Err(format!("channel {c}: sum {s:e} impossible with sum of squares {q:e}"));
+            if self.m2[c] < 0.0 {
+                return Err(format!("channel {c}: negative sum of squared deviations"));
             }
-            if s.abs() > n as f64 * max || s_odd.abs() > n_odd as f64 * max {
-                return Err(format!(
-                    "channel {c}: sum {s:e} beyond {n} samples of at most {max:e}"
-                ));
+            if self.mean[c].abs() > max || self.mean_odd[c].abs() > max {
+                return Err(format!("channel {c}: mean beyond the largest sample value {max:e}"));
+            }
+            if self.n_odd == 0 && self.mean_odd[c] != 0.0 {
+                return Err(format!("channel {c}: a mean of odd samples without odd samples"));
             }
         }
         Ok(())
@@ -119,11 +122,7 @@ impl PixelSums {
 
     /// Mean radiance per channel (0 with no samples).
     pub fn mean(&self) -> [f64; 3] {
-        if self.n == 0 {
-            return [0.0; 3];
-        }
-        let n = self.n as f64;
-        [0, 1, 2].map(|c| self.sum[c] as f64 / SUM_SCALE / n)
+        self.mean
     }
 
     /// The variance of the mean estimated from the two independent halves (even and odd sample
@@ -136,8 +135,8 @@ impl PixelSums {
         }
         let (n, n0, n1) = (self.n as f64, n_even as f64, self.n_odd as f64);
         Some([0, 1, 2].map(|c| {
-            let m1 = self.sum_odd[c] as f64 / SUM_SCALE / n1;
-            let m0 = (self.sum[c] - self.sum_odd[c]) as f64 / SUM_SCALE / n0;
+            let m1 = self.mean_odd[c];
+            let m0 = (self.mean[c] * n - m1 * n1) / n0;
             (m0 - m1) * (m0 - m1) * n0 * n1 / (n * n)
         }))
     }
@@ -150,11 +149,7 @@ impl PixelSums {
             return [f64::INFINITY; 3];
         }
         let n = self.n as f64;
-        [0, 1, 2].map(|c| {
-            let mean = self.sum[c] as f64 / SUM_SCALE / n;
-            let mean_sq = self.sum_sq[c] as f64 / SQ_SCALE / n;
-            ((mean_sq - mean * mean) * n / (n - 1.0)).max(0.0) / n
-        })
+        [0, 1, 2].map(|c| (self.m2[c] / (n - 1.0)).max(0.0) / n)
     }
 }
 
@@ -313,7 +308,7 @@ mod tests {
     }
 
     #[test]
-    fn merge_is_exact_whatever_the_split_and_order() {
+    fn merging_in_order_matches_one_pass_and_empty_merges_are_exact() {
         let mut state = 7;
         let values: Vec<[f32; 3]> = (0..1000)
             .map(|_| [lcg(&mut state) * 1e3, lcg(&mut state) * 1e-3, lcg(&mut state).powi(8) * 1e6])
@@ -322,19 +317,32 @@ mod tests {
         for (i, v) in values.iter().enumerate() {
             whole.add(i as u32, *v);
         }
-        let (mut a, mut b, mut c) = Default::default();
-        let parts: [&mut PixelSums; 3] = [&mut a, &mut b, &mut c];
+        // Three consecutive ranges, merged in order: the same statistics up to rounding.
+        let mut parts = [PixelSums::default(); 3];
         for (i, v) in values.iter().enumerate() {
-            parts[i % 3].add(i as u32, *v);
+            parts[i * 3 / values.len()].add(i as u32, *v);
         }
-        let mut abc = a;
-        abc.merge(&b);
-        abc.merge(&c);
-        let mut cba = c;
-        cba.merge(&b);
-        cba.merge(&a);
-        assert_eq!(whole, abc);
-        assert_eq!(whole, cba);
+        let mut merged = PixelSums::default();
+        for p in &parts {
+            merged.merge(p);
+        }
+        assert_eq!((merged.n, merged.n_odd), (whole.n, whole.n_odd));
+        for c in 0..3 {
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1e-300);
+            assert!(close(merged.mean[c], whole.mean[c]), "mean {c}");
+            assert!((merged.m2[c] - whole.m2[c]).abs() <= 1e-10 * whole.m2[c], "m2 {c}");
+            assert!(close(merged.mean_odd[c], whole.mean_odd[c]), "odd mean {c}");
+        }
+        // The same order gives the same bits; merging into or with an empty pixel changes none.
+        let mut again = PixelSums::default();
+        for p in &parts {
+            again.merge(p);
+        }
+        assert_eq!(again, merged);
+        let mut into_empty = PixelSums::default();
+        into_empty.merge(&whole);
+        into_empty.merge(&PixelSums::default());
+        assert_eq!(into_empty, whole);
     }
 
     #[test]
@@ -354,7 +362,7 @@ mod tests {
         }
         let welford = m2 / (values.len() - 1) as f64 / values.len() as f64;
         let ours = sums.variance_of_mean()[0];
-        assert!((ours - welford).abs() <= 1e-3 * welford, "{ours} vs {welford}");
+        assert!((ours - welford).abs() <= 1e-9 * welford, "{ours} vs {welford}");
         assert!((sums.mean()[0] - mean).abs() <= 1e-9 * mean);
     }
 

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use common::film::Film;
+use common::film::{ErrorEstimate, Film, TileAccum};
 use exr::prelude::*;
 
 /// Metadata written into the EXR header, one text attribute each.
@@ -20,30 +20,90 @@ pub struct FrameInfo {
     pub frame: i64,
 }
 
+/// What a frame's files hold, per pixel: mean, variance of the mean, sample count (28 bytes a
+/// pixel, a third of the merged statistics it is read from).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Mean radiance per channel, row-major.
+    pub mean: [Vec<f32>; 3],
+    /// Variance of the mean per channel (infinite below two samples).
+    pub variance: [Vec<f32>; 3],
+    /// Samples per pixel.
+    pub samples: Vec<u32>,
+    /// Refused samples.
+    pub rejected: u64,
+    /// Sum over pixels of the estimated relative MSE (see `ErrorEstimate`).
+    rel_mse_sum: f64,
+}
+
+impl FrameImage {
+    /// A black image with no samples.
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize;
+        FrameImage {
+            width,
+            height,
+            mean: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+            variance: [vec![f32::INFINITY; n], vec![f32::INFINITY; n], vec![f32::INFINITY; n]],
+            samples: vec![0; n],
+            rejected: 0,
+            rel_mse_sum: 0.0,
+        }
+    }
+
+    /// Writes a tile's pixels (the tile must lie inside the image).
+    pub fn put_tile(&mut self, tile: &TileAccum) {
+        let r = tile.rect;
+        for row in 0..r.height {
+            for col in 0..r.width {
+                let p = &tile.pixels[(row * r.width + col) as usize];
+                let i = ((r.y0 + row) * self.width + r.x0 + col) as usize;
+                let (m, v) = (p.mean(), p.variance_of_mean());
+                for c in 0..3 {
+                    self.mean[c][i] = m[c] as f32;
+                    self.variance[c][i] =
+                        if v[c].is_finite() { v[c] as f32 } else { f32::INFINITY };
+                }
+                self.samples[i] = p.n;
+            }
+        }
+        self.rejected += tile.rejected;
+        self.rel_mse_sum += ErrorEstimate::of_pixels(&tile.pixels).rel_mse * r.area() as f64;
+    }
+
+    /// The image of a whole film.
+    pub fn from_film(film: &Film) -> Self {
+        let mut image = FrameImage::new(film.width, film.height);
+        let rect = common::film::Rect { x0: 0, y0: 0, width: film.width, height: film.height };
+        let tile = TileAccum { rect, pixels: film.pixels.clone(), rejected: film.rejected };
+        image.put_tile(&tile);
+        image
+    }
+
+    /// Estimated relative MSE of the image (mean over pixels).
+    pub fn est_rel_mse(&self) -> f64 {
+        self.rel_mse_sum / self.samples.len().max(1) as f64
+    }
+}
+
 /// Writes `film` as an EXR at `path`.
 pub fn write_exr(path: &Path, film: &Film, info: &FrameInfo) -> Result<()> {
-    let bytes = exr_bytes(film, info)?;
+    let bytes = exr_bytes(FrameImage::from_film(film), info)?;
     std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
 }
 
-/// Encodes `film` as the EXR file of PRODUCT.md.
-pub fn exr_bytes(film: &Film, info: &FrameInfo) -> Result<Vec<u8>> {
-    let size = (film.width as usize, film.height as usize);
-    let n = film.pixels.len();
-    let mut mean = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
-    let mut var = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
-    let mut samples = Vec::with_capacity(n);
-    for p in &film.pixels {
-        let m = p.mean();
-        let v = p.variance_of_mean();
-        for c in 0..3 {
-            mean[c].push(m[c] as f32);
-            var[c].push(if v[c].is_finite() { v[c] as f32 } else { f32::INFINITY });
-        }
-        samples.push(p.n);
-    }
-    let [r, g, b] = mean;
-    let [vr, vg, vb] = var;
+/// Encodes a frame as the EXR file of PRODUCT.md.
+pub fn exr_bytes(image: FrameImage, info: &FrameInfo) -> Result<Vec<u8>> {
+    let size = (image.width as usize, image.height as usize);
+    let total_samples: u64 = image.samples.iter().map(|&n| n as u64).sum();
+    let (rejected, est_rel_mse) = (image.rejected, image.est_rel_mse());
+    let [r, g, b] = image.mean;
+    let [vr, vg, vb] = image.variance;
+    let samples = image.samples;
     let channels = AnyChannels::sort(SmallVec::from_vec(vec![
         AnyChannel::new("R", FlatSamples::F32(r)),
         AnyChannel::new("G", FlatSamples::F32(g)),
@@ -55,19 +115,18 @@ pub fn exr_bytes(film: &Film, info: &FrameInfo) -> Result<Vec<u8>> {
     ]));
     let mut attributes = LayerAttributes::named("");
     attributes.layer_name = None;
-    let estimate = film.error_estimate();
     let text = |s: String| AttributeValue::Text(Text::from(s.as_str()));
     let other = &mut attributes.other;
     other.insert(Text::from("renderfarm.settings"), text(info.settings_json.clone()));
     other.insert(Text::from("renderfarm.scene_sha256"), text(info.scene_hash.clone()));
-    other.insert(Text::from("renderfarm.samples"), text(film.total_samples().to_string()));
+    other.insert(Text::from("renderfarm.samples"), text(total_samples.to_string()));
     other.insert(
         Text::from("renderfarm.render_seconds"),
         text(format!("{:.3}", info.render_seconds)),
     );
     other.insert(Text::from("renderfarm.frame"), text(info.frame.to_string()));
-    other.insert(Text::from("renderfarm.rejected_samples"), text(film.rejected.to_string()));
-    other.insert(Text::from("renderfarm.est_rel_mse"), text(format!("{:.6e}", estimate.rel_mse)));
+    other.insert(Text::from("renderfarm.rejected_samples"), text(rejected.to_string()));
+    other.insert(Text::from("renderfarm.est_rel_mse"), text(format!("{est_rel_mse:.6e}")));
     let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels);
     let mut out = std::io::Cursor::new(Vec::new());
     Image::from_layer(layer).write().to_buffered(&mut out).context("encoding the EXR")?;
@@ -85,22 +144,22 @@ fn srgb_encode(v: f32) -> f32 {
 
 /// Writes an 8-bit sRGB PNG preview of `film`, scaled by 2^`exposure`.
 pub fn write_png(path: &Path, film: &Film, exposure: f32) -> Result<()> {
-    let bytes = png_bytes(film, exposure)?;
+    let bytes = png_bytes(&FrameImage::from_film(film), exposure)?;
     std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
 }
 
-/// Encodes an 8-bit sRGB PNG preview of `film`, scaled by 2^`exposure`.
-pub fn png_bytes(film: &Film, exposure: f32) -> Result<Vec<u8>> {
+/// Encodes an 8-bit sRGB PNG preview of a frame, scaled by 2^`exposure`.
+pub fn png_bytes(image: &FrameImage, exposure: f32) -> Result<Vec<u8>> {
     let scale = exposure.exp2();
-    let mut bytes = Vec::with_capacity(film.pixels.len() * 3);
-    for p in &film.pixels {
-        for v in p.mean() {
-            let v = (v as f32 * scale).clamp(0.0, 1.0);
+    let mut bytes = Vec::with_capacity(image.samples.len() * 3);
+    for i in 0..image.samples.len() {
+        for c in 0..3 {
+            let v = (image.mean[c][i] * scale).clamp(0.0, 1.0);
             bytes.push((srgb_encode(v) * 255.0 + 0.5) as u8);
         }
     }
     let mut out = Vec::new();
-    let mut encoder = png::Encoder::new(&mut out, film.width, film.height);
+    let mut encoder = png::Encoder::new(&mut out, image.width, image.height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
     let mut writer = encoder.write_header().context("writing PNG header")?;

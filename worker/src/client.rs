@@ -99,8 +99,7 @@ impl Client {
         let resp = self
             .agent
             .post(&self.url(&format!("/workers/{worker}/lease?wait_s={wait_s}")))
-            .set("content-type", "application/json")
-            .send_string("{}")
+            .call()
             .map_err(call_error)?;
         if resp.status() == 204 {
             return Ok(None);

@@ -2,8 +2,10 @@
 //!
 //! Task `k` of a tile covers samples `[k * samples_per_task, min((k + 1) * samples_per_task,
 //! spp))`. A task is open (to be leased), leased, or merged; a result is accepted only for a
-//! leased task, which it turns merged, so no sample is ever counted twice. Sums merge exactly
-//! (integer arithmetic), so the order results arrive in does not matter.
+//! leased task, which it turns merged, so no sample is ever counted twice. A tile's results are
+//! added to its sums in task order (floating-point merging is deterministic only in a fixed
+//! order): a result that arrives before its predecessors waits in the tile's `pending` map until
+//! they are in, so the sums are the same whatever order results arrive in.
 //!
 //! Adaptive sampling (`target_rel_error` T, a relative RMSE) spends samples where they lower
 //! the image's relative MSE most. Every tile first takes a pilot of [`MIN_ADAPTIVE_SAMPLES`]
@@ -15,7 +17,10 @@
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
 
-use std::{collections::HashMap, time::Instant};
+use std::{
+    collections::{BTreeMap, HashMap},
+    time::Instant,
+};
 
 use common::{
     film::{ErrorEstimate, Film, TileAccum},
@@ -24,7 +29,7 @@ use common::{
 };
 use serde::Serialize;
 
-use crate::split::tiles;
+use crate::{output::FrameImage, split::tiles};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
 pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;
@@ -96,11 +101,15 @@ pub struct TaskKey {
 /// One tile's merged sums and task states.
 #[derive(Clone, Debug)]
 pub struct Tile {
-    /// Merged sums of the merged tasks.
+    /// Sums of tasks `0..prefix`, added in task order.
     pub sums: TileAccum,
     tasks: Vec<TaskState>,
-    /// Number of merged tasks.
+    /// Number of accepted tasks (in `sums` or `pending`).
     pub merged: u32,
+    /// Tasks `0..prefix` are added to `sums`.
+    pub prefix: u32,
+    /// Accepted results waiting for an earlier task, by task number.
+    pub pending: BTreeMap<u32, TileAccum>,
     /// Adaptive sampling stopped this tile.
     pub converged: bool,
     /// Estimated relative MSE of the merged sums.
@@ -108,19 +117,12 @@ pub struct Tile {
 }
 
 impl Tile {
-    /// Indices of the merged tasks.
-    pub fn merged_tasks(&self) -> Vec<u32> {
-        (0..self.tasks.len() as u32)
-            .filter(|&k| self.tasks[k as usize] == TaskState::Merged)
-            .collect()
-    }
-
     fn first_open(&self) -> Option<u32> {
         self.tasks.iter().position(|&t| t == TaskState::Open).map(|k| k as u32)
     }
 
     fn is_complete(&self) -> bool {
-        self.converged || self.merged as usize == self.tasks.len()
+        self.converged || self.prefix as usize == self.tasks.len()
     }
 }
 
@@ -241,6 +243,8 @@ impl Job {
                         sums: TileAccum::new(rect),
                         tasks: vec![TaskState::Open; tasks_per_tile as usize],
                         merged: 0,
+                        prefix: 0,
+                        pending: BTreeMap::new(),
                         converged: false,
                         rel_mse: f64::INFINITY,
                     })
@@ -311,7 +315,7 @@ impl Job {
                     continue;
                 }
                 let Some(k) = tile.first_open() else { continue };
-                if adaptive && k >= min_tasks && (frame.scale.is_none() || tile.merged != k) {
+                if adaptive && k >= min_tasks && (frame.scale.is_none() || tile.prefix != k) {
                     continue; // waiting for the data that decides this task
                 }
                 let better = match best {
@@ -366,18 +370,32 @@ impl Job {
         }
     }
 
-    /// Merges the sums of the leased task `key` (the caller has checked that they answer it).
-    pub fn merge(&mut self, key: TaskKey, tile: &TileAccum, samples: u64) {
+    /// Accepts the sums of the leased task `key` (the caller has checked that they answer it):
+    /// adds them to the tile in task order, or keeps them pending until their predecessors are in.
+    pub fn merge(&mut self, key: TaskKey, tile: TileAccum, samples: u64) {
         let t = &mut self.frames[key.frame as usize].tiles[key.tile as usize];
         debug_assert_eq!(t.tasks[key.k as usize], TaskState::Leased);
         t.tasks[key.k as usize] = TaskState::Merged;
-        t.sums.merge(tile);
         t.merged += 1;
-        t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        t.pending.insert(key.k, tile);
+        Self::drain_pending(t);
         self.in_flight -= 1;
         self.samples_done += samples;
         self.update_adaptive(key.frame as usize);
         self.finish_if_complete();
+    }
+
+    /// Adds the pending results that continue the tile's prefix, in task order.
+    fn drain_pending(t: &mut Tile) {
+        let mut advanced = false;
+        while let Some(next) = t.pending.remove(&t.prefix) {
+            t.sums.merge(&next);
+            t.prefix += 1;
+            advanced = true;
+        }
+        if advanced {
+            t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        }
     }
 
     /// Fixes the frame's stopping scale once its pilot is merged, and stops the tiles that the
@@ -392,10 +410,8 @@ impl Job {
         let spp = self.settings.spp;
         let frame = &mut self.frames[f];
         if frame.scale.is_none() {
-            let pilot_done = frame.tiles.iter().all(|t| {
-                t.tasks.len() as u32 <= min_tasks
-                    || t.tasks[..min_tasks as usize].iter().all(|&s| s == TaskState::Merged)
-            });
+            let pilot_done =
+                frame.tiles.iter().all(|t| t.prefix >= min_tasks.min(t.tasks.len() as u32));
             if !pilot_done {
                 self.count_open_tiles();
                 return;
@@ -411,12 +427,10 @@ impl Job {
         }
         let c = frame.scale.expect("set above");
         for t in &mut frame.tiles {
-            let prefix = t.tasks[..t.merged as usize].iter().all(|&s| s == TaskState::Merged);
-            let n = (t.merged * spt).min(spp) as f64;
+            let n = (t.prefix * spt).min(spp) as f64;
             if !t.converged
-                && prefix
-                && t.merged >= min_tasks
-                && (t.merged as usize) < t.tasks.len()
+                && t.prefix >= min_tasks
+                && (t.prefix as usize) < t.tasks.len()
                 && t.rel_mse <= c * c * n
             {
                 t.converged = true;
@@ -430,18 +444,44 @@ impl Job {
             self.frames.iter().flat_map(|f| &f.tiles).filter(|t| !t.is_complete()).count();
     }
 
-    /// Records that tasks `merged` of tile `key` are merged with these sums (restoring state
-    /// from the database).
-    /// Call [`Job::restore_adaptive`] once every tile is restored.
-    pub fn restore_tile(&mut self, frame: u32, tile: u32, merged: &[u32], sums: TileAccum) {
-        let t = &mut self.frames[frame as usize].tiles[tile as usize];
-        for &k in merged {
+    /// Restores a tile from the database: tasks `0..prefix` summed in `sums`, and the pending
+    /// results. Call [`Job::restore_adaptive`] once every tile is restored.
+    pub fn restore_tile(
+        &mut self,
+        frame: u32,
+        tile: u32,
+        prefix: u32,
+        sums: Option<TileAccum>,
+        pending: Vec<(u32, TileAccum)>,
+    ) -> Result<(), String> {
+        let t = self
+            .frames
+            .get_mut(frame as usize)
+            .and_then(|f| f.tiles.get_mut(tile as usize))
+            .ok_or_else(|| format!("stored tile {frame}/{tile} is not in the job"))?;
+        let count = |a: &TileAccum| a.pixels.iter().map(|p| p.n as u64).sum::<u64>();
+        let sums = sums.unwrap_or_else(|| TileAccum::new(t.sums.rect));
+        if prefix as usize > t.tasks.len() || sums.rect != t.sums.rect {
+            return Err(format!("stored tile {frame}/{tile} does not fit the job"));
+        }
+        for k in 0..prefix {
             t.tasks[k as usize] = TaskState::Merged;
         }
-        t.merged = merged.len() as u32;
-        self.samples_done += sums.pixels.iter().map(|p| p.n as u64).sum::<u64>();
+        self.samples_done += count(&sums);
         t.sums = sums;
+        t.prefix = prefix;
+        for (k, acc) in pending {
+            if k < prefix || k as usize >= t.tasks.len() {
+                continue; // already in the sums (a crash between the two writes cannot happen,
+                          // they share a transaction, but an old row must never count twice)
+            }
+            t.tasks[k as usize] = TaskState::Merged;
+            self.samples_done += count(&acc);
+            t.pending.insert(k, acc);
+        }
+        t.merged = prefix + t.pending.len() as u32;
         t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        Ok(())
     }
 
     /// Restores the frames' stopping scales (as stored: they were fixed from the pilot alone,
@@ -510,6 +550,15 @@ impl Job {
             .is_some_and(|&s| s == TaskState::Merged)
     }
 
+    /// The image of frame index `f` (what its files show), built tile by tile.
+    pub fn image(&self, f: usize) -> FrameImage {
+        let mut image = FrameImage::new(self.settings.width, self.settings.height);
+        for tile in &self.frames[f].tiles {
+            image.put_tile(&tile.sums);
+        }
+        image
+    }
+
     /// The merged film of frame index `f`.
     pub fn film(&self, f: usize) -> Film {
         let mut film = Film::new(self.settings.width, self.settings.height);
@@ -530,7 +579,7 @@ impl Job {
             for tile in &frame.tiles {
                 let area = tile.sums.rect.area() as u64;
                 if tile.converged {
-                    let taken: u64 = (tile.merged * self.settings.samples_per_task)
+                    let taken: u64 = (tile.prefix * self.settings.samples_per_task)
                         .min(self.settings.spp) as u64;
                     saved += area * (self.settings.spp as u64 - taken);
                 }
@@ -614,7 +663,8 @@ mod tests {
         assert!(order.windows(2).all(|w| w[0].k <= w[1].k), "progressive order: {order:?}");
         for key in order {
             let r = fake_result(&j, key, 0.5);
-            j.merge(key, &r, r.pixels.iter().map(|p| p.n as u64).sum());
+            let n = r.pixels.iter().map(|p| p.n as u64).sum();
+            j.merge(key, r, n);
         }
         assert_eq!(j.state, JobState::Done);
         assert_eq!(j.samples_done, 64 * 32 * 100);
@@ -644,11 +694,37 @@ mod tests {
         assert_eq!(leased.len(), 2 * 2);
         for key in leased {
             let r = fake_result(&j, key, 0.25);
-            j.merge(key, &r, r.pixels.iter().map(|p| p.n as u64).sum());
+            let n = r.pixels.iter().map(|p| p.n as u64).sum();
+            j.merge(key, r, n);
         }
         assert_eq!(j.state, JobState::Done);
         let status = j.status();
         assert_eq!(status.samples_saved, 64 * 32 * (256 - 16));
         assert_eq!(status.progress, 1.0);
+    }
+
+    #[test]
+    fn results_in_any_order_give_the_same_bits() {
+        let run = |order: &[usize]| {
+            let mut j = job(96, 32, None);
+            let mut keys = Vec::new();
+            while let Some(key) = j.next_task() {
+                j.lease(key);
+                keys.push(key);
+            }
+            for &i in order {
+                let key = keys[i];
+                // Values that differ per task so that the order of addition shows in the bits.
+                let r = fake_result(&j, key, 0.1 + 0.37 * key.k as f32 + 0.011 * key.tile as f32);
+                let n = r.pixels.iter().map(|p| p.n as u64).sum();
+                j.merge(key, r, n);
+            }
+            assert_eq!(j.state, JobState::Done);
+            assert!(j.frames[0].tiles.iter().all(|t| t.pending.is_empty()));
+            j.film(0)
+        };
+        let forward = run(&[0, 1, 2, 3, 4, 5]);
+        assert_eq!(forward, run(&[5, 4, 3, 2, 1, 0]));
+        assert_eq!(forward, run(&[3, 0, 5, 1, 4, 2]));
     }
 }

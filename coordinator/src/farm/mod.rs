@@ -210,7 +210,8 @@ impl Farm {
             };
             job.elapsed_before = stored.elapsed_s;
             for tile in store.tiles(&stored.id)? {
-                job.restore_tile(tile.frame, tile.tile, &tile.merged, tile.sums);
+                job.restore_tile(tile.frame, tile.tile, tile.prefix, tile.sums, tile.pending)
+                    .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;
             }
             job.restore_adaptive(&stored.scales);
             if stored.state.is_final() {
@@ -344,16 +345,31 @@ impl Farm {
     /// settings and scene hash.
     pub fn film(&self, id: &str, number: i64) -> FarmResult<(Film, JobStatus)> {
         let job = self.job(id)?;
-        let f = job.frames.iter().position(|f| f.number == number).ok_or_else(|| {
+        let f = Self::frame_index(job, number)?;
+        Ok((job.film(f), job.status()))
+    }
+
+    /// The image of frame `number` of job `id` (also while it runs), with the job's status.
+    pub fn image(
+        &self,
+        id: &str,
+        number: i64,
+    ) -> FarmResult<(crate::output::FrameImage, JobStatus)> {
+        let job = self.job(id)?;
+        let f = Self::frame_index(job, number)?;
+        Ok((job.image(f), job.status()))
+    }
+
+    fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
+        job.frames.iter().position(|f| f.number == number).ok_or_else(|| {
             FarmError::new(
                 404,
                 format!(
-                    "job {id} has frames {}..={}, not {number}",
-                    job.settings.frames.start, job.settings.frames.end
+                    "job {} has frames {}..={}, not {number}",
+                    job.id, job.settings.frames.start, job.settings.frames.end
                 ),
             )
-        })?;
-        Ok((job.film(f), job.status()))
+        })
     }
 
     /// Cancels a job: its leases are dropped and results for them refused.
@@ -518,7 +534,7 @@ impl Farm {
         &mut self,
         lease: &str,
         worker: &str,
-        result: &TaskResult,
+        result: TaskResult,
         bytes: u64,
     ) -> FarmResult<()> {
         let start = Instant::now();
@@ -532,10 +548,11 @@ impl Farm {
             .check_answers(&job.spec(key))
             .map_err(|e| FarmError::new(422, format!("result refused: {e}")))?;
         let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
-        job.merge(key, &result.tile, samples);
+        let rays = result.rays;
+        job.merge(key, result.tile, samples);
         self.leases.remove(lease);
         let job = &self.jobs[&job_id];
-        if let Err(e) = self.store.commit_tile(job, key.frame, key.tile) {
+        if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k) {
             // The sums in memory are ahead of the database: fail loudly rather than go on.
             tracing::error!("committing a merged result failed: {e:#}");
             return Err(e.into());
@@ -547,7 +564,7 @@ impl Farm {
         c.tasks_merged += 1;
         c.samples_merged += samples;
         c.bytes_merged += bytes;
-        c.rays += result.rays;
+        c.rays += rays;
         c.merge_seconds += start.elapsed().as_secs_f64();
         if let Some(w) = self.workers.get_mut(worker) {
             w.tasks_done += 1;
@@ -711,4 +728,68 @@ pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> Far
             .map_err(|e| FarmError::new(422, format!("settings: environment.map: {e}")))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use common::{film::TileAccum, protocol::TaskResult};
+
+    fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
+        let spec = grant.task;
+        let mut tile = TileAccum::new(spec.rect);
+        for y in 0..spec.rect.height {
+            for x in 0..spec.rect.width {
+                for s in spec.samples.start..spec.samples.end {
+                    tile.add_sample(x, y, s, [v + s as f32 * 0.01; 3]);
+                }
+            }
+        }
+        TaskResult { spec, tile, rays: 0 }
+    }
+
+    /// A result accepted out of order survives a restart as pending: counted once, never
+    /// leased again, and added in task order once its predecessor arrives.
+    #[test]
+    fn pending_results_survive_a_restart_and_merge_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let settings = RenderSettings {
+            width: 8,
+            height: 8,
+            tile_size: 8,
+            spp: 8,
+            samples_per_task: 4,
+            ..Default::default()
+        };
+        let hash = "ab".repeat(32);
+        let (id, first, second) = {
+            let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+            farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+            let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+            let w =
+                farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+            let first = farm.lease(&w).unwrap().unwrap();
+            let second = farm.lease(&w).unwrap().unwrap();
+            assert_eq!((first.task.samples.start, second.task.samples.start), (0, 4));
+            farm.submit(&second.lease, &w, result_for(&second, 0.5), 0).unwrap();
+            let status = farm.status(&id).unwrap();
+            assert_eq!(status.samples_done, 64 * 4);
+            (id, first, second)
+        };
+        let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+        assert_eq!(farm.status(&id).unwrap().samples_done, 64 * 4, "the pending result was lost");
+        let w = farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+        let again = farm.lease(&w).unwrap().unwrap();
+        assert_eq!(again.task, first.task, "only the unanswered task is leased again");
+        assert!(farm.lease(&w).unwrap().is_none());
+        farm.submit(&again.lease, &w, result_for(&again, 0.5), 0).unwrap();
+        let status = farm.status(&id).unwrap();
+        assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 8));
+        // The same bits as merging in order without any restart.
+        let mut expected = TileAccum::new(first.task.rect);
+        expected.merge(&result_for(&first, 0.5).tile);
+        expected.merge(&result_for(&second, 0.5).tile);
+        let (film, _) = farm.film(&id, 0).unwrap();
+        assert_eq!(film.pixels, expected.pixels);
+    }
 }

@@ -1,11 +1,10 @@
 //! What the coordinator must not lose, in SQLite (WAL mode) under `--data`: scenes (files,
-//! content-addressed by SHA-256), jobs, and each tile's merged sums with the set of tasks merged
-//! into them.
+//! content-addressed by SHA-256), jobs, each tile's sums of its tasks `0..prefix`, and the
+//! accepted results still waiting for an earlier task (`pending`).
 //!
-//! A result is merged in memory and written in one transaction (tile sums + merged task set +
-//! job counters) before the worker hears "merged", so after a `kill -9` the database holds
-//! exactly the merged tasks: the tasks that were leased but not yet committed are simply leased
-//! again. WAL with `synchronous = NORMAL` survives a process crash at any point; only a power
+//! A result is accepted in memory and written in one transaction (tile row, pending rows, job
+//! row) before the worker hears "merged", so after a `kill -9` the database holds exactly the
+//! accepted tasks: the tasks that were leased but not yet committed are simply leased again. WAL with `synchronous = NORMAL` survives a process crash at any point; only a power
 //! loss may lose the last transactions (which are then re-rendered, never double counted).
 
 use std::{
@@ -55,10 +54,12 @@ pub struct StoredTile {
     pub frame: u32,
     /// Tile index.
     pub tile: u32,
-    /// Merged task numbers.
-    pub merged: Vec<u32>,
-    /// Merged sums.
-    pub sums: TileAccum,
+    /// Tasks `0..prefix` are in `sums`.
+    pub prefix: u32,
+    /// Their sums, added in task order (`None`: no task is summed yet).
+    pub sums: Option<TileAccum>,
+    /// Accepted results waiting for an earlier task.
+    pub pending: Vec<(u32, TileAccum)>,
 }
 
 /// Scales as JSON. f64 round-trips exactly through serde_json's shortest representation.
@@ -91,8 +92,12 @@ impl Store {
                  scales TEXT NOT NULL DEFAULT '[]');
              CREATE TABLE IF NOT EXISTS tiles (
                  job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
-                 merged BLOB NOT NULL, sums BLOB NOT NULL,
-                 PRIMARY KEY (job, frame, tile));",
+                 prefix INTEGER NOT NULL, sums BLOB NOT NULL,
+                 PRIMARY KEY (job, frame, tile));
+             CREATE TABLE IF NOT EXISTS pending (
+                 job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
+                 task INTEGER NOT NULL, sums BLOB NOT NULL,
+                 PRIMARY KEY (job, frame, tile, task));",
         )
         .context("creating the schema")?;
         Ok(Store { db, scenes_dir })
@@ -156,17 +161,31 @@ impl Store {
         Ok(())
     }
 
-    /// Writes one tile's merged state and the job's counters in one transaction.
-    pub fn commit_tile(&mut self, job: &Job, frame: u32, tile: u32) -> Result<()> {
+    /// Writes what accepting task `k` of a tile changed, and the job's row, in one transaction:
+    /// the result itself when it is pending, else the tile's new prefix and sums (and the pending
+    /// rows they absorbed).
+    pub fn commit_task(&mut self, job: &Job, frame: u32, tile: u32, k: u32) -> Result<()> {
         let t = &job.frames[frame as usize].tiles[tile as usize];
-        let merged = bincode::encode_to_vec(t.merged_tasks(), bincode_config())?;
-        let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
         let tx = self.db.transaction()?;
-        tx.execute(
-            "INSERT INTO tiles (job, frame, tile, merged, sums) VALUES (?1, ?2, ?3, ?4, ?5)
-             ON CONFLICT (job, frame, tile) DO UPDATE SET merged = ?4, sums = ?5",
-            params![job.id, frame, tile, merged, sums],
-        )?;
+        if let Some(acc) = t.pending.get(&k) {
+            let sums = bincode::serde::encode_to_vec(acc, bincode_config())?;
+            tx.execute(
+                "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums)
+                 VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![job.id, frame, tile, k, sums],
+            )?;
+        } else {
+            let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
+            tx.execute(
+                "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
+                 ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
+                params![job.id, frame, tile, t.prefix, sums],
+            )?;
+            tx.execute(
+                "DELETE FROM pending WHERE job = ?1 AND frame = ?2 AND tile = ?3 AND task < ?4",
+                params![job.id, frame, tile, t.prefix],
+            )?;
+        }
         tx.execute(
             "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
             params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)],
@@ -221,26 +240,46 @@ impl Store {
         Ok(out)
     }
 
-    /// The stored tiles of a job.
+    /// The stored tiles of a job (a tile with only pending results has prefix 0 and no sums).
     pub fn tiles(&self, job: &str) -> Result<Vec<StoredTile>> {
+        let mut pending: std::collections::BTreeMap<(u32, u32), Vec<(u32, TileAccum)>> =
+            Default::default();
         let mut stmt =
-            self.db.prepare("SELECT frame, tile, merged, sums FROM tiles WHERE job = ?1")?;
+            self.db.prepare("SELECT frame, tile, task, sums FROM pending WHERE job = ?1")?;
         let rows = stmt.query_map([job], |r| {
             Ok((
                 r.get::<_, u32>(0)?,
                 r.get::<_, u32>(1)?,
-                r.get::<_, Vec<u8>>(2)?,
+                r.get::<_, u32>(2)?,
+                r.get::<_, Vec<u8>>(3)?,
+            ))
+        })?;
+        for row in rows {
+            let (frame, tile, task, sums) = row?;
+            let (sums, _): (TileAccum, usize) =
+                bincode::serde::decode_from_slice(&sums, bincode_config())?;
+            pending.entry((frame, tile)).or_default().push((task, sums));
+        }
+        let mut stmt =
+            self.db.prepare("SELECT frame, tile, prefix, sums FROM tiles WHERE job = ?1")?;
+        let rows = stmt.query_map([job], |r| {
+            Ok((
+                r.get::<_, u32>(0)?,
+                r.get::<_, u32>(1)?,
+                r.get::<_, u32>(2)?,
                 r.get::<_, Vec<u8>>(3)?,
             ))
         })?;
         let mut out = Vec::new();
         for row in rows {
-            let (frame, tile, merged, sums) = row?;
-            let (merged, _): (Vec<u32>, usize) =
-                bincode::decode_from_slice(&merged, bincode_config())?;
+            let (frame, tile, prefix, sums) = row?;
             let (sums, _): (TileAccum, usize) =
                 bincode::serde::decode_from_slice(&sums, bincode_config())?;
-            out.push(StoredTile { frame, tile, merged, sums });
+            let pending = pending.remove(&(frame, tile)).unwrap_or_default();
+            out.push(StoredTile { frame, tile, prefix, sums: Some(sums), pending });
+        }
+        for ((frame, tile), pending) in pending {
+            out.push(StoredTile { frame, tile, prefix: 0, sums: None, pending });
         }
         Ok(out)
     }

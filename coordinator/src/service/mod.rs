@@ -399,7 +399,7 @@ async fn frame_image(
     }
     let st = state.clone();
     blocking(move || {
-        let (film, status) = st.lock().film(&id, number)?;
+        let (image, status) = st.lock().image(&id, number)?;
         if ext == "exr" {
             let info = FrameInfo {
                 settings_json: serde_json::to_string(&status.settings).unwrap_or_default(),
@@ -407,11 +407,11 @@ async fn frame_image(
                 render_seconds: status.elapsed_s,
                 frame: number,
             };
-            let bytes = exr_bytes(&film, &info)?;
+            let bytes = exr_bytes(image, &info)?;
             Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"))], bytes)
                 .into_response())
         } else {
-            let bytes = png_bytes(&film, 0.0)?;
+            let bytes = png_bytes(&image, 0.0)?;
             Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], bytes)
                 .into_response())
         }
@@ -446,7 +446,11 @@ async fn lease(
     State(state): State<AppState>,
     Path(worker): Path<String>,
     uri: axum::http::Uri,
+    body: Body,
 ) -> ApiResult<Response> {
+    // Any body is read (and ignored): one left unread makes the server drop the connection,
+    // which a client that keeps connections alive sees as a failure of its next request.
+    read_body(body, 1 << 16).await?;
     let mut wait_s = 0.0;
     for pair in uri.query().unwrap_or("").split('&').filter(|p| !p.is_empty()) {
         match pair.split_once('=') {
@@ -491,7 +495,9 @@ async fn heartbeat(
     State(state): State<AppState>,
     Path(lease): Path<String>,
     headers: HeaderMap,
+    body: Body,
 ) -> ApiResult<Response> {
+    read_body(body, 1 << 16).await?;
     let worker = worker_id(&headers)?;
     let left = state.lock().heartbeat(&lease, &worker)?;
     Ok(Json(json!({ "lease_timeout_s": left })).into_response())
@@ -534,7 +540,7 @@ async fn merge_result(
     blocking(move || {
         let result = decode_result(&bytes)
             .map_err(|e| FarmError::new(400, format!("result refused: {e}")))?;
-        st.lock().submit(&lease, &worker, &result, bytes.len() as u64)
+        st.lock().submit(&lease, &worker, result, bytes.len() as u64)
     })
     .await?;
     state.work.notify_waiters();
