@@ -190,9 +190,10 @@ pub fn render_file(
             if status.state.is_final() || handles.iter().all(|h| h.is_finished()) {
                 break status;
             }
-            std::thread::sleep(Duration::from_millis(50));
+            std::thread::sleep(Duration::from_millis(10));
         };
         stop.store(true, Ordering::Relaxed);
+        service.drain();
         for h in handles {
             h.join().map_err(|_| anyhow::anyhow!("a local worker panicked"))??;
         }

@@ -172,6 +172,8 @@ pub struct Job {
     expiries: HashMap<TaskKey, u32>,
     /// The time limit has passed: no more tasks are issued.
     pub time_up: bool,
+    /// A finished job's sums were dropped from memory (they stay in the database).
+    pub evicted: bool,
 }
 
 /// A job's public status.
@@ -272,6 +274,7 @@ impl Job {
             failures: HashMap::new(),
             expiries: HashMap::new(),
             time_up: false,
+            evicted: false,
         })
     }
 
@@ -548,6 +551,18 @@ impl Job {
             .and_then(|f| f.tiles.get(key.tile as usize))
             .and_then(|t| t.tasks.get(key.k as usize))
             .is_some_and(|&s| s == TaskState::Merged)
+    }
+
+    /// Drops the sums of a finished job from memory; its images are then read from the database.
+    pub fn evict(&mut self) {
+        debug_assert!(self.state.is_final());
+        for frame in &mut self.frames {
+            for tile in &mut frame.tiles {
+                tile.sums.pixels = Vec::new();
+                tile.pending.clear();
+            }
+        }
+        self.evicted = true;
     }
 
     /// The image of frame index `f` (what its files show), built tile by tile.

@@ -216,6 +216,7 @@ impl Farm {
             job.restore_adaptive(&stored.scales);
             if stored.state.is_final() {
                 job.set_final(stored.state, stored.error);
+                job.evict();
             } else {
                 job.state = if job.samples_done > 0 { JobState::Running } else { JobState::Queued };
                 job.finish_if_complete();
@@ -346,7 +347,34 @@ impl Farm {
     pub fn film(&self, id: &str, number: i64) -> FarmResult<(Film, JobStatus)> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
-        Ok((job.film(f), job.status()))
+        if !job.evicted {
+            return Ok((job.film(f), job.status()));
+        }
+        let mut film = Film::new(job.settings.width, job.settings.height);
+        for tile in self.stored_tiles(job, f)? {
+            film.merge_tile(&tile);
+        }
+        Ok((film, job.status()))
+    }
+
+    /// The summed tiles of frame index `f` of an evicted job, from the database.
+    fn stored_tiles(&self, job: &Job, f: usize) -> FarmResult<Vec<common::film::TileAccum>> {
+        Ok(self
+            .store
+            .tiles(&job.id)?
+            .into_iter()
+            .filter(|t| t.frame as usize == f)
+            .filter_map(|t| t.sums)
+            .collect())
+    }
+
+    /// Drops a finished job's sums from memory.
+    fn evict_if_final(&mut self, id: &str) {
+        if let Some(job) = self.jobs.get_mut(id) {
+            if job.state.is_final() && !job.evicted {
+                job.evict();
+            }
+        }
     }
 
     /// The image of frame `number` of job `id` (also while it runs), with the job's status.
@@ -357,7 +385,14 @@ impl Farm {
     ) -> FarmResult<(crate::output::FrameImage, JobStatus)> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
-        Ok((job.image(f), job.status()))
+        if !job.evicted {
+            return Ok((job.image(f), job.status()));
+        }
+        let mut image = crate::output::FrameImage::new(job.settings.width, job.settings.height);
+        for tile in self.stored_tiles(job, f)? {
+            image.put_tile(&tile);
+        }
+        Ok((image, job.status()))
     }
 
     fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
@@ -384,6 +419,7 @@ impl Farm {
         self.store.update_job(job)?;
         let status = job.status();
         self.drop_leases_of(id);
+        self.evict_if_final(id);
         tracing::info!(job = %id, "job cancelled");
         Ok(status)
     }
@@ -560,6 +596,7 @@ impl Farm {
         if job.state == JobState::Done {
             tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(), "job done");
         }
+        self.evict_if_final(&job_id);
         let c = &mut self.counters;
         c.tasks_merged += 1;
         c.samples_merged += samples;
@@ -600,6 +637,7 @@ impl Farm {
             job.set_final(JobState::Failed, Some(reason));
             self.store.update_job(job)?;
             self.drop_leases_of(&job_id);
+            self.evict_if_final(&job_id);
         }
         Ok(())
     }
@@ -635,12 +673,16 @@ impl Farm {
                 job.set_final(JobState::Failed, Some(reason));
                 let _ = self.store.update_job(job);
                 self.drop_leases_of(&l.job);
+                self.evict_if_final(&l.job);
             }
         }
         for job in self.jobs.values_mut() {
             if job.check_time_limit() {
                 tracing::info!(job = %job.id, "time limit reached: no more tasks are issued");
                 let _ = self.store.update_job(job);
+                if job.state.is_final() {
+                    job.evict();
+                }
             }
         }
         let silent = self.config.lease_timeout * 3;

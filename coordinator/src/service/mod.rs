@@ -11,7 +11,10 @@ mod metrics;
 
 use std::{
     net::SocketAddr,
-    sync::{Arc, Mutex, MutexGuard},
+    sync::{
+        atomic::{AtomicBool, Ordering},
+        Arc, Mutex, MutexGuard,
+    },
     time::Duration,
 };
 
@@ -65,6 +68,8 @@ struct AppState {
     farm: Arc<Mutex<Farm>>,
     work: Arc<Notify>,
     config: Arc<ServiceConfig>,
+    /// Set when the embedding process is about to stop: lease requests answer at once.
+    draining: Arc<AtomicBool>,
 }
 
 impl AppState {
@@ -179,6 +184,8 @@ pub struct Running {
     /// The address it listens on.
     pub addr: SocketAddr,
     farm: Arc<Mutex<Farm>>,
+    draining: Arc<AtomicBool>,
+    work: Arc<Notify>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<Result<()>>>,
 }
@@ -192,6 +199,13 @@ impl Running {
     /// The farm state, for an embedding process that wants to read it directly.
     pub fn farm(&self) -> Arc<Mutex<Farm>> {
         self.farm.clone()
+    }
+
+    /// From now on lease requests answer "no work" at once instead of waiting, so that local
+    /// workers told to stop are not held by a long poll.
+    pub fn drain(&self) {
+        self.draining.store(true, Ordering::Relaxed);
+        self.work.notify_waiters();
     }
 
     /// Stops the service and waits for it.
@@ -230,12 +244,15 @@ pub fn spawn(listen: &str, config: ServiceConfig) -> Result<Running> {
     let addr = listener.local_addr()?;
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
     let shared = farm.clone();
+    let draining = Arc::new(AtomicBool::new(false));
+    let work = Arc::new(Notify::new());
+    let (d, w) = (draining.clone(), work.clone());
     let thread = std::thread::Builder::new().name("coordinator".into()).spawn(move || {
-        runtime.block_on(serve_farm(listener, shared, config, async {
+        runtime.block_on(serve_farm(listener, shared, config, Some((d, w)), async {
             let _ = rx.await;
         }))
     })?;
-    Ok(Running { addr, farm, stop: Some(tx), thread: Some(thread) })
+    Ok(Running { addr, farm, draining, work, stop: Some(tx), thread: Some(thread) })
 }
 
 /// Opens the farm under `config` and serves it on `listener` until `shutdown` completes.
@@ -249,16 +266,18 @@ pub async fn serve_on(
         .await
         .context("opening the farm")??;
     tracing::info!(data = %config.farm.data_dir.display(), "farm state opened");
-    serve_farm(listener, Arc::new(Mutex::new(farm)), config, shutdown).await
+    serve_farm(listener, Arc::new(Mutex::new(farm)), config, None, shutdown).await
 }
 
 async fn serve_farm(
     listener: tokio::net::TcpListener,
     farm: Arc<Mutex<Farm>>,
     config: ServiceConfig,
+    embedded: Option<(Arc<AtomicBool>, Arc<Notify>)>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<()> {
-    let state = AppState { farm, work: Arc::new(Notify::new()), config: Arc::new(config) };
+    let (draining, work) = embedded.unwrap_or_default();
+    let state = AppState { farm, work, config: Arc::new(config), draining };
     let ticker = {
         let state = state.clone();
         tokio::spawn(async move {
@@ -476,6 +495,9 @@ async fn lease(
         notified.as_mut().enable();
         if let Some(grant) = state.lock().lease(&worker)? {
             return Ok(Json(grant).into_response());
+        }
+        if state.draining.load(Ordering::Relaxed) {
+            return Ok(StatusCode::NO_CONTENT.into_response());
         }
         if tokio::time::timeout_at(deadline, notified).await.is_err() {
             return Ok(StatusCode::NO_CONTENT.into_response());
