@@ -163,6 +163,7 @@ pub fn render_file(
     let id = job["id"].as_str().context("job answer without an id")?.to_string();
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
+    let cache = client::SceneCache::default();
     let status = std::thread::scope(|s| -> Result<JobStatus> {
         let handles: Vec<_> = (0..workers.max(1))
             .map(|i| {
@@ -172,8 +173,8 @@ pub fn render_file(
                     name: format!("local-{i}"),
                     wait_s: 1.0,
                 };
-                let stop = &stop;
-                s.spawn(move || client::run(&config, stop))
+                let (stop, cache) = (&stop, &cache);
+                s.spawn(move || client::run_with_cache(&config, stop, cache))
             })
             .collect();
         let farm = service.farm();

@@ -11,7 +11,7 @@
 use std::{
     sync::{
         atomic::{AtomicBool, Ordering},
-        Arc,
+        Arc, Mutex,
     },
     time::{Duration, Instant},
 };
@@ -147,27 +147,31 @@ impl Client {
     }
 }
 
-/// The scenes this worker has prepared, most recent first (a few jobs at once).
-struct SceneCache {
-    entries: Vec<(String, Arc<PreparedScene>)>,
+/// The scenes a worker has prepared, most recent first (a few jobs at once). Workers of one
+/// process can share one cache, so that the scene and its BVH are held once however many of them
+/// run; a worker that needs a scene another is preparing waits for it instead of building twice.
+#[derive(Default)]
+pub struct SceneCache {
+    entries: Mutex<Vec<(String, Arc<PreparedScene>)>>,
 }
 
 impl SceneCache {
     const CAPACITY: usize = 2;
 
     fn get_or_prepare(
-        &mut self,
+        &self,
         client: &Client,
         grant: &LeaseGrant,
     ) -> Result<Arc<PreparedScene>, String> {
+        let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
         let key = format!(
             "{}/{}",
             grant.scene,
             serde_json::to_string(&grant.settings).map_err(|e| e.to_string())?
         );
-        if let Some(i) = self.entries.iter().position(|(k, _)| *k == key) {
-            let entry = self.entries.remove(i);
-            self.entries.insert(0, entry.clone());
+        if let Some(i) = entries.iter().position(|(k, _)| *k == key) {
+            let entry = entries.remove(i);
+            entries.insert(0, entry.clone());
             return Ok(entry.1);
         }
         let start = Instant::now();
@@ -192,8 +196,8 @@ impl SceneCache {
             "scene prepared"
         );
         let prepared = Arc::new(prepared);
-        self.entries.insert(0, (key, prepared.clone()));
-        self.entries.truncate(Self::CAPACITY);
+        entries.insert(0, (key, prepared.clone()));
+        entries.truncate(Self::CAPACITY);
         Ok(prepared)
     }
 }
@@ -202,6 +206,15 @@ impl SceneCache {
 /// cleanly). Returns an error only for what retrying cannot fix (the coordinator refuses the
 /// join).
 pub fn run(config: &JoinConfig, stop: &AtomicBool) -> Result<WorkerStats> {
+    run_with_cache(config, stop, &SceneCache::default())
+}
+
+/// [`run`] with a scene cache shared with other workers of this process.
+pub fn run_with_cache(
+    config: &JoinConfig,
+    stop: &AtomicBool,
+    cache: &SceneCache,
+) -> Result<WorkerStats> {
     let agent = ureq::AgentBuilder::new()
         .timeout_connect(Duration::from_secs(5))
         .timeout_read(Duration::from_secs_f64(config.wait_s + 60.0))
@@ -213,7 +226,6 @@ pub fn run(config: &JoinConfig, stop: &AtomicBool) -> Result<WorkerStats> {
         threads: config.threads as u32,
         version: env!("CARGO_PKG_VERSION").to_string(),
     };
-    let mut cache = SceneCache { entries: Vec::new() };
     let mut stats = WorkerStats::default();
     let mut me: Option<JoinResponse> = None;
     let mut backoff = Duration::from_millis(200);
@@ -242,7 +254,7 @@ pub fn run(config: &JoinConfig, stop: &AtomicBool) -> Result<WorkerStats> {
             Ok(None) => {}
             Ok(Some(grant)) => {
                 backoff = Duration::from_millis(200);
-                match handle(&client, &worker, &grant, config.threads, heartbeat, &mut cache) {
+                match handle(&client, &worker, &grant, config.threads, heartbeat, cache) {
                     Ok(true) => stats.merged += 1,
                     Ok(false) => stats.refused += 1,
                     Err(e) => tracing::warn!(lease = %grant.lease, "{e}"),
@@ -283,7 +295,7 @@ fn handle(
     grant: &LeaseGrant,
     threads: usize,
     heartbeat: Duration,
-    cache: &mut SceneCache,
+    cache: &SceneCache,
 ) -> Result<bool, String> {
     let prepared = match cache.get_or_prepare(client, grant) {
         Ok(p) => p,
