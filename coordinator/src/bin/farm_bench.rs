@@ -197,12 +197,12 @@ fn run(args: &Args, url: &str, pid: u32) -> Result<()> {
         args.task_seconds
     );
     println!(
-        "coordinator RSS: idle {:.1} MB, job created {:.1} MB, job done {:.1} MB ({:.1} B/pixel over idle), peak {:.1} MB; EXR fetch {fetch_seconds:.2} s, peak after fetch {:.1} MB",
+        "coordinator RSS: idle {:.1} MB, job created {:.1} MB, peak while merging {:.1} MB ({:.1} B/pixel over idle), job done (sums evicted to the database) {:.1} MB; EXR fetch {fetch_seconds:.2} s, peak with the fetch {:.1} MB",
         rss_idle as f64 / 1024.0,
         rss_job as f64 / 1024.0,
-        rss_done as f64 / 1024.0,
-        (rss_done - rss_idle) as f64 * 1024.0 / pixels,
         peak as f64 / 1024.0,
+        peak.saturating_sub(rss_idle) as f64 * 1024.0 / pixels,
+        rss_done as f64 / 1024.0,
         peak_after_fetch as f64 / 1024.0
     );
     Ok(())
