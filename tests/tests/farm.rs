@@ -319,3 +319,72 @@ fn workers_join_and_leave_mid_job_and_priorities_are_honoured() {
         "a clean leave let a lease expire"
     );
 }
+
+#[test]
+fn heartbeats_keep_long_tasks_alive_and_time_limits_stop_jobs() {
+    let dir = temp_dir("heartbeat");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &["--lease-timeout", "0.5"]);
+    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let scene = upload(&url, &cornell_zip());
+    // One task of about two seconds, four times the lease timeout.
+    let long =
+        json!({"width": 32, "height": 32, "spp": 2048, "samples_per_task": 2048, "tile_size": 32});
+    let id = create_job(&url, &scene, &long, 0);
+    let status = wait_done(&url, &id, TIMEOUT);
+    assert_eq!(status["samples_done"], 32 * 32 * 2048);
+    assert_eq!(
+        metric(&url, "renderfarm_tasks_expired_total"),
+        0.0,
+        "a heartbeat-renewed lease expired"
+    );
+    // A time limit ends a job that asks for far more samples than it can take in that time.
+    let limited = json!({"width": 64, "height": 64, "spp": 65536, "samples_per_task": 16, "time_limit_s": 1.0});
+    let id = create_job(&url, &scene, &limited, 0);
+    let status = wait_done(&url, &id, TIMEOUT);
+    let done = status["samples_done"].as_u64().unwrap();
+    assert!(done > 0 && done < status["samples_planned"].as_u64().unwrap(), "{status:#}");
+    assert!(status["elapsed_s"].as_f64().unwrap() < 30.0, "{status:#}");
+    let image = fetch_exr(&url, &id, 0);
+    assert!(sample_counts(&image).iter().all(|&n| n > 0 && n % 16 == 0), "whole tasks only");
+}
+
+#[test]
+fn a_task_that_keeps_failing_fails_its_job_with_the_reason() {
+    let dir = temp_dir("failing");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let scene = upload(&url, &cornell_zip());
+    let s = json!({"width": 32, "height": 32, "spp": 64, "samples_per_task": 32});
+    let id = create_job(&url, &scene, &s, 0);
+    let a = post_json(&format!("{url}/api/v1/workers"), &json!({"name": "flaky", "threads": 1}));
+    let worker = a.json()["id"].as_str().unwrap().to_string();
+    for attempt in 1..=3 {
+        let grant =
+            post_json(&format!("{url}/api/v1/workers/{worker}/lease?wait_s=5"), &json!({})).json();
+        assert_eq!(
+            grant["task"]["samples"]["start"], 0,
+            "attempt {attempt}: the failed task is retried first"
+        );
+        let lease = grant["lease"].as_str().unwrap();
+        let a = post_bytes(
+            &format!("{url}/api/v1/leases/{lease}/fail"),
+            "application/json",
+            &[("x-worker-id", &worker)],
+            json!({"error": "out of memory building the BVH"}).to_string().as_bytes(),
+        );
+        assert_eq!(a.status, 200, "{}", a.error());
+    }
+    let status = job_status(&url, &id);
+    assert_eq!(status["state"], "failed", "{status:#}");
+    let error = status["error"].as_str().unwrap();
+    assert!(
+        error.contains("failed 3 times") && error.contains("out of memory building the BVH"),
+        "{error}"
+    );
+    // Its other task is not handed out any more.
+    let a = post_json(&format!("{url}/api/v1/workers/{worker}/lease?wait_s=0"), &json!({}));
+    assert_eq!(a.status, 204);
+}
