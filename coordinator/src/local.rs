@@ -53,7 +53,7 @@ pub struct RenderReport {
 pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
 /// `out.exr` -> `out_0007.exr` for frame 7.
-fn numbered(out: &Path, frame: i64) -> PathBuf {
+pub(crate) fn numbered(out: &Path, frame: i64) -> PathBuf {
     let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let ext = out.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or("exr".into());
     out.with_file_name(format!("{stem}_{frame:04}.{ext}"))
@@ -113,7 +113,7 @@ pub fn bundle_scene(
     Ok((Bundle::pack(&files)?, settings))
 }
 
-fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
+pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
     match e {
         ureq::Error::Status(code, resp) => {
             let text = resp.into_string().unwrap_or_default();
@@ -172,6 +172,7 @@ pub fn render_file(
                     threads: 1,
                     name: format!("local-{i}"),
                     wait_s: 1.0,
+                    token: None,
                 };
                 let (stop, cache) = (&stop, &cache);
                 s.spawn(move || client::run_with_cache(&config, stop, cache))

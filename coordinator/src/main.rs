@@ -2,14 +2,16 @@
 
 use std::{
     io::IsTerminal,
+    net::{IpAddr, Ipv4Addr, SocketAddr},
     path::{Path, PathBuf},
     time::Duration,
 };
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use common::settings::{Environment, RenderSettings};
 use coordinator::{
+    client::{healthcheck, submit, Remote},
     local::render_file,
     service::{serve_on, ServiceConfig},
 };
@@ -22,6 +24,58 @@ struct Cli {
     command: Command,
 }
 
+/// Render settings: a JSON file, and flags that override it.
+#[derive(Args)]
+struct SettingsArgs {
+    /// Samples per pixel.
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Image width.
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height.
+    #[arg(long)]
+    height: Option<u32>,
+    /// Sampler seed.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Maximum path depth (bounces).
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Render settings JSON file; flags override it.
+    #[arg(long)]
+    settings: Option<PathBuf>,
+}
+
+impl SettingsArgs {
+    fn load(&self) -> Result<RenderSettings> {
+        let mut s = match &self.settings {
+            Some(path) => {
+                let text = std::fs::read_to_string(path)
+                    .with_context(|| format!("reading {}", path.display()))?;
+                let mut s = RenderSettings::from_json(&text)
+                    .map_err(anyhow::Error::msg)
+                    .with_context(|| format!("{}", path.display()))?;
+                // A map named in a settings file is relative to that file.
+                if let Some(Environment::Map { map, .. }) = &mut s.environment {
+                    if Path::new(map.as_str()).is_relative() {
+                        let dir = path.parent().unwrap_or(Path::new("."));
+                        *map = dir.join(&*map).to_string_lossy().into_owned();
+                    }
+                }
+                s
+            }
+            None => RenderSettings::default(),
+        };
+        s.spp = self.spp.unwrap_or(s.spp);
+        s.width = self.width.unwrap_or(s.width);
+        s.height = self.height.unwrap_or(s.height);
+        s.seed = self.seed.unwrap_or(s.seed);
+        s.max_depth = self.max_depth.unwrap_or(s.max_depth);
+        Ok(s)
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Render a glTF scene on this machine and write OUT.exr (+ OUT.png).
@@ -31,36 +85,26 @@ enum Command {
         /// Output EXR path.
         #[arg(short, long)]
         output: PathBuf,
-        /// Samples per pixel.
-        #[arg(long)]
-        spp: Option<u32>,
-        /// Image width.
-        #[arg(long)]
-        width: Option<u32>,
-        /// Image height.
-        #[arg(long)]
-        height: Option<u32>,
-        /// Sampler seed.
-        #[arg(long)]
-        seed: Option<u64>,
-        /// Maximum path depth (bounces).
-        #[arg(long)]
-        max_depth: Option<u32>,
-        /// Local worker threads (default: one per core).
+        #[command(flatten)]
+        settings: SettingsArgs,
+        /// Local workers (default: one per core).
         #[arg(long)]
         workers: Option<usize>,
-        /// Render settings JSON file; flags override it.
-        #[arg(long)]
-        settings: Option<PathBuf>,
     },
     /// Run the farm service: REST API, worker protocol, metrics and dashboard.
     Serve {
-        /// Address to listen on.
+        /// Address to listen on. Without a join token only loopback addresses are served.
         #[arg(long, default_value = "127.0.0.1:8080")]
         listen: String,
         /// Folder for the database and the uploaded scenes (created if missing).
         #[arg(long, default_value = "farm-data")]
         data: PathBuf,
+        /// Shared token workers must present to join.
+        #[arg(long, env = "RENDERFARM_TOKEN", hide_env_values = true)]
+        token: Option<String>,
+        /// Bearer token users must present to the REST API.
+        #[arg(long, env = "RENDERFARM_API_TOKEN", hide_env_values = true)]
+        api_token: Option<String>,
         /// Seconds before an unrenewed lease is given to another worker.
         #[arg(long, default_value_t = 30.0)]
         lease_timeout: f64,
@@ -71,14 +115,55 @@ enum Command {
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
     },
+    /// Submit a scene to a running farm, wait, and write OUT.exr (+ OUT.png).
+    Submit {
+        /// The scene (.gltf or .glb).
+        scene: PathBuf,
+        /// Output EXR path.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// The coordinator.
+        #[arg(long, env = "RENDERFARM_URL", default_value = "http://127.0.0.1:8080")]
+        url: String,
+        /// Bearer token of the coordinator's REST API.
+        #[arg(long, env = "RENDERFARM_API_TOKEN", hide_env_values = true)]
+        api_token: Option<String>,
+        /// Job priority (higher runs first).
+        #[arg(long, default_value_t = 0)]
+        priority: i32,
+        #[command(flatten)]
+        settings: SettingsArgs,
+    },
+    /// Exit 0 when the coordinator at URL answers /healthz (for container health checks).
+    Healthcheck {
+        /// The coordinator.
+        #[arg(long, default_value = "http://127.0.0.1:8080")]
+        url: String,
+    },
+}
+
+/// An empty token (an unset variable in a compose file) means no token.
+fn token(t: Option<String>) -> Option<String> {
+    t.filter(|t| !t.trim().is_empty())
+}
+
+fn progress_bar() -> Option<ProgressBar> {
+    std::io::stderr().is_terminal().then(|| {
+        let bar = ProgressBar::new(0);
+        bar.set_style(
+            ProgressStyle::with_template("{bar:40} {percent}% of samples {elapsed} eta {eta}")
+                .expect("valid template"),
+        );
+        bar
+    })
 }
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
     // `render` reports only problems (the farm's chatter is for the service's log).
     let default_filter = match cli.command {
-        Command::Render { .. } => "warn",
         Command::Serve { .. } => "coordinator=info,worker=info,common=info",
+        _ => "warn",
     };
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -88,71 +173,79 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match cli.command {
-        Command::Serve { listen, data, lease_timeout, max_spp, max_upload_mib } => {
+        Command::Serve {
+            listen,
+            data,
+            token: join,
+            api_token,
+            lease_timeout,
+            max_spp,
+            max_upload_mib,
+        } => {
             anyhow::ensure!(
                 lease_timeout.is_finite() && lease_timeout > 0.0,
                 "--lease-timeout must be a positive number of seconds"
             );
+            let mut addr: SocketAddr = listen.parse().with_context(|| {
+                format!("--listen {listen}: expected an address like 0.0.0.0:8080")
+            })?;
             let mut config = ServiceConfig::new(data);
+            config.join_token = token(join);
+            config.api_token = token(api_token);
+            if config.join_token.is_none() && !addr.ip().is_loopback() {
+                let requested = addr;
+                addr.set_ip(IpAddr::V4(Ipv4Addr::LOCALHOST));
+                tracing::warn!(
+                    "no join token (--token or RENDERFARM_TOKEN): listening on {addr} only, not {requested}, so that no other machine can join or submit; set a token to serve a network"
+                );
+            } else if config.api_token.is_none() && !addr.ip().is_loopback() {
+                tracing::warn!(
+                    "no API token (--api-token or RENDERFARM_API_TOKEN): anyone who can reach {addr} can submit and cancel jobs"
+                );
+            }
             config.farm.lease_timeout = Duration::from_secs_f64(lease_timeout);
             config.farm.max_spp = max_spp;
             config.max_upload_bytes = max_upload_mib << 20;
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {
-                let listener = tokio::net::TcpListener::bind(&listen)
+                let listener = tokio::net::TcpListener::bind(addr)
                     .await
-                    .with_context(|| format!("listening on {listen}"))?;
+                    .with_context(|| format!("listening on {addr}"))?;
                 tracing::info!("coordinator listening on http://{}", listener.local_addr()?);
                 serve_on(listener, config, shutdown_signal()).await
             })
         }
-        Command::Render {
-            scene,
-            output,
-            spp,
-            width,
-            height,
-            seed,
-            max_depth,
-            workers,
-            settings,
-        } => {
-            let mut s = match settings {
-                Some(path) => {
-                    let text = std::fs::read_to_string(&path)
-                        .with_context(|| format!("reading {}", path.display()))?;
-                    let mut s = RenderSettings::from_json(&text)
-                        .map_err(anyhow::Error::msg)
-                        .with_context(|| format!("{}", path.display()))?;
-                    // A map named in a settings file is relative to that file.
-                    if let Some(Environment::Map { map, .. }) = &mut s.environment {
-                        if Path::new(map.as_str()).is_relative() {
-                            let dir = path.parent().unwrap_or(Path::new("."));
-                            *map = dir.join(&*map).to_string_lossy().into_owned();
-                        }
-                    }
-                    s
+        Command::Healthcheck { url } => healthcheck(&url),
+        Command::Submit { scene, output, url, api_token, priority, settings } => {
+            let settings = settings.load()?;
+            let remote = Remote { url, api_token: token(api_token) };
+            let bar = progress_bar();
+            let progress = |done: usize, total: usize| {
+                if let Some(bar) = &bar {
+                    bar.set_length(total as u64);
+                    bar.set_position(done as u64);
                 }
-                None => RenderSettings::default(),
             };
-            s.spp = spp.unwrap_or(s.spp);
-            s.width = width.unwrap_or(s.width);
-            s.height = height.unwrap_or(s.height);
-            s.seed = seed.unwrap_or(s.seed);
-            s.max_depth = max_depth.unwrap_or(s.max_depth);
+            let status = submit(&remote, &scene, &settings, priority, &output, &progress)?;
+            if let Some(bar) = bar {
+                bar.finish_and_clear();
+            }
+            eprintln!(
+                "job {} done: {} samples in {:.2} s, estimated relative error {}; wrote {}",
+                status["id"].as_str().unwrap_or("?"),
+                status["samples_done"],
+                status["elapsed_s"].as_f64().unwrap_or(0.0),
+                status["est_rel_error"],
+                output.display()
+            );
+            Ok(())
+        }
+        Command::Render { scene, output, settings, workers } => {
+            let s = settings.load()?;
             let workers = workers.unwrap_or_else(|| {
                 std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
             });
-            let bar = std::io::stderr().is_terminal().then(|| {
-                let bar = ProgressBar::new(0);
-                bar.set_style(
-                    ProgressStyle::with_template(
-                        "{bar:40} {percent}% of samples {elapsed} eta {eta}",
-                    )
-                    .expect("valid template"),
-                );
-                bar
-            });
+            let bar = progress_bar();
             let progress = |done: usize, total: usize| {
                 if let Some(bar) = &bar {
                     bar.set_length(total as u64);
@@ -176,13 +269,12 @@ fn main() -> Result<()> {
                 "unknown (needs 2 spp)".to_string()
             };
             eprintln!(
-                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s, BVH {:.3} s; estimated relMSE {}; wrote {}",
+                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s; estimated relMSE {}; wrote {}",
                 report.samples,
                 report.render_seconds,
                 report.samples as f64 / report.render_seconds / 1e6,
                 report.rays as f64 / report.render_seconds / 1e6,
                 report.load_seconds,
-                report.build_seconds,
                 est_text,
                 report.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
             );

@@ -388,3 +388,99 @@ fn a_task_that_keeps_failing_fails_its_job_with_the_reason() {
     let a = post_json(&format!("{url}/api/v1/workers/{worker}/lease?wait_s=0"), &json!({}));
     assert_eq!(a.status, 204);
 }
+
+#[test]
+fn tokens_guard_the_worker_protocol_and_the_user_api() {
+    let dir = temp_dir("tokens");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(
+        &dir.join("data"),
+        port,
+        &["--token", "join-secret", "--api-token", "api-secret"],
+    );
+    let worker = |token: Option<&str>| {
+        let mut cmd = std::process::Command::new(bin_dir().join("worker"));
+        cmd.args(["--join", &url, "--wait", "1"]).env_remove("RENDERFARM_TOKEN");
+        if let Some(t) = token {
+            cmd.env("RENDERFARM_TOKEN", t);
+        }
+        cmd.output().unwrap()
+    };
+    let wrong = worker(Some("guess"));
+    assert!(!wrong.status.success());
+    assert!(String::from_utf8_lossy(&wrong.stderr).contains("join token refused"), "{wrong:?}");
+    let missing = worker(None);
+    assert!(!missing.status.success());
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("needs a join token"), "{missing:?}");
+    let jobs = format!("{url}/api/v1/jobs");
+    assert_eq!(get(&jobs).status, 401);
+    let a = post_bytes(&jobs, "application/json", &[("authorization", "Bearer nope")], b"{}");
+    assert_eq!((a.status, a.error().contains("API token")), (401, true), "{}", a.error());
+    let a = post_json(&format!("{url}/api/v1/workers"), &json!({"name": "x", "threads": 1}));
+    assert_eq!(a.status, 401, "a worker joined without the token");
+    assert_eq!(get(&format!("{url}/healthz")).status, 200, "health stays open");
+    // With the right tokens everything works: a worker joins and a job is rendered.
+    let mut good = std::process::Command::new(bin_dir().join("worker"));
+    good.args(["--join", &url, "--token", "join-secret", "--wait", "1"]);
+    let log = std::fs::File::create(dir.join("worker.log")).unwrap();
+    let mut child = good.stderr(log).spawn().unwrap();
+    let api = [("authorization", "Bearer api-secret")];
+    let a = post_bytes(&format!("{url}/api/v1/scenes"), "application/zip", &api, &cornell_zip());
+    assert_eq!(a.status, 201, "{}", a.error());
+    let scene = a.json()["scene"].as_str().unwrap().to_string();
+    let body = json!({"scene": scene, "settings": {"width": 32, "height": 32, "spp": 8}});
+    let a = post_bytes(&jobs, "application/json", &api, body.to_string().as_bytes());
+    assert_eq!(a.status, 201, "{}", a.error());
+    let id = a.json()["id"].as_str().unwrap().to_string();
+    let end = std::time::Instant::now() + TIMEOUT;
+    loop {
+        let resp = ureq::get(&format!("{jobs}/{id}"))
+            .set("authorization", "Bearer api-secret")
+            .call()
+            .unwrap();
+        let status: Value = resp.into_json().unwrap();
+        if status["state"] == "done" {
+            break;
+        }
+        assert!(std::time::Instant::now() < end, "{status:#}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+#[test]
+fn without_a_token_the_coordinator_serves_loopback_only_and_says_so() {
+    let dir = temp_dir("no-token");
+    let port = free_port();
+    let mut cmd = std::process::Command::new(bin_dir().join("coordinator"));
+    cmd.args(["serve", "--listen", &format!("0.0.0.0:{port}"), "--data"]).arg(dir.join("data"));
+    cmd.env_remove("RENDERFARM_TOKEN").env_remove("RENDERFARM_API_TOKEN");
+    let log = dir.join("coordinator.log");
+    cmd.stderr(std::fs::File::create(&log).unwrap());
+    let mut child = cmd.spawn().unwrap();
+    let url = format!("http://127.0.0.1:{port}/healthz");
+    let end = std::time::Instant::now() + Duration::from_secs(20);
+    while ureq::get(&url).call().is_err() {
+        assert!(std::time::Instant::now() < end, "{}", std::fs::read_to_string(&log).unwrap());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let text = std::fs::read_to_string(&log).unwrap();
+    // Another interface of this machine, if it has one, must not answer.
+    let other = std::process::Command::new("hostname").arg("-I").output().ok().and_then(|o| {
+        String::from_utf8_lossy(&o.stdout)
+            .split_whitespace()
+            .find(|a| !a.starts_with("127.") && !a.contains(':'))
+            .map(str::to_string)
+    });
+    let reached_elsewhere =
+        other.map(|ip| ureq::get(&format!("http://{ip}:{port}/healthz")).call().is_ok());
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        text.contains(&format!("listening on 127.0.0.1:{port} only, not 0.0.0.0:{port}")),
+        "{text}"
+    );
+    assert_ne!(reached_elsewhere, Some(true), "answered on a non-loopback address");
+}

@@ -39,6 +39,8 @@ pub struct JoinConfig {
     pub name: String,
     /// Longest a lease request waits for work, in seconds.
     pub wait_s: f64,
+    /// The coordinator's join token, sent as a bearer token on every request.
+    pub token: Option<String>,
 }
 
 /// What a worker did before it stopped.
@@ -83,6 +85,7 @@ fn call_error(e: ureq::Error) -> CallError {
 struct Client {
     agent: ureq::Agent,
     base: String,
+    auth: Option<String>,
 }
 
 impl Client {
@@ -90,15 +93,25 @@ impl Client {
         format!("{}/api/v1{path}", self.base)
     }
 
+    fn post(&self, path: &str) -> ureq::Request {
+        self.authorize(self.agent.post(&self.url(path)))
+    }
+
+    fn authorize(&self, req: ureq::Request) -> ureq::Request {
+        match &self.auth {
+            Some(value) => req.set("authorization", value),
+            None => req,
+        }
+    }
+
     fn join(&self, req: &JoinRequest) -> Result<JoinResponse, CallError> {
-        let resp = self.agent.post(&self.url("/workers")).send_json(req).map_err(call_error)?;
+        let resp = self.post("/workers").send_json(req).map_err(call_error)?;
         resp.into_json().map_err(|e| CallError::Transport(e.to_string()))
     }
 
     fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError> {
         let resp = self
-            .agent
-            .post(&self.url(&format!("/workers/{worker}/lease?wait_s={wait_s}")))
+            .post(&format!("/workers/{worker}/lease?wait_s={wait_s}"))
             .call()
             .map_err(call_error)?;
         if resp.status() == 204 {
@@ -108,8 +121,10 @@ impl Client {
     }
 
     fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {
-        let resp =
-            self.agent.get(&self.url(&format!("/scenes/{hash}"))).call().map_err(call_error)?;
+        let resp = self
+            .authorize(self.agent.get(&self.url(&format!("/scenes/{hash}"))))
+            .call()
+            .map_err(call_error)?;
         let mut bytes = Vec::new();
         std::io::Read::read_to_end(&mut resp.into_reader(), &mut bytes)
             .map_err(|e| CallError::Transport(e.to_string()))?;
@@ -124,10 +139,7 @@ impl Client {
         body: Option<&[u8]>,
         json: Option<&FailReport>,
     ) -> Result<(), CallError> {
-        let req = self
-            .agent
-            .post(&self.url(&format!("/leases/{lease}/{what}")))
-            .set(WORKER_HEADER, worker);
+        let req = self.post(&format!("/leases/{lease}/{what}")).set(WORKER_HEADER, worker);
         let sent = match (body, json) {
             (Some(bytes), _) => {
                 req.set("content-type", "application/octet-stream").send_bytes(bytes)
@@ -139,8 +151,7 @@ impl Client {
     }
 
     fn leave(&self, worker: &str) -> Result<(), CallError> {
-        self.agent
-            .delete(&self.url(&format!("/workers/{worker}")))
+        self.authorize(self.agent.delete(&self.url(&format!("/workers/{worker}"))))
             .call()
             .map(|_| ())
             .map_err(call_error)
@@ -220,7 +231,11 @@ pub fn run_with_cache(
         .timeout_read(Duration::from_secs_f64(config.wait_s + 60.0))
         .timeout_write(Duration::from_secs(60))
         .build();
-    let client = Client { agent, base: config.url.trim_end_matches('/').to_string() };
+    let client = Client {
+        agent,
+        base: config.url.trim_end_matches('/').to_string(),
+        auth: config.token.as_ref().map(|t| format!("Bearer {t}")),
+    };
     let request = JoinRequest {
         name: config.name.clone(),
         threads: config.threads as u32,

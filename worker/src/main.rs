@@ -25,6 +25,9 @@ struct Cli {
     /// Name shown in the coordinator's workers list (default: host name and process id).
     #[arg(long)]
     name: Option<String>,
+    /// The coordinator's join token.
+    #[arg(long, env = "RENDERFARM_TOKEN", hide_env_values = true)]
+    token: Option<String>,
     /// Longest a lease request waits for work, in seconds.
     #[arg(long, default_value_t = 20.0)]
     wait: f64,
@@ -80,7 +83,8 @@ fn main() -> Result<()> {
                 signal_hook::flag::register(signal, stop.clone())
                     .context("installing the signal handler")?;
             }
-            let config = worker::client::JoinConfig { url, threads, name, wait_s: cli.wait };
+            let token = cli.token.filter(|t| !t.trim().is_empty());
+            let config = worker::client::JoinConfig { url, threads, name, wait_s: cli.wait, token };
             let stats = worker::client::run(&config, &stop)?;
             tracing::info!(merged = stats.merged, refused = stats.refused, "worker stopped");
             return Ok(());

@@ -7,6 +7,7 @@
 //! image) runs outside it on blocking threads, and a merge holds it only for the in-memory
 //! addition and the database commit.
 
+mod auth;
 mod metrics;
 
 use std::{
@@ -50,6 +51,10 @@ pub struct ServiceConfig {
     pub max_upload_bytes: usize,
     /// How long a lease request may wait for work.
     pub max_lease_wait: Duration,
+    /// Workers must present this bearer token (when set).
+    pub join_token: Option<String>,
+    /// Users must present this bearer token to the user API (when set).
+    pub api_token: Option<String>,
 }
 
 impl ServiceConfig {
@@ -59,6 +64,8 @@ impl ServiceConfig {
             farm: FarmConfig::new(data_dir),
             max_upload_bytes: 1 << 30,
             max_lease_wait: Duration::from_secs(30),
+            join_token: None,
+            api_token: None,
         }
     }
 }
@@ -176,6 +183,7 @@ fn router(state: AppState) -> Router {
                 FarmError::new(405, format!("{method} is not allowed on {uri}"))
             },
         )
+        .layer(axum::middleware::from_fn_with_state(state.clone(), auth::check))
         .with_state(state)
 }
 
@@ -293,7 +301,13 @@ async fn serve_farm(
             }
         })
     };
-    let app = router(state);
+    let app = router(state.clone());
+    // On shutdown, long polls answer "no work" at once instead of holding the server open.
+    let shutdown = async move {
+        shutdown.await;
+        state.draining.store(true, Ordering::Relaxed);
+        state.work.notify_waiters();
+    };
     let result = axum::serve(listener, app).with_graceful_shutdown(shutdown).await;
     ticker.abort();
     result.context("serving HTTP")
@@ -493,11 +507,11 @@ async fn lease(
         let notified = state.work.notified();
         tokio::pin!(notified);
         notified.as_mut().enable();
-        if let Some(grant) = state.lock().lease(&worker)? {
-            return Ok(Json(grant).into_response());
-        }
         if state.draining.load(Ordering::Relaxed) {
             return Ok(StatusCode::NO_CONTENT.into_response());
+        }
+        if let Some(grant) = state.lock().lease(&worker)? {
+            return Ok(Json(grant).into_response());
         }
         if tokio::time::timeout_at(deadline, notified).await.is_err() {
             return Ok(StatusCode::NO_CONTENT.into_response());
