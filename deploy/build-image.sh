@@ -31,7 +31,6 @@ chown 10001:10001 "$rootfs/data" 2>/dev/null || true
 tar --numeric-owner -C "$rootfs" -c . | docker import - renderfarm-base:local >/dev/null
 
 echo "== image renderfarm:local"
-DOCKER_BUILDKIT=1 docker build -q -f deploy/Dockerfile \
-    --build-arg BINARIES=host --build-arg RUNTIME=renderfarm-base:local \
-    -t renderfarm:local . >/dev/null
+docker build -q -f deploy/Dockerfile --target host \
+    --build-arg RUNTIME=renderfarm-base:local -t renderfarm:local . >/dev/null
 docker image ls renderfarm:local --format 'renderfarm:local {{.Size}}'

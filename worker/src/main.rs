@@ -63,6 +63,7 @@ fn main() -> Result<()> {
                 .unwrap_or_else(|_| "worker=info,common=info".into()),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     let command = match (cli.command, cli.join) {
