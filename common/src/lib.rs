@@ -3,6 +3,7 @@
 //! # Layout
 //! - [`scene`]: the scene model (plain data, f64 placements).
 //! - [`gltf`]: glTF 2.0 loading and validation into a [`scene::Scene`].
+//! - [`animation`]: node animation curves and world transforms at any time.
 //! - [`bundle`]: uploaded scene bundles (`.glb`, `.gltf`, `.zip`) resolved only inside themselves.
 //! - [`settings`]: render settings (the JSON of PRODUCT.md) with validation.
 //! - [`envmap`]: equirectangular environment maps (HDR, EXR) and their direction convention.
@@ -13,6 +14,7 @@
 
 #![warn(missing_docs)]
 
+pub mod animation;
 pub mod bundle;
 pub mod envmap;
 pub mod film;

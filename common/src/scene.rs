@@ -23,6 +23,9 @@ pub struct Scene {
     pub cameras: Vec<Camera>,
     /// `KHR_lights_punctual` lights, placed in the world.
     pub lights: Vec<PunctualLight>,
+    /// Node animation, when the file animates a node; instances and cameras are posed at its
+    /// rest pose until [`Scene::set_time`] poses them at another time.
+    pub animation: Option<crate::animation::Animation>,
 }
 
 /// One glTF primitive's triangles in local space.
@@ -55,6 +58,9 @@ pub struct Instance {
     pub node: usize,
     /// Local-to-world transform, in f64 so that large translations survive.
     pub transform: DMat4,
+    /// The placement relative to the node (`EXT_mesh_gpu_instancing`; else the identity):
+    /// `transform` = the node's world transform x `offset`.
+    pub offset: DMat4,
 }
 
 /// How alpha is interpreted (`alphaMode`).
@@ -253,6 +259,32 @@ pub struct PunctualLight {
 }
 
 impl Scene {
+    /// Poses animated instances and cameras at time `t` (seconds). Nothing moves in a scene
+    /// without animation. Lights stay where the rest pose puts them.
+    pub fn set_time(&mut self, t: f64) {
+        let Some(anim) = &self.animation else { return };
+        for inst in &mut self.instances {
+            if anim.moves(inst.node) {
+                inst.transform = anim.world(inst.node, t) * inst.offset;
+            }
+        }
+        for cam in &mut self.cameras {
+            if let Some(node) = cam.node.filter(|&n| anim.moves(n)) {
+                if let Some(m) = crate::gltf::nodes::rigid(anim.world(node, t)) {
+                    cam.transform = m;
+                }
+            }
+        }
+    }
+
+    /// Whether anything in the scene moves over time.
+    pub fn is_animated(&self) -> bool {
+        self.animation.as_ref().is_some_and(|a| {
+            self.instances.iter().any(|i| a.moves(i.node))
+                || self.cameras.iter().any(|c| c.node.is_some_and(|n| a.moves(n)))
+        })
+    }
+
     /// World-space bounds of all instanced geometry, or `None` for an empty scene.
     pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
         let mut lo = DVec3::splat(f64::INFINITY);

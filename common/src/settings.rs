@@ -166,7 +166,12 @@ impl RenderSettings {
         Ok(settings)
     }
 
-    /// Checks every value for sense.
+    /// The animation time of frame `frame` in seconds (frame / fps).
+    pub fn frame_time(&self, frame: i64) -> f64 {
+        frame as f64 / self.frames.fps
+    }
+
+    /// Checks every value and names the first key that is wrong.
     pub fn validate(&self) -> Result<(), SettingsError> {
         if self.width == 0 || self.width > MAX_RESOLUTION {
             return Err(err("width", format!("{} is not in 1..={MAX_RESOLUTION}", self.width)));

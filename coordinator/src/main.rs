@@ -42,6 +42,9 @@ struct SettingsArgs {
     /// Maximum path depth (bounces).
     #[arg(long)]
     max_depth: Option<u32>,
+    /// Frames to render, `A..B` (inclusive) or `N`; a range writes OUT_####.exr per frame.
+    #[arg(long, value_name = "A..B")]
+    frames: Option<String>,
     /// Render settings JSON file; flags override it.
     #[arg(long)]
     settings: Option<PathBuf>,
@@ -72,6 +75,20 @@ impl SettingsArgs {
         s.height = self.height.unwrap_or(s.height);
         s.seed = self.seed.unwrap_or(s.seed);
         s.max_depth = self.max_depth.unwrap_or(s.max_depth);
+        if let Some(range) = &self.frames {
+            let parse = |v: &str| {
+                v.trim()
+                    .parse::<i64>()
+                    .with_context(|| format!("--frames {range}: '{v}' is not a frame number"))
+            };
+            let (start, end) = match range.split_once("..") {
+                Some((a, b)) => (parse(a)?, parse(b.trim_start_matches('='))?),
+                None => (parse(range)?, parse(range)?),
+            };
+            anyhow::ensure!(start <= end, "--frames {range}: the range is empty");
+            s.frames.start = start;
+            s.frames.end = end;
+        }
         Ok(s)
     }
 }

@@ -19,7 +19,9 @@ use std::{
 use anyhow::{bail, Result};
 use common::{
     bundle::{Bundle, Limits},
+    envmap::EnvMap,
     protocol::{encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, WORKER_HEADER},
+    scene::Scene,
     settings::Environment,
 };
 
@@ -158,34 +160,31 @@ impl Client {
     }
 }
 
-/// The scenes a worker has prepared, most recent first (a few jobs at once). Workers of one
-/// process can share one cache, so that the scene and its BVH are held once however many of them
-/// run; a worker that needs a scene another is preparing waits for it instead of building twice.
+/// A scene as loaded, with its environment map.
+struct Loaded {
+    key: String,
+    scene: Scene,
+    env: Option<EnvMap>,
+}
+
+/// The scenes a worker has prepared, most recent first (a few jobs, or a few frames of an
+/// animation, at once). Workers of one process can share one cache, so that the scene and its
+/// BVH are held once however many of them run; a worker that needs a scene another is preparing
+/// waits for it instead of building twice.
 #[derive(Default)]
 pub struct SceneCache {
     entries: Mutex<Vec<(String, Arc<PreparedScene>)>>,
+    loaded: Mutex<Option<Arc<Loaded>>>,
 }
 
 impl SceneCache {
-    const CAPACITY: usize = 2;
+    const CAPACITY: usize = 4;
 
-    fn get_or_prepare(
-        &self,
-        client: &Client,
-        grant: &LeaseGrant,
-    ) -> Result<Arc<PreparedScene>, String> {
-        let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
-        let key = format!(
-            "{}/{}",
-            grant.scene,
-            serde_json::to_string(&grant.settings).map_err(|e| e.to_string())?
-        );
-        if let Some(i) = entries.iter().position(|(k, _)| *k == key) {
-            let entry = entries.remove(i);
-            entries.insert(0, entry.clone());
-            return Ok(entry.1);
+    fn load(&self, client: &Client, grant: &LeaseGrant, key: &str) -> Result<Arc<Loaded>, String> {
+        let mut loaded = self.loaded.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(l) = loaded.as_ref().filter(|l| l.key == key) {
+            return Ok(l.clone());
         }
-        let start = Instant::now();
         let bytes = client
             .scene(&grant.scene)
             .map_err(|e| format!("fetching scene {}: {e}", grant.scene))?;
@@ -198,12 +197,54 @@ impl SceneCache {
             ),
             _ => None,
         };
-        let prepared = prepare_with_environment(&scene, &grant.settings, env.as_ref())
+        let l = Arc::new(Loaded { key: key.to_string(), scene, env });
+        *loaded = Some(l.clone());
+        Ok(l)
+    }
+
+    fn get_or_prepare(
+        &self,
+        client: &Client,
+        grant: &LeaseGrant,
+    ) -> Result<Arc<PreparedScene>, String> {
+        let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
+        let base = format!(
+            "{}/{}",
+            grant.scene,
+            serde_json::to_string(&grant.settings).map_err(|e| e.to_string())?
+        );
+        let frame_key = format!("{base}#{}", grant.task.frame);
+        for key in [&frame_key, &base] {
+            if let Some(i) = entries.iter().position(|(k, _)| k == key) {
+                let entry = entries.remove(i);
+                entries.insert(0, entry.clone());
+                return Ok(entry.1);
+            }
+        }
+        let start = Instant::now();
+        let loaded = self.load(client, grant, &base)?;
+        // An animated scene is posed and prepared per frame; a static one once.
+        let animated = loaded.scene.is_animated();
+        let posed;
+        let scene = if animated {
+            let mut s = loaded.scene.clone();
+            s.set_time(grant.settings.frame_time(grant.task.frame));
+            posed = s;
+            &posed
+        } else {
+            &loaded.scene
+        };
+        if animated && grant.settings.shutter.open < grant.settings.shutter.close {
+            return Err("motion blur (shutter.open < shutter.close) in an animated scene is not supported yet".into());
+        }
+        let prepared = prepare_with_environment(scene, &grant.settings, loaded.env.as_ref())
             .map_err(|e| format!("preparing scene {}: {e}", grant.scene))?;
+        let key = if animated { frame_key } else { base };
         tracing::info!(
             scene = %grant.scene,
             triangles = scene.triangle_count(),
             seconds = start.elapsed().as_secs_f64(),
+            frame = grant.task.frame,
             "scene prepared"
         );
         let prepared = Arc::new(prepared);

@@ -236,6 +236,7 @@ fn extreme_roughness_metalness_and_radiance_produce_no_nan() {
     scene.instances.push(common::scene::Instance {
         mesh: scene.meshes.len() - 1,
         node: 0,
+        offset: glam::DMat4::IDENTITY,
         transform: glam::DMat4::from_scale_rotation_translation(
             glam::DVec3::splat(1e-3),
             glam::DQuat::IDENTITY,

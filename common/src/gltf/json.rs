@@ -26,6 +26,8 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
 pub(crate) struct Document {
     pub(crate) root: json::Root,
     pub(crate) raw: Value,
+    /// The `animations` array as written (the typed layer may need it removed).
+    pub(crate) animations: Option<Value>,
 }
 
 /// Parses and checks the JSON of a glTF asset.
@@ -36,6 +38,7 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Document, SceneError> {
     if !raw.is_object() {
         return Err(SceneError("JSON: the top level is not an object".into()));
     }
+    let animations = raw.get("animations").cloned();
     let root = match json::deserialize::from_slice::<json::Root>(bytes) {
         Ok(root) => root,
         Err(_) => {
@@ -48,14 +51,14 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Document, SceneError> {
     };
     check_asset(&root)?;
     check_required_extensions(&root)?;
-    Ok(Document { root, raw })
+    Ok(Document { root, raw, animations })
 }
 
 /// Makes valid glTF that the `gltf` crate's types refuse acceptable to them:
 /// - integers written as floats (`"count": 3.0`), which the spec's JSON schema accepts;
 /// - a scene without `nodes` (optional in the spec, required by the typed layer);
-/// - animations, which this loader does not read (the scene model has none) and whose channel
-///   targets may legitimately lack `node` (`KHR_animation_pointer`).
+/// - animations, whose channel targets may legitimately lack `node` (`KHR_animation_pointer`):
+///   the loader reads them from the JSON as written.
 fn patch_for_typed_layer(raw: &mut Value) {
     integralize(raw);
     if let Some(obj) = raw.as_object_mut() {

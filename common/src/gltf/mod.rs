@@ -8,11 +8,12 @@
 // nodes.rs (node tree, instances, cameras, lights, default camera), tests*.rs.
 
 mod accessor;
+mod animation;
 mod glb;
 mod json;
 mod material;
 mod mesh;
-mod nodes;
+pub(crate) mod nodes;
 mod uri;
 
 #[cfg(test)]
@@ -192,6 +193,8 @@ struct Loader<'a> {
     texture_map: HashMap<usize, Option<usize>>,
     /// What is left of the [`Budget`] for this file.
     budget: Cell<Budget>,
+    /// The `animations` array of the JSON, as written.
+    animations: Option<&'a serde_json::Value>,
 }
 
 /// Limits on what one file may make the loader allocate, far above any real scene, so that a
@@ -248,13 +251,17 @@ impl<'a> Loader<'a> {
             textures: Vec::new(),
             texture_map: HashMap::new(),
             budget: Cell::new(Budget::FULL),
+            animations: doc.animations.as_ref(),
         }
     }
 
     fn load(mut self) -> Result<Scene, SceneError> {
         self.load_nodes()?;
         let materials = self.load_materials()?;
+        let parents = nodes::node_parents(self.root)?;
+        let animation = self.load_animation(self.animations, &parents)?;
         let mut scene = Scene {
+            animation,
             meshes: std::mem::take(&mut self.meshes),
             instances: std::mem::take(&mut self.instances),
             materials,

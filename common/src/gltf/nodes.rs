@@ -42,7 +42,7 @@ impl Loader<'_> {
     }
 
     /// A node's local transform from `matrix` or TRS, read in f64 from the raw JSON.
-    fn local_transform(&self, index: usize) -> Result<DMat4, SceneError> {
+    pub(crate) fn local_transform(&self, index: usize) -> Result<DMat4, SceneError> {
         let node = &self.root.nodes[index];
         let raw = self.raw;
         let widen = |a: &[f32]| a.iter().map(|&v| v as f64).collect::<Vec<f64>>();
@@ -112,27 +112,30 @@ impl Loader<'_> {
                     node_name()
                 );
             }
-            let placements = match node
+            // Each placement relative to the node (EXT_mesh_gpu_instancing), so that an animated
+            // node can be placed again at any time.
+            let offsets = match node
                 .extensions
                 .as_ref()
                 .and_then(|e| e.others.get("EXT_mesh_gpu_instancing"))
             {
                 Some(ext) => self
-                    .gpu_instances(ext, world)
+                    .gpu_instances(ext, DMat4::IDENTITY)
                     .context(|| format!("node {index}: EXT_mesh_gpu_instancing"))?,
-                None => vec![world],
+                None => vec![DMat4::IDENTITY],
             };
             for prim in 0..gltf_mesh.primitives.len() {
                 if let Some(scene_mesh) = self.mesh_index(mesh, prim)? {
                     self.charge(
-                        placements.len() as u64,
+                        offsets.len() as u64,
                         |b| &mut b.instances,
                         || format!("node {index}"),
                     )?;
-                    self.instances.extend(placements.iter().map(|&transform| Instance {
+                    self.instances.extend(offsets.iter().map(|&offset| Instance {
                         mesh: scene_mesh,
                         node: index,
-                        transform,
+                        transform: world * offset,
+                        offset,
                     }));
                 }
             }
@@ -255,7 +258,7 @@ impl Loader<'_> {
 
 /// Each node's parent, after checking children exist, nobody has two parents and there is no
 /// cycle.
-fn node_parents(root: &json::Root) -> Result<Vec<Option<usize>>, SceneError> {
+pub(crate) fn node_parents(root: &json::Root) -> Result<Vec<Option<usize>>, SceneError> {
     let n = root.nodes.len();
     let mut parents: Vec<Option<usize>> = vec![None; n];
     for (i, node) in root.nodes.iter().enumerate() {

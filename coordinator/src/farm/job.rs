@@ -135,6 +135,8 @@ pub struct Frame {
     pub tiles: Vec<Tile>,
     /// Adaptive sampling: the stopping scale c, fixed once the pilot is merged.
     pub scale: Option<f64>,
+    /// Pixel samples accepted for this frame.
+    pub samples_done: u64,
 }
 
 /// A job and everything the scheduler knows about it.
@@ -207,10 +209,23 @@ pub struct JobStatus {
     pub frames: Vec<i64>,
     /// Tasks leased now.
     pub tasks_in_flight: u32,
+    /// Progress of each frame, in frame order.
+    pub frame_progress: Vec<FrameProgress>,
     /// The render settings.
     pub settings: RenderSettings,
     /// Creation time, seconds since the Unix epoch.
     pub created_unix: f64,
+}
+
+/// One frame's progress in a job's status.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameProgress {
+    /// The frame number.
+    pub frame: i64,
+    /// Pixel samples accepted.
+    pub samples_done: u64,
+    /// Every tile of the frame is complete.
+    pub done: bool,
 }
 
 /// A job refuses more than this many tasks (absurd settings would only fill memory).
@@ -252,6 +267,7 @@ impl Job {
                     })
                     .collect(),
                 scale: None,
+                samples_done: 0,
             })
             .collect();
         let tiles_open = frames.iter().map(|f| f.tiles.len()).sum();
@@ -302,9 +318,10 @@ impl Job {
         MIN_ADAPTIVE_SAMPLES.div_ceil(self.settings.samples_per_task).max(1)
     }
 
-    /// The task to lease next, if any: the lowest task number over all tiles (so the whole image
-    /// refines progressively), among equals the tile with the highest estimated error, then the
-    /// first. A tile under adaptive control gets task `k` only once tasks `0..k` are merged.
+    /// The task to lease next, if any: frame by frame (workers keep one frame's scene prepared),
+    /// within a frame the lowest task number over all tiles (so the whole image refines
+    /// progressively), among equals the tile with the highest estimated error, then the first. A
+    /// tile under adaptive control gets task `k` only once tasks `0..k` are merged.
     pub fn next_task(&self) -> Option<TaskKey> {
         if self.state.is_final() || self.time_up {
             return None;
@@ -313,6 +330,9 @@ impl Job {
         let min_tasks = self.min_adaptive_tasks();
         let mut best: Option<(u32, f64, TaskKey)> = None;
         for (f, frame) in self.frames.iter().enumerate() {
+            if best.is_some() {
+                break; // an earlier frame still has work
+            }
             for (t, tile) in frame.tiles.iter().enumerate() {
                 if tile.converged {
                     continue;
@@ -384,6 +404,7 @@ impl Job {
         Self::drain_pending(t);
         self.in_flight -= 1;
         self.samples_done += samples;
+        self.frames[key.frame as usize].samples_done += samples;
         self.update_adaptive(key.frame as usize);
         self.finish_if_complete();
     }
@@ -470,7 +491,7 @@ impl Job {
         for k in 0..prefix {
             t.tasks[k as usize] = TaskState::Merged;
         }
-        self.samples_done += count(&sums);
+        let mut restored = count(&sums);
         t.sums = sums;
         t.prefix = prefix;
         for (k, acc) in pending {
@@ -479,11 +500,13 @@ impl Job {
                           // they share a transaction, but an old row must never count twice)
             }
             t.tasks[k as usize] = TaskState::Merged;
-            self.samples_done += count(&acc);
+            restored += count(&acc);
             t.pending.insert(k, acc);
         }
         t.merged = prefix + t.pending.len() as u32;
         t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        self.samples_done += restored;
+        self.frames[frame as usize].samples_done += restored;
         Ok(())
     }
 
@@ -630,6 +653,15 @@ impl Job {
             error: self.error.clone(),
             frames: self.frames.iter().map(|f| f.number).collect(),
             tasks_in_flight: self.in_flight,
+            frame_progress: self
+                .frames
+                .iter()
+                .map(|f| FrameProgress {
+                    frame: f.number,
+                    samples_done: f.samples_done,
+                    done: f.tiles.iter().all(Tile::is_complete),
+                })
+                .collect(),
             settings: self.settings.clone(),
             created_unix: self.created_unix,
         }
