@@ -9,30 +9,68 @@ use base64::Engine;
 use serde_json::json;
 use tests::*;
 
-/// A 0.5 x 0.5 emissive square translated from x = -1 (t = 0) to x = 1 (t = 2), seen by an
-/// orthographic camera 3 units wide.
-fn moving_square(dir: &Path) -> std::path::PathBuf {
-    let positions: [[f32; 3]; 4] =
-        [[-0.25, -0.25, 0.0], [0.25, -0.25, 0.0], [0.25, 0.25, 0.0], [-0.25, 0.25, 0.0]];
+/// An animation channel: target path, key times, values (flattened).
+struct Channel {
+    path: &'static str,
+    times: Vec<f32>,
+    values: Vec<f32>,
+}
+
+/// An emissive rectangle of half-size (hx, hy) at the origin (node 0) and an orthographic camera
+/// 3 units wide at z = 5 (node 1), each optionally animated (LINEAR).
+fn emissive_scene(
+    dir: &Path,
+    name: &str,
+    (hx, hy): (f32, f32),
+    shape: Option<Channel>,
+    camera: Option<Channel>,
+) -> std::path::PathBuf {
+    let positions: [[f32; 3]; 4] = [[-hx, -hy, 0.0], [hx, -hy, 0.0], [hx, hy, 0.0], [-hx, hy, 0.0]];
     let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
-    let times: [f32; 2] = [0.0, 2.0];
-    let moves: [[f32; 3]; 2] = [[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]];
     let mut bin: Vec<u8> = Vec::new();
     bin.extend(positions.iter().flatten().flat_map(|v| v.to_le_bytes()));
     bin.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
     bin.extend([0u8; 4]);
-    bin.extend(times.iter().flat_map(|v| v.to_le_bytes()));
-    bin.extend(moves.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    let mut views = vec![
+        json!({"buffer": 0, "byteOffset": 0, "byteLength": 48}),
+        json!({"buffer": 0, "byteOffset": 48, "byteLength": 12}),
+    ];
+    let mut accessors = vec![
+        json!({"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+               "min": [-hx, -hy, 0.0], "max": [hx, hy, 0.0]}),
+        json!({"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}),
+    ];
+    let (mut samplers, mut channels) = (Vec::new(), Vec::new());
+    for (node, channel) in [(0, shape), (1, camera)] {
+        let Some(c) = channel else { continue };
+        let width = c.values.len() / c.times.len();
+        for (data, ty) in
+            [(&c.times, "SCALAR"), (&c.values, if width == 4 { "VEC4" } else { "VEC3" })]
+        {
+            let offset = bin.len();
+            bin.extend(data.iter().flat_map(|v| v.to_le_bytes()));
+            views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": data.len() * 4}));
+            let mut acc = json!({"bufferView": views.len() - 1, "componentType": 5126, "count": c.times.len(), "type": ty});
+            if ty == "SCALAR" {
+                acc["min"] = json!([c.times[0]]);
+                acc["max"] = json!([c.times[c.times.len() - 1]]);
+            }
+            accessors.push(acc);
+        }
+        samplers.push(json!({"input": accessors.len() - 2, "output": accessors.len() - 1, "interpolation": "LINEAR"}));
+        channels
+            .push(json!({"sampler": samplers.len() - 1, "target": {"node": node, "path": c.path}}));
+    }
     let uri = format!(
         "data:application/octet-stream;base64,{}",
         base64::engine::general_purpose::STANDARD.encode(&bin)
     );
-    let gltf = json!({
+    let mut gltf = json!({
         "asset": {"version": "2.0"},
         "scene": 0,
         "scenes": [{"nodes": [0, 1]}],
         "nodes": [
-            {"name": "square", "mesh": 0},
+            {"name": "shape", "mesh": 0},
             {"name": "camera", "camera": 0, "translation": [0.0, 0.0, 5.0]}
         ],
         "cameras": [{"type": "orthographic", "orthographic": {"xmag": 1.5, "ymag": 1.5, "znear": 0.1, "zfar": 100.0}}],
@@ -40,27 +78,26 @@ fn moving_square(dir: &Path) -> std::path::PathBuf {
         "materials": [{"emissiveFactor": [1.0, 1.0, 1.0], "doubleSided": true,
                         "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0]}}],
         "buffers": [{"uri": uri, "byteLength": bin.len()}],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
-            {"buffer": 0, "byteOffset": 64, "byteLength": 8},
-            {"buffer": 0, "byteOffset": 72, "byteLength": 24}
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
-             "min": [-0.25, -0.25, 0.0], "max": [0.25, 0.25, 0.0]},
-            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
-            {"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR", "min": [0.0], "max": [2.0]},
-            {"bufferView": 3, "componentType": 5126, "count": 2, "type": "VEC3"}
-        ],
-        "animations": [{
-            "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}],
-            "samplers": [{"input": 2, "output": 3, "interpolation": "LINEAR"}]
-        }]
+        "bufferViews": views,
+        "accessors": accessors
     });
-    let path = dir.join("moving-square.gltf");
+    if !channels.is_empty() {
+        gltf["animations"] = json!([{"channels": channels, "samplers": samplers}]);
+    }
+    let path = dir.join(format!("{name}.gltf"));
     std::fs::write(&path, gltf.to_string()).unwrap();
     path
+}
+
+/// A 0.5 x 0.5 emissive square translated from x = -1 (t = 0) to x = 1 (t = 2), seen by an
+/// orthographic camera 3 units wide.
+fn moving_square(dir: &Path) -> std::path::PathBuf {
+    let shape = Channel {
+        path: "translation",
+        times: vec![0.0, 2.0],
+        values: vec![-1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+    };
+    emissive_scene(dir, "moving-square", (0.25, 0.25), Some(shape), None)
 }
 
 fn render_frames(
@@ -139,11 +176,12 @@ fn frames_pose_the_animation_at_frame_over_fps() {
 }
 
 #[test]
-fn animated_frames_are_identical_on_one_or_three_workers() {
+fn motion_blurred_frames_are_identical_on_one_or_three_workers() {
     let dir = temp_dir("anim-determinism");
     let scene = moving_square(&dir);
     let settings = json!({"width": 40, "height": 40, "spp": 16, "samples_per_task": 4,
-                          "tile_size": 16, "frames": {"fps": 3.0}, "environment": {"color": [0.2, 0.3, 0.4]}});
+                          "tile_size": 16, "frames": {"fps": 3.0}, "environment": {"color": [0.2, 0.3, 0.4]},
+                          "shutter": {"open": 0.0, "close": 0.5}});
     let (one, three) = (dir.join("one.exr"), dir.join("three.exr"));
     render_frames(&scene, &settings, "1..3", 1, &one);
     render_frames(&scene, &settings, "1..3", 3, &three);
@@ -179,27 +217,154 @@ fn real_animated_samples_render_at_several_frames() {
     }
 }
 
+/// R, G, B and variance.R of an EXR.
+fn red_and_variance(exr: &[u8]) -> (Vec<f32>, Vec<f32>) {
+    let ch = channels(exr);
+    let get = |name: &str| -> Vec<f32> {
+        ch.iter().find(|(n, _)| n == name).unwrap().1.iter().map(|&b| f32::from_bits(b)).collect()
+    };
+    (get("R"), get("variance.R"))
+}
+
+fn render_one(scene: &Path, settings: &serde_json::Value, dir: &Path, name: &str) -> Vec<u8> {
+    let out = dir.join(format!("{name}.exr"));
+    render_frames(scene, settings, "0", 2, &out);
+    std::fs::read(&out).unwrap()
+}
+
 #[test]
-fn motion_blur_of_an_animated_scene_is_refused_with_a_clear_message() {
-    let dir = temp_dir("anim-blur");
+fn a_translating_square_blurs_to_its_exact_shutter_coverage() {
+    let dir = temp_dir("blur-translate");
     let scene = moving_square(&dir);
-    let settings = dir.join("blur.json");
-    std::fs::write(
-        &settings,
-        json!({"width": 16, "height": 16, "spp": 1, "shutter": {"open": 0.0, "close": 0.5}})
-            .to_string(),
-    )
-    .unwrap();
-    let output = Command::new(bin_dir().join("coordinator"))
-        .arg("render")
-        .arg(&scene)
-        .arg("-o")
-        .arg(dir.join("blur.exr"))
-        .arg("--settings")
-        .arg(&settings)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
-    assert!(stderr.contains("motion blur") && stderr.contains("shutter"), "{stderr}");
+    // Frame 0 at fps 1 with the shutter open over [0, 1): the centre moves from x = -1 to 0.
+    let settings = json!({"width": 60, "height": 60, "spp": 1024, "max_depth": 0,
+                          "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0}});
+    let (image, variance) = red_and_variance(&render_one(&scene, &settings, &dir, "blur"));
+    let coverage = |col: usize| {
+        let (a, w) = (-1.5 + 0.05 * col as f64, 0.05);
+        let steps = 20_000;
+        (0..steps)
+            .map(|k| {
+                let c = -1.0 + (k as f64 + 0.5) / steps as f64;
+                ((a + w).min(c + 0.25) - a.max(c - 0.25)).max(0.0)
+            })
+            .sum::<f64>()
+            / steps as f64
+            / w
+    };
+    let (mut sum, mut expected_sum, mut var_sum, mut worst) = (0.0, 0.0, 0.0, 0.0f64);
+    for row in [25usize, 30, 34] {
+        for col in 0..60 {
+            let (v, e) = (image[row * 60 + col] as f64, coverage(col));
+            if e == 0.0 {
+                assert_eq!(v, 0.0, "pixel ({col}, {row}) lies outside the swept area");
+            }
+            let sigma = (variance[row * 60 + col] as f64).sqrt();
+            assert!(
+                (v - e).abs() <= 4.0 * sigma + 0.01,
+                "pixel ({col}, {row}): {v} vs exact {e} (sigma {sigma})"
+            );
+            worst = worst.max((v - e).abs());
+            sum += v;
+            expected_sum += e;
+            var_sum += variance[row * 60 + col] as f64;
+        }
+    }
+    eprintln!(
+        "translation: largest pixel error {worst:.4}, rows sum {sum:.4} (exact {expected_sum:.4})"
+    );
+    assert!((expected_sum - 30.0).abs() < 1e-6, "each row holds 10 pixels of square");
+    assert!(
+        (sum - expected_sum).abs() <= 4.0 * var_sum.sqrt() + 1e-3,
+        "rows hold {sum}, exact {expected_sum}"
+    );
+    for row in [0usize, 24, 35, 59] {
+        assert!(image[row * 60..row * 60 + 60].iter().all(|&v| v == 0.0), "row {row}");
+    }
+}
+
+#[test]
+fn a_spinning_bar_blurs_along_the_arc_not_the_chord() {
+    let dir = temp_dir("blur-spin");
+    let (s, c) = (std::f32::consts::FRAC_PI_4.sin(), std::f32::consts::FRAC_PI_4.cos());
+    // A quarter turn about z during [0, 1).
+    let spin = Channel {
+        path: "rotation",
+        times: vec![0.0, 1.0],
+        values: vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, s, c],
+    };
+    let scene = emissive_scene(&dir, "bar", (1.0, 0.05), Some(spin), None);
+    let settings = json!({"width": 60, "height": 60, "spp": 512, "max_depth": 0,
+                          "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0}});
+    let (image, variance) = red_and_variance(&render_one(&scene, &settings, &dir, "spin"));
+    // The exact value: the fraction of pixel area x shutter time the rotating bar covers.
+    let exact = |col: usize, row: usize| {
+        let n = 16;
+        let times = 256;
+        let mut covered = 0usize;
+        for k in 0..times {
+            let angle = std::f64::consts::FRAC_PI_2 * (k as f64 + 0.5) / times as f64;
+            let (sin, cos) = angle.sin_cos();
+            for j in 0..n {
+                for i in 0..n {
+                    let x = -1.5 + 0.05 * (col as f64 + (i as f64 + 0.5) / n as f64);
+                    let y = 1.5 - 0.05 * (row as f64 + (j as f64 + 0.5) / n as f64);
+                    // Into the bar's frame.
+                    let (u, v) = (cos * x + sin * y, -sin * x + cos * y);
+                    covered += (u.abs() <= 1.0 && v.abs() <= 0.05) as usize;
+                }
+            }
+        }
+        covered as f64 / (n * n * times) as f64
+    };
+    let (mut checked, mut worst) = (0, 0.0f64);
+    for row in (0..60).step_by(3) {
+        for col in (0..60).step_by(3) {
+            let (v, e) = (image[row * 60 + col] as f64, exact(col, row));
+            let sigma = (variance[row * 60 + col] as f64).sqrt();
+            assert!((v - e).abs() <= 4.0 * sigma + 0.02, "pixel ({col}, {row}): {v} vs exact {e}");
+            worst = worst.max((v - e).abs());
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 400);
+    eprintln!("rotation: largest pixel error {worst:.4} over {checked} pixels");
+    // Near the tip on the diagonal (radius 0.95) the arc passes and a chord would not: a bar
+    // interpolated as a matrix shrinks to 1/sqrt(2) there half-way through the turn.
+    let (col, row) = (43, 16);
+    let tip = image[row * 60 + col] as f64;
+    eprintln!("rotation: tip pixel {tip:.4}, exact {:.4}", exact(col, row));
+    assert!(tip > 0.03, "the bar's tip does not sweep the arc: {tip}");
+    assert!((tip - exact(col, row)).abs() <= 0.02);
+}
+
+#[test]
+fn moving_the_camera_equals_moving_the_world_the_other_way() {
+    let dir = temp_dir("blur-camera");
+    let world = Channel {
+        path: "translation",
+        times: vec![0.0, 1.0],
+        values: vec![-0.5, 0.1, 0.0, 0.5, 0.1, 0.0],
+    };
+    let by_object = emissive_scene(&dir, "object", (0.25, 0.25), Some(world), None);
+    let camera = Channel {
+        path: "translation",
+        times: vec![0.0, 1.0],
+        values: vec![0.5, -0.1, 5.0, -0.5, -0.1, 5.0],
+    };
+    let by_camera = emissive_scene(&dir, "camera", (0.25, 0.25), None, Some(camera));
+    let settings = json!({"width": 48, "height": 48, "spp": 64, "max_depth": 0,
+                          "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0}});
+    let (a, var_a) = red_and_variance(&render_one(&by_object, &settings, &dir, "object"));
+    let (b, var_b) = red_and_variance(&render_one(&by_camera, &settings, &dir, "camera"));
+    assert!(a.iter().sum::<f32>() > 50.0, "the square is in view");
+    for i in 0..a.len() {
+        let sigma = ((var_a[i] + var_b[i]) as f64).sqrt();
+        assert!(
+            ((a[i] - b[i]) as f64).abs() <= 4.0 * sigma + 1e-3,
+            "pixel {i}: {} vs {}",
+            a[i],
+            b[i]
+        );
+    }
 }

@@ -27,7 +27,7 @@ use common::{
 
 use crate::render::{
     render_task_threads,
-    scene::{prepare_with_environment, PreparedScene},
+    scene::{prepare_frame, PreparedScene},
 };
 
 /// How a worker joins.
@@ -225,19 +225,8 @@ impl SceneCache {
         let loaded = self.load(client, grant, &base)?;
         // An animated scene is posed and prepared per frame; a static one once.
         let animated = loaded.scene.is_animated();
-        let posed;
-        let scene = if animated {
-            let mut s = loaded.scene.clone();
-            s.set_time(grant.settings.frame_time(grant.task.frame));
-            posed = s;
-            &posed
-        } else {
-            &loaded.scene
-        };
-        if animated && grant.settings.shutter.open < grant.settings.shutter.close {
-            return Err("motion blur (shutter.open < shutter.close) in an animated scene is not supported yet".into());
-        }
-        let prepared = prepare_with_environment(scene, &grant.settings, loaded.env.as_ref())
+        let scene = &loaded.scene;
+        let prepared = prepare_frame(scene, &grant.settings, loaded.env.as_ref(), grant.task.frame)
             .map_err(|e| format!("preparing scene {}: {e}", grant.scene))?;
         let key = if animated { frame_key } else { base };
         tracing::info!(

@@ -10,8 +10,8 @@ use std::{
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use common::settings::RenderSettings;
-use glam::{UVec2, Vec2};
-use worker::render::{integrator, sampler::Sampler, scene::prepare};
+use glam::UVec2;
+use worker::render::{integrator, sampler::Sampler, scene::prepare_frame};
 
 #[derive(Parser)]
 #[command(version, about = "Distributed path-tracing render farm: worker")]
@@ -110,17 +110,20 @@ fn main() -> Result<()> {
             );
             let loaded = common::gltf::load_path(&scene)
                 .with_context(|| format!("loading {}", scene.display()))?;
-            let prepared = prepare(&loaded, &settings)?;
+            let prepared = prepare_frame(&loaded, &settings, None, frame)?;
             let mut sampler = Sampler::new(settings.seed, frame);
-            let pixel = UVec2::new(x, y);
-            sampler.start_pixel_sample(pixel, sample);
-            let film = pixel.as_vec2() + sampler.next_2d();
-            let lens = if prepared.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-            let ray = prepared.camera.generate_ray(film, lens);
             let mut stats = integrator::Stats::default();
-            let radiance = integrator::li(&prepared, ray, &mut sampler, &mut stats);
+            let traced = worker::render::sample(
+                &prepared,
+                &mut sampler,
+                UVec2::new(x, y),
+                sample,
+                &mut stats,
+            );
+            let (film, radiance) = (traced.film, traced.radiance);
+            let time = traced.time.map(|t| format!(" time {t:.6} s")).unwrap_or_default();
             println!(
-                "pixel ({x}, {y}) sample {sample}: film ({:.6}, {:.6}) radiance [{:e}, {:e}, {:e}] rays {}",
+                "pixel ({x}, {y}) sample {sample}: film ({:.6}, {:.6}){time} radiance [{:e}, {:e}, {:e}] rays {}",
                 film.x, film.y, radiance.x, radiance.y, radiance.z, stats.rays
             );
             Ok(())

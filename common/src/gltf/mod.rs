@@ -14,6 +14,7 @@ mod json;
 mod material;
 mod mesh;
 pub(crate) mod nodes;
+pub use nodes::rigid;
 mod uri;
 
 #[cfg(test)]

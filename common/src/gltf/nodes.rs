@@ -404,7 +404,7 @@ fn light_kind(light: &Light) -> Result<PunctualKind, SceneError> {
 
 /// The rigid part of a transform: rotation orthonormalised (its -z view axis kept, then +y),
 /// scale and shear removed, translation kept. `None` if the axes are degenerate.
-pub(crate) fn rigid(m: DMat4) -> Option<DMat4> {
+pub fn rigid(m: DMat4) -> Option<DMat4> {
     let z = m.z_axis.truncate().try_normalize()?;
     let y_in = m.y_axis.truncate();
     let y = (y_in - z * y_in.dot(z)).try_normalize()?;

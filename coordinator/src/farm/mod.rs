@@ -751,16 +751,6 @@ pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<Sce
 pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
     let bundle =
         Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
-    let blur = settings.shutter.open < settings.shutter.close;
-    if settings.camera.is_some() || blur {
-        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
-        if blur && scene.is_animated() {
-            return Err(FarmError::new(
-                422,
-                "settings: shutter: motion blur (open < close) in an animated scene is not supported yet; render with open == close",
-            ));
-        }
-    }
     if let Some(name) = &settings.camera {
         let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
         if !scene.cameras.iter().any(|c| &c.name == name) {

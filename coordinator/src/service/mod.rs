@@ -105,24 +105,35 @@ async fn blocking<T: Send + 'static>(
 
 /// Reads a whole body, with clear errors for oversize and truncated ones.
 async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
-    match axum::body::to_bytes(body, limit).await {
-        Ok(b) => Ok(b),
-        Err(e) => {
-            let text = format!("{e}");
-            let source = std::error::Error::source(&e).map(|s| s.to_string()).unwrap_or_default();
-            if text.contains("length limit") || source.contains("length limit") {
-                Err(FarmError::new(
-                    413,
-                    format!("the body is larger than the limit of {limit} bytes"),
-                ))
-            } else {
-                Err(FarmError::new(
-                    400,
-                    format!("the body was cut short or unreadable: {text} {source}"),
-                ))
+    use http_body_util::BodyExt;
+    // Past the limit the rest is still read (and dropped), up to a cap, so that a client that is
+    // still sending hears the 413 instead of a broken connection.
+    let drain_cap = limit.saturating_mul(4).max(64 << 20);
+    let mut body = body;
+    let mut kept: Vec<u8> = Vec::new();
+    let mut total = 0usize;
+    while let Some(frame) = body.frame().await {
+        let frame = frame.map_err(|e| {
+            let source =
+                std::error::Error::source(&e).map(|s| format!(": {s}")).unwrap_or_default();
+            FarmError::new(400, format!("the body was cut short or unreadable: {e}{source}"))
+        })?;
+        if let Ok(data) = frame.into_data() {
+            total = total.saturating_add(data.len());
+            if total <= limit {
+                kept.extend_from_slice(&data);
+            } else if total > drain_cap {
+                break;
             }
         }
     }
+    if total > limit {
+        return Err(FarmError::new(
+            413,
+            format!("the body is larger than the limit of {limit} bytes"),
+        ));
+    }
+    Ok(kept.into())
 }
 
 fn content_type(headers: &HeaderMap) -> Option<String> {

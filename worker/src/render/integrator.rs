@@ -12,8 +12,9 @@ use super::{
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
     light::Light,
     material,
+    motion::Pose,
     sampler::Sampler,
-    scene::{PreparedScene, NONE},
+    scene::{PreparedScene, NONE, UNSAMPLED},
 };
 
 /// Counters kept per task (never logged per ray).
@@ -44,7 +45,14 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 }
 
 /// Radiance arriving at the camera along `ray`.
-pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mut Stats) -> Vec3 {
+/// `pose` places what moves at the sample's time (`None`: nothing moves).
+pub fn li(
+    scene: &PreparedScene,
+    mut ray: Ray,
+    sampler: &mut Sampler,
+    stats: &mut Stats,
+    pose: Option<&Pose<'_>>,
+) -> Vec3 {
     let mut radiance = Vec3::ZERO;
     let mut beta = Vec3::ONE;
     let mut depth = 0u32;
@@ -58,11 +66,7 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         let u_rr = sampler.next_1d();
 
         stats.rays += 1;
-        let hit = if scene.alpha_tested {
-            scene.accel.intersect_filtered(&ray, f32::INFINITY, |h| !scene.is_cut_out(h))
-        } else {
-            scene.accel.intersect(&ray, f32::INFINITY)
-        };
+        let hit = scene.intersect(&ray, f32::INFINITY, pose);
         let Some(hit) = hit else {
             if let (Some(env), Some(env_idx)) = (&scene.environment, lights.environment) {
                 let weight = if depth == 0 {
@@ -82,10 +86,14 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
             break;
         };
         let tri = scene.shading[hit.prim as usize];
-        let [p0, p1, p2] = *scene.accel.triangle(hit.prim);
+        let ([p0, p1, p2], moved) = scene.triangle(hit.prim, pose);
         let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
         let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
-        let p_error = interpolation_error([p0, p1, p2], b);
+        let mut p_error = interpolation_error([p0, p1, p2], b);
+        if moved {
+            // The vertices went through a transform: a few more roundings of their size.
+            p_error += (p0.abs().max(p1.abs()).max(p2.abs())) * (8.0 * f32::EPSILON);
+        }
         let Some(ng) = (p1 - p0).cross(p2 - p0).try_normalize() else {
             break; // A degenerate triangle that the test still reported: nothing to shade.
         };
@@ -93,7 +101,12 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         let material = &scene.materials[tri.material as usize];
         let sp = scene.surface_point(hit.prim, b);
 
-        if tri.light != NONE {
+        if tri.light == UNSAMPLED {
+            // A moving emitter: no light sampling reaches it, so every hit counts in full.
+            if material.double_sided || (p1 - p0).cross(p2 - p0).dot(wo) > 0.0 {
+                radiance += beta * material::emission(&scene.textures, material, &sp);
+            }
+        } else if tri.light != NONE {
             if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
                 if light.emits_toward(wo) {
                     let le = material::emission(&scene.textures, material, &sp);
@@ -117,9 +130,9 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
         let ng = if ng.dot(wo) < 0.0 { -ng } else { ng };
         let mut ns = if tri.smooth {
             let [a, bb, c] = tri.vertices;
-            let n = scene.normals[a as usize] * b[0]
-                + scene.normals[bb as usize] * b[1]
-                + scene.normals[c as usize] * b[2];
+            let n = scene.vertex_normal(a, hit.prim, pose) * b[0]
+                + scene.vertex_normal(bb, hit.prim, pose) * b[1]
+                + scene.vertex_normal(c, hit.prim, pose) * b[2];
             match n.try_normalize() {
                 Some(n) if n.dot(ng) > 0.0 => n,
                 Some(n) if n.dot(ng) < 0.0 => -n,
@@ -129,7 +142,7 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
             ng
         };
         if let Some(tangent_normal) = material::normal_map(&scene.textures, material, &sp) {
-            ns = perturb_normal(scene, hit.prim, ns, tangent_normal).unwrap_or(ns);
+            ns = perturb_normal(scene, hit.prim, [p0, p1, p2], ns, tangent_normal).unwrap_or(ns);
         }
         let frame = Frame::from_z(ns);
         let wo_local = frame.to_local(wo);
@@ -157,11 +170,7 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
                             None => (Ray::new(origin, ls.wi), f32::INFINITY),
                         };
                         stats.rays += 1;
-                        let blocked = if scene.alpha_tested {
-                            scene.accel.occluded_filtered(&shadow, t_max, |h| !scene.is_cut_out(h))
-                        } else {
-                            scene.accel.occluded(&shadow, t_max)
-                        };
+                        let blocked = scene.occluded(&shadow, t_max, pose);
                         if !blocked {
                             let li = match light {
                                 Light::Triangle(l) if l.textured => {
@@ -218,12 +227,12 @@ pub fn li(scene: &PreparedScene, mut ray: Ray, sampler: &mut Sampler, stats: &mu
 fn perturb_normal(
     scene: &PreparedScene,
     prim: u32,
+    [p0, p1, p2]: [Vec3; 3],
     ns: Vec3,
     tangent_normal: Vec3,
 ) -> Option<Vec3> {
     let uvs = scene.uvs.first().filter(|uv| !uv.is_empty())?;
     let [i0, i1, i2] = scene.shading[prim as usize].vertices.map(|v| v as usize);
-    let [p0, p1, p2] = *scene.accel.triangle(prim);
     let (duv1, duv2) = (uvs[i1] - uvs[i0], uvs[i2] - uvs[i0]);
     let det = duv1.x * duv2.y - duv1.y * duv2.x;
     if det.abs() < 1e-12 {

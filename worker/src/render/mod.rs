@@ -10,6 +10,7 @@ pub mod geometry;
 pub mod integrator;
 pub mod light;
 pub mod material;
+pub mod motion;
 pub mod sampler;
 pub mod sampling;
 pub mod scene;
@@ -24,7 +25,7 @@ use common::{
 };
 use glam::{UVec2, Vec2};
 
-use self::{integrator::Stats, sampler::Sampler, scene::PreparedScene};
+use self::{integrator::Stats, motion::Pose, sampler::Sampler, scene::PreparedScene};
 
 /// Renders `task` with `seed` on the calling thread.
 pub fn render_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> TaskResult {
@@ -72,21 +73,54 @@ fn render_rows(
     let mut tile = TileAccum::new(rect);
     let mut stats = Stats::default();
     let mut sampler = Sampler::new(seed, task.frame);
-    let has_lens = scene.camera.has_lens();
     let mut row = first;
     while row < rect.height {
         for col in 0..rect.width {
             let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
             for s in task.samples.start..task.samples.end {
-                sampler.start_pixel_sample(pixel, s);
-                let film = pixel.as_vec2() + sampler.next_2d();
-                let lens = if has_lens { sampler.next_2d() } else { Vec2::ZERO };
-                let ray = scene.camera.generate_ray(film, lens);
-                let l = integrator::li(scene, ray, &mut sampler, &mut stats);
+                let l = sample(scene, &mut sampler, pixel, s, &mut stats).radiance;
                 tile.add_sample(col, row, s, l.to_array());
             }
         }
         row += step;
     }
     (tile, stats)
+}
+
+/// One traced sample, with the numbers that made it (for `worker debug-sample`).
+pub struct Sample {
+    /// Film position in pixels.
+    pub film: Vec2,
+    /// Time in seconds, when something moves within the shutter.
+    pub time: Option<f64>,
+    /// Radiance along the camera ray.
+    pub radiance: glam::Vec3,
+}
+
+/// Traces sample `s` of `pixel`: film position, lens position (thin lens only), time (only when
+/// something moves within the shutter), then the path.
+#[inline]
+pub fn sample(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    pixel: UVec2,
+    s: u32,
+    stats: &mut Stats,
+) -> Sample {
+    sampler.start_pixel_sample(pixel, s);
+    let film = pixel.as_vec2() + sampler.next_2d();
+    let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+    let Some(m) = &scene.motion else {
+        let ray = scene.camera.generate_ray(film, lens);
+        let radiance = integrator::li(scene, ray, sampler, stats, None);
+        return Sample { film, time: None, radiance };
+    };
+    let time = m.time(sampler.next_1d());
+    let ray = match &m.camera {
+        Some((_, local)) => m.camera_ray(local.generate_ray(film, lens), time),
+        None => scene.camera.generate_ray(film, lens),
+    };
+    let pose = Pose::new(m, time);
+    let radiance = integrator::li(scene, ray, sampler, stats, Some(&pose));
+    Sample { film, time: Some(time), radiance }
 }

@@ -15,17 +15,22 @@ use common::{
 use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 
 use super::{
-    accel::Accel,
+    accel::{Accel, Hit},
     camera::{Camera, CameraModel},
+    geometry::Ray,
     light::{
         DirectionalLight, Environment as EnvironmentLight, Light, LightSampler, MapEnvironment,
         PointLight, SpotLight, TriangleLight,
     },
     material::{self, SurfacePoint},
+    motion::{Motion, MotionInstance, Pose},
 };
 
 /// Marks "no such index" in the compact per-triangle tables.
 pub const NONE: u32 = u32::MAX;
+/// `TriShading::light` of an emitting triangle that moves within the shutter: its emission is
+/// found by paths that hit it (weight 1), not by light sampling.
+pub const UNSAMPLED: u32 = u32::MAX - 1;
 
 /// Shading data of one triangle (BVH order).
 #[derive(Clone, Copy, Debug)]
@@ -42,6 +47,8 @@ pub struct TriShading {
 
 /// Everything a worker needs to render tasks of one job, built once per (scene, settings).
 pub struct PreparedScene {
+    /// What moves within the shutter (`None` for static scenes and zero-length shutters).
+    pub motion: Option<Motion>,
     /// World position (f64) of the renderer's origin: the camera.
     pub origin: DVec3,
     /// The camera at the origin.
@@ -88,6 +95,16 @@ pub fn prepare_with_environment(
     settings: &RenderSettings,
     env_map: Option<&EnvMap>,
 ) -> Result<PreparedScene, PrepareError> {
+    prepare_inner(scene, settings, env_map, None)
+}
+
+/// Builds the render-ready scene; with a shutter (seconds), placements that move are kept apart.
+fn prepare_inner(
+    scene: &Scene,
+    settings: &RenderSettings,
+    env_map: Option<&EnvMap>,
+    shutter: Option<(f64, f64)>,
+) -> Result<PreparedScene, PrepareError> {
     let camera_model = match &settings.camera {
         Some(name) => scene
             .cameras
@@ -98,6 +115,7 @@ pub fn prepare_with_environment(
             scene.cameras.first().ok_or_else(|| PrepareError("scene has no camera".to_string()))?
         }
     };
+    let camera_node = camera_model.node;
     let origin = camera_model.position();
     let to_world = {
         let m = DMat3::from_mat4(camera_model.transform);
@@ -130,7 +148,17 @@ pub fn prepare_with_environment(
     let has_colors = scene.meshes.iter().any(|m| m.colors.is_some());
     let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
     let mut colors: Vec<Vec4> = Vec::new();
+    // With a shutter, placements that move are kept apart (object space, see `motion`).
+    let moves = |node: usize| match (shutter, &scene.animation) {
+        (Some(_), Some(anim)) => anim.moves(node),
+        _ => false,
+    };
+    let mut moving = Vec::new();
     for inst in &scene.instances {
+        if moves(inst.node) {
+            moving.push(inst);
+            continue;
+        }
         let mesh = &scene.meshes[inst.mesh];
         let material = &scene.materials[mesh.material];
         if let AlphaMode::Mask { cutoff } = material.alpha_mode {
@@ -241,7 +269,95 @@ pub fn prepare_with_environment(
     if let Some(env) = &environment {
         lights.push(Light::Environment(Arc::clone(env)));
     }
-    let scene_radius = scene_radius(&accel).max(1e-6);
+    let motion = match (shutter, &scene.animation) {
+        (Some(shutter), Some(anim)) => {
+            let anim = Arc::new(anim.clone());
+            let mut instances = Vec::new();
+            for inst in moving {
+                let mesh = &scene.meshes[inst.mesh];
+                let base = normals.len() as u32;
+                let n = mesh.positions.len();
+                match &mesh.normals {
+                    Some(ns) => normals.extend_from_slice(ns),
+                    None => normals.extend(std::iter::repeat_n(Vec3::ZERO, n)),
+                }
+                for k in 0..2 {
+                    if has_uvs[k] {
+                        match &mesh.uvs[k] {
+                            Some(t) => uvs[k].extend_from_slice(t),
+                            None => uvs[k].extend(std::iter::repeat_n(Vec2::ZERO, n)),
+                        }
+                    }
+                }
+                if has_colors {
+                    match &mesh.colors {
+                        Some(c) => colors.extend_from_slice(c),
+                        None => colors.extend(std::iter::repeat_n(Vec4::ONE, n)),
+                    }
+                }
+                let flip = inst.transform.determinant() < 0.0;
+                let local: Vec<[Vec3; 3]> = mesh
+                    .indices
+                    .iter()
+                    .map(|&[a, b, c]| {
+                        let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };
+                        [a, b, c].map(|v| mesh.positions[v as usize])
+                    })
+                    .collect();
+                let (object_accel, order) = Accel::build(&local);
+                let prim_base = shading.len() as u32;
+                let emits = scene.materials[mesh.material].emissive.max_element() > 0.0;
+                for &o in &order {
+                    let [a, b, c] = mesh.indices[o as usize];
+                    let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };
+                    shading.push(TriShading {
+                        vertices: [base + a, base + b, base + c],
+                        material: mesh.material as u32,
+                        light: if emits { UNSAMPLED } else { NONE },
+                        smooth: mesh.normals.is_some(),
+                    });
+                }
+                let (lo, hi) = mesh.positions.iter().fold(
+                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+                    |(lo, hi), p| (lo.min(p.as_dvec3()), hi.max(p.as_dvec3())),
+                );
+                let corners = std::array::from_fn(|k| {
+                    DVec3::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    )
+                });
+                let bounds = Motion::bound(&anim, shutter, &corners, |t| {
+                    to_relative * anim.world(inst.node, t) * inst.offset
+                });
+                instances.push(MotionInstance {
+                    node: inst.node,
+                    offset: inst.offset,
+                    accel: object_accel,
+                    prim_base,
+                    bounds,
+                });
+            }
+            let moving_camera = camera_node.filter(|&n| anim.moves(n));
+            let camera = moving_camera.map(|n| (n, Camera { to_world: Mat3::IDENTITY, ..camera }));
+            (!instances.is_empty() || camera.is_some()).then(|| Motion {
+                anim,
+                origin,
+                shutter,
+                instances,
+                camera,
+            })
+        }
+        _ => None,
+    };
+    let mut scene_radius = scene_radius(&accel).max(1e-6);
+    if let Some(m) = &motion {
+        for inst in &m.instances {
+            let (lo, hi) = inst.bounds;
+            scene_radius = scene_radius.max(lo.abs().max(hi.abs()).length());
+        }
+    }
     let alpha_tested = scene.materials.iter().any(|m| {
         matches!(m.alpha_mode, AlphaMode::Mask { .. })
             && (m.base_color_texture.is_some() || has_colors)
@@ -262,7 +378,29 @@ pub fn prepare_with_environment(
         environment_visible,
         max_depth: settings.max_depth,
         build_seconds,
+        motion,
     })
+}
+
+/// Prepares frame `frame` of a scene: a static scene once for all frames; an animated one posed at
+/// the frame's time, with what moves inside a non-empty shutter kept apart for motion blur.
+pub fn prepare_frame(
+    scene: &Scene,
+    settings: &RenderSettings,
+    env_map: Option<&EnvMap>,
+    frame: i64,
+) -> Result<PreparedScene, PrepareError> {
+    if !scene.is_animated() {
+        return prepare_with_environment(scene, settings, env_map);
+    }
+    let mut posed = scene.clone();
+    posed.set_time(settings.frame_time(frame));
+    let (open, close) = (settings.shutter.open, settings.shutter.close);
+    let shutter = (open < close).then(|| {
+        let f = frame as f64;
+        ((f + open) / settings.frames.fps, (f + close) / settings.frames.fps)
+    });
+    prepare_inner(&posed, settings, env_map, shutter)
 }
 
 /// Builds the render-ready scene for settings without an environment map.
@@ -297,6 +435,61 @@ impl PreparedScene {
             sp.color = self.colors[i0] * b[0] + self.colors[i1] * b[1] + self.colors[i2] * b[2];
         }
         sp
+    }
+
+    /// The closest hit before `t_max`: the static BVH, then what moves (at the pose's time).
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, t_max: f32, pose: Option<&Pose<'_>>) -> Option<Hit> {
+        let accept = |h: &Hit| !self.is_cut_out(h);
+        let best = if self.alpha_tested {
+            self.accel.intersect_filtered(ray, t_max, accept)
+        } else {
+            self.accel.intersect(ray, t_max)
+        };
+        let Some(pose) = pose else { return best };
+        let all = |_: &Hit| true;
+        let filter: &dyn Fn(&Hit) -> bool = if self.alpha_tested { &accept } else { &all };
+        pose.intersect(ray, best.map_or(t_max, |h| h.t), filter).or(best)
+    }
+
+    /// Whether anything blocks the ray before `t_max`.
+    #[inline]
+    pub fn occluded(&self, ray: &Ray, t_max: f32, pose: Option<&Pose<'_>>) -> bool {
+        let accept = |h: &Hit| !self.is_cut_out(h);
+        let blocked = if self.alpha_tested {
+            self.accel.occluded_filtered(ray, t_max, accept)
+        } else {
+            self.accel.occluded(ray, t_max)
+        };
+        blocked
+            || pose.is_some_and(|pose| {
+                let all = |_: &Hit| true;
+                let filter: &dyn Fn(&Hit) -> bool = if self.alpha_tested { &accept } else { &all };
+                pose.occluded(ray, t_max, filter)
+            })
+    }
+
+    /// A triangle's camera-relative world positions (at the pose's time if it moves), and
+    /// whether it moves.
+    #[inline]
+    pub fn triangle(&self, prim: u32, pose: Option<&Pose<'_>>) -> ([Vec3; 3], bool) {
+        if let Some((i, local)) = pose.and_then(|p| p.locate(prim)) {
+            let pose = pose.expect("located");
+            let placed = pose.placed(i);
+            let tri = pose.motion().instances[i].accel.triangle(local);
+            return (tri.map(|p| placed.to_world.transform_point3(p)), true);
+        }
+        (*self.accel.triangle(prim), false)
+    }
+
+    /// A vertex normal of triangle `prim` (world space, at the pose's time if it moves).
+    #[inline]
+    pub fn vertex_normal(&self, vertex: u32, prim: u32, pose: Option<&Pose<'_>>) -> Vec3 {
+        let n = self.normals[vertex as usize];
+        match pose.and_then(|p| p.locate(prim)) {
+            Some((i, _)) => pose.expect("located").placed(i).normal * n,
+            None => n,
+        }
     }
 
     /// Whether the surface at a hit is cut out by its material's alpha (MASK).
