@@ -4,7 +4,7 @@
 //! build, render times, bytes per triangle).
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
-//! [--plot bench.svg] [--large]`; figures in the README come from this command.
+//! [--plot bench.svg] [--large] [--time-scenes]`; figures in the README come from this command.
 
 use std::{
     fmt::Write as _,
@@ -33,6 +33,10 @@ struct Args {
     /// Also load, build and render the ~1M-triangle MetalRoughSpheresNoTextures scene.
     #[arg(long)]
     large: bool,
+    /// Also the motion-blur and depth-of-field scenes (`scenes/cornell-motion.*`,
+    /// `scenes/cornell-dof.settings.json`), scored against 4096-spp renders of their own.
+    #[arg(long)]
+    time_scenes: bool,
     /// The shared folder with scenes and references.
     #[arg(long, default_value = "../shared")]
     shared: PathBuf,
@@ -99,6 +103,55 @@ fn main() -> Result<()> {
     eprintln!("plot: {}", args.plot.display());
     if args.large {
         large_scene(&scenes, args.threads, &out_dir)?;
+    }
+    if args.time_scenes {
+        time_scenes(args.threads, &out_dir)?;
+    }
+    Ok(())
+}
+
+/// Motion blur and depth of field: time and error against a 4096-spp reference of the same
+/// scene and settings (our own: no peer renders these glTF animations the same way).
+fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    for (name, scene, settings) in [
+        ("cornell-motion", "cornell-motion.gltf", "cornell-motion.settings.json"),
+        ("cornell-dof", "cornell-box.gltf", "cornell-dof.settings.json"),
+    ] {
+        let base = RenderSettings::from_json(&std::fs::read_to_string(repo.join(settings))?)
+            .map_err(anyhow::Error::msg)?;
+        let scene = repo.join(scene);
+        let reference = {
+            let settings = RenderSettings { spp: 4096, ..base.clone() };
+            let report = render_file(
+                &scene,
+                &settings,
+                threads,
+                &out_dir.join(format!("{name}-ref.exr")),
+                &|_, _| {},
+            )?;
+            report.film.mean_rgb()
+        };
+        for spp in [16, 64, 256] {
+            let settings = RenderSettings { spp, ..base.clone() };
+            let wall = Instant::now();
+            let report = render_file(
+                &scene,
+                &settings,
+                threads,
+                &out_dir.join(format!("{name}-{spp}.exr")),
+                &|_, _| {},
+            )?;
+            let seconds = wall.elapsed().as_secs_f64();
+            let (rmse, rel_mse) = metrics(&report.film.mean_rgb(), &reference);
+            println!(
+                "{name},{spp},{threads},{seconds:.4},{:.4},{:.0},{:.0},{rmse:.6},{rel_mse:.6e},{:.6e}",
+                report.write_seconds,
+                report.samples as f64 / report.render_seconds,
+                report.rays as f64 / report.render_seconds,
+                report.film.error_estimate().rel_mse
+            );
+        }
     }
     Ok(())
 }
