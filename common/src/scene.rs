@@ -26,6 +26,9 @@ pub struct Scene {
     /// Node animation, when the file animates a node; instances and cameras are posed at its
     /// rest pose until [`Scene::set_time`] poses them at another time.
     pub animation: Option<crate::animation::Animation>,
+    /// Nodes whose meshes would deform (skins, morph targets): rendered in their rest pose,
+    /// which is only right for a still image.
+    pub deforming: Vec<String>,
 }
 
 /// One glTF primitive's triangles in local space.
@@ -256,16 +259,27 @@ pub struct PunctualLight {
     pub direction: DVec3,
     /// `range`, if given (the renderer ignores it, as the spec allows for physically based renderers).
     pub range: Option<f32>,
+    /// The glTF node that places it.
+    pub node: Option<usize>,
 }
 
 impl Scene {
-    /// Poses animated instances and cameras at time `t` (seconds). Nothing moves in a scene
-    /// without animation. Lights stay where the rest pose puts them.
+    /// Poses animated instances, cameras and punctual lights at time `t` (seconds). Nothing
+    /// moves in a scene without animation.
     pub fn set_time(&mut self, t: f64) {
         let Some(anim) = &self.animation else { return };
         for inst in &mut self.instances {
             if anim.moves(inst.node) {
                 inst.transform = anim.world(inst.node, t) * inst.offset;
+            }
+        }
+        for light in &mut self.lights {
+            if let Some(node) = light.node.filter(|&n| anim.moves(n)) {
+                let world = anim.world(node, t);
+                light.position = world.w_axis.truncate();
+                if let Some(d) = world.transform_vector3(DVec3::NEG_Z).try_normalize() {
+                    light.direction = d;
+                }
             }
         }
         for cam in &mut self.cameras {
@@ -277,11 +291,25 @@ impl Scene {
         }
     }
 
+    /// Refuses settings that would show time passing (several frames, or an open shutter) in an
+    /// animated scene with deforming meshes, which would render frozen in their rest pose.
+    pub fn check_time(&self, settings: &crate::settings::RenderSettings) -> Result<(), String> {
+        let shows_time = settings.frames.end > settings.frames.start
+            || settings.shutter.open < settings.shutter.close;
+        match self.deforming.first() {
+            Some(node) if shows_time && self.animation.is_some() => Err(format!(
+                "{node}: skins and morph targets are not supported, so this animated scene cannot be rendered over time (several frames or an open shutter) without freezing it; render one frame with a closed shutter"
+            )),
+            _ => Ok(()),
+        }
+    }
+
     /// Whether anything in the scene moves over time.
     pub fn is_animated(&self) -> bool {
         self.animation.as_ref().is_some_and(|a| {
             self.instances.iter().any(|i| a.moves(i.node))
                 || self.cameras.iter().any(|c| c.node.is_some_and(|n| a.moves(n)))
+                || self.lights.iter().any(|l| l.node.is_some_and(|n| a.moves(n)))
         })
     }
 

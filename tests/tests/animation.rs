@@ -368,3 +368,34 @@ fn moving_the_camera_equals_moving_the_world_the_other_way() {
         );
     }
 }
+
+#[test]
+fn deforming_meshes_are_refused_over_time_naming_the_node() {
+    let dir = temp_dir("anim-deform");
+    let path = moving_square(&dir);
+    let mut gltf: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    gltf["meshes"][0]["primitives"][0]["targets"] = json!([{"POSITION": 0}]);
+    let morphing = dir.join("morphing.gltf");
+    std::fs::write(&morphing, gltf.to_string()).unwrap();
+    let settings = dir.join("settings.json");
+    std::fs::write(&settings, json!({"width": 16, "height": 16, "spp": 1}).to_string()).unwrap();
+    let render = |frames: &str| {
+        Command::new(bin_dir().join("coordinator"))
+            .arg("render")
+            .arg(&morphing)
+            .arg("-o")
+            .arg(dir.join("morph.exr"))
+            .arg("--settings")
+            .arg(&settings)
+            .args(["--frames", frames])
+            .output()
+            .unwrap()
+    };
+    let over_time = render("0..1");
+    let stderr = String::from_utf8_lossy(&over_time.stderr);
+    assert!(!over_time.status.success());
+    assert!(stderr.contains("node 0 (shape)") && stderr.contains("morph targets"), "{stderr}");
+    // A single still frame is fine: the rest pose is what it shows.
+    assert!(render("1").status.success());
+}

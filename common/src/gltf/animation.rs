@@ -215,6 +215,23 @@ mod tests {
     }
 
     #[test]
+    fn lights_on_animated_nodes_move_with_them() {
+        let mut json: serde_json::Value =
+            serde_json::from_slice(&scene_with_keys([0.0, 2.0], "LINEAR")).unwrap();
+        json["extensionsUsed"] = serde_json::json!(["KHR_lights_punctual"]);
+        json["extensions"] = serde_json::json!({"KHR_lights_punctual": {"lights": [{"type": "point", "intensity": 1.0}]}});
+        json["nodes"][0]["children"] = serde_json::json!([1]);
+        json["nodes"] = serde_json::json!([json["nodes"][0].clone(),
+            {"translation": [0.0, 1.0, 0.0], "extensions": {"KHR_lights_punctual": {"light": 0}}}]);
+        let mut scene = load_slice(json.to_string().as_bytes(), &NoFiles).unwrap();
+        assert!(scene.is_animated());
+        scene.set_time(1.0);
+        // The child light rides on its parent's translation (x = 2 at t = 1).
+        let p = scene.lights[0].position;
+        assert!((p - glam::DVec3::new(2.0, 1.0, 0.0)).length() < 1e-6, "{p}");
+    }
+
+    #[test]
     fn malformed_animations_are_errors_naming_the_sampler() {
         let err = load_slice(&scene_with_keys([1.0, 0.5], "LINEAR"), &NoFiles).unwrap_err();
         assert!(err.0.contains("animation 0 sampler 0") && err.0.contains("decrease"), "{err}");

@@ -196,6 +196,8 @@ struct Loader<'a> {
     budget: Cell<Budget>,
     /// The `animations` array of the JSON, as written.
     animations: Option<&'a serde_json::Value>,
+    /// Nodes whose meshes deform (skins, morph targets), for messages.
+    deforming: Vec<String>,
 }
 
 /// Limits on what one file may make the loader allocate, far above any real scene, so that a
@@ -253,6 +255,7 @@ impl<'a> Loader<'a> {
             texture_map: HashMap::new(),
             budget: Cell::new(Budget::FULL),
             animations: doc.animations.as_ref(),
+            deforming: Vec::new(),
         }
     }
 
@@ -269,6 +272,7 @@ impl<'a> Loader<'a> {
             textures: std::mem::take(&mut self.textures),
             cameras: std::mem::take(&mut self.cameras),
             lights: std::mem::take(&mut self.lights),
+            deforming: std::mem::take(&mut self.deforming),
         };
         if scene.cameras.is_empty() {
             scene.cameras.push(nodes::default_camera(&scene));

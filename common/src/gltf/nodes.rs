@@ -101,6 +101,7 @@ impl Loader<'_> {
                     "{}: skinning is not supported; mesh {mesh} is rendered in its rest pose",
                     node_name()
                 );
+                self.deforming.push(format!("{} (skinned mesh {mesh})", node_name()));
             }
             if gltf_mesh
                 .primitives
@@ -111,6 +112,7 @@ impl Loader<'_> {
                     "{}: mesh {mesh} has morph targets, which are not supported; rendered without them",
                     node_name()
                 );
+                self.deforming.push(format!("{} (mesh {mesh} with morph targets)", node_name()));
             }
             // Each placement relative to the node (EXT_mesh_gpu_instancing), so that an animated
             // node can be placed again at any time.
@@ -191,6 +193,7 @@ impl Loader<'_> {
                 position: world.w_axis.truncate(),
                 direction,
                 range: def.range,
+                node: Some(index),
             });
         }
         Ok(())

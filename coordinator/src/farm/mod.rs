@@ -751,6 +751,12 @@ pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<Sce
 pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
     let bundle =
         Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
+    let shows_time = settings.frames.end > settings.frames.start
+        || settings.shutter.open < settings.shutter.close;
+    if shows_time {
+        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+        scene.check_time(settings).map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+    }
     if let Some(name) = &settings.camera {
         let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
         if !scene.cameras.iter().any(|c| &c.name == name) {

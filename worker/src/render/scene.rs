@@ -390,6 +390,7 @@ pub fn prepare_frame(
     env_map: Option<&EnvMap>,
     frame: i64,
 ) -> Result<PreparedScene, PrepareError> {
+    scene.check_time(settings).map_err(PrepareError)?;
     if !scene.is_animated() {
         return prepare_with_environment(scene, settings, env_map);
     }
