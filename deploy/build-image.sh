@@ -9,16 +9,17 @@ build=deploy/.build
 echo "== binaries"
 cargo build --release -p coordinator -p worker --bins
 rm -rf "$build"
-mkdir -p "$build/bin" "$build/rootfs"
+mkdir -p "$build/rootfs"
 for bin in coordinator worker; do
-    strip -o "$build/bin/$bin" "target/release/$bin"
+    strip -o "deploy/prebuilt/$bin" "target/release/$bin"
 done
 
 echo "== base image renderfarm-base:local (from this host's libraries)"
 rootfs="$build/rootfs"
-mkdir -p "$rootfs/etc" "$rootfs/tmp" "$rootfs/data"
+# No /data here: the Dockerfile's COPY --chown creates it owned by the image's user.
+mkdir -p "$rootfs/etc" "$rootfs/tmp"
 chmod 1777 "$rootfs/tmp"
-libs=$(ldd "$build/bin/coordinator" "$build/bin/worker" | awk '$2 == "=>" && $3 ~ /^\// {print $3} $1 ~ /^\// {print $1}' | sort -u)
+libs=$(ldd deploy/prebuilt/coordinator deploy/prebuilt/worker | awk '$2 == "=>" && $3 ~ /^\// {print $3} $1 ~ /^\// {print $1}' | sort -u)
 for lib in $libs; do
     mkdir -p "$rootfs$(dirname "$lib")"
     cp -L "$lib" "$rootfs$lib"
@@ -26,9 +27,7 @@ done
 printf 'root:x:0:0:root:/root:/sbin/nologin\nfarm:x:10001:10001:render farm:/data:/sbin/nologin\n' > "$rootfs/etc/passwd"
 printf 'root:x:0:\nfarm:x:10001:\n' > "$rootfs/etc/group"
 printf 'hosts: files dns\n' > "$rootfs/etc/nsswitch.conf"
-chown -R 0:0 "$rootfs" 2>/dev/null || true
-chown 10001:10001 "$rootfs/data" 2>/dev/null || true
-tar --numeric-owner -C "$rootfs" -c . | docker import - renderfarm-base:local >/dev/null
+tar --numeric-owner --owner=0 --group=0 -C "$rootfs" -c . | docker import - renderfarm-base:local >/dev/null
 
 echo "== image renderfarm:local"
 docker build -q -f deploy/Dockerfile --target host \

@@ -7,6 +7,8 @@ use serde::{Deserialize, Serialize};
 
 /// Upper bound on image width and height accepted by `validate`.
 pub const MAX_RESOLUTION: u32 = 16384;
+/// Upper bound on the frames of one job accepted by `validate`.
+pub const MAX_FRAMES: u64 = 100_000;
 /// Upper bound on samples per pixel accepted by `validate`.
 pub const MAX_SPP: u32 = 1 << 20;
 
@@ -209,6 +211,10 @@ impl RenderSettings {
         }
         if self.frames.end < self.frames.start {
             return Err(err("frames", "end is before start"));
+        }
+        let count = (self.frames.end as i128) - (self.frames.start as i128) + 1;
+        if count > MAX_FRAMES as i128 {
+            return Err(err("frames", format!("{count} frames is over the limit of {MAX_FRAMES}")));
         }
         if !(self.frames.fps.is_finite() && self.frames.fps > 0.0) {
             return Err(err("frames.fps", "must be a finite number > 0"));

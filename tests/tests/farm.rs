@@ -247,6 +247,11 @@ fn bad_requests_get_a_json_error_naming_the_problem() {
             "tasks",
         ),
         (json!({"scene": scene, "priority": "high"}), 422, "priority"),
+        (
+            json!({"scene": scene, "settings": {"frames": {"start": 0, "end": 72057594037927935i64}}}),
+            422,
+            "frames",
+        ),
     ];
     for (body, status, needle) in bad_jobs {
         let a = post_json(&jobs, &body);

@@ -160,6 +160,18 @@ impl Client {
     }
 }
 
+/// Why a task could not be prepared; only a permanent failure is reported against the task.
+struct Failure {
+    transient: bool,
+    message: String,
+}
+
+impl Failure {
+    fn permanent(message: String) -> Self {
+        Failure { transient: false, message }
+    }
+}
+
 /// A scene as loaded, with its environment map.
 struct Loaded {
     key: String,
@@ -180,20 +192,27 @@ pub struct SceneCache {
 impl SceneCache {
     const CAPACITY: usize = 4;
 
-    fn load(&self, client: &Client, grant: &LeaseGrant, key: &str) -> Result<Arc<Loaded>, String> {
+    fn load(&self, client: &Client, grant: &LeaseGrant, key: &str) -> Result<Arc<Loaded>, Failure> {
         let mut loaded = self.loaded.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(l) = loaded.as_ref().filter(|l| l.key == key) {
             return Ok(l.clone());
         }
-        let bytes = client
-            .scene(&grant.scene)
-            .map_err(|e| format!("fetching scene {}: {e}", grant.scene))?;
+        let bytes = client.scene(&grant.scene).map_err(|e| Failure {
+            // Only the scene itself is worth reporting: a network error is not the task's.
+            transient: matches!(e, CallError::Transport(_))
+                || matches!(e, CallError::Status(c, _) if c >= 500),
+            message: format!("fetching scene {}: {e}", grant.scene),
+        })?;
         let bundle = Bundle::open(&bytes, Limits::default())
-            .map_err(|e| format!("scene {}: {e}", grant.scene))?;
-        let scene = bundle.load_scene().map_err(|e| format!("scene {}: {e}", grant.scene))?;
+            .map_err(|e| Failure::permanent(format!("scene {}: {e}", grant.scene)))?;
+        let scene = bundle
+            .load_scene()
+            .map_err(|e| Failure::permanent(format!("scene {}: {e}", grant.scene)))?;
         let env = match &grant.settings.environment {
             Some(Environment::Map { map, .. }) => Some(
-                bundle.load_envmap(map).map_err(|e| format!("settings.environment.map: {e}"))?,
+                bundle
+                    .load_envmap(map)
+                    .map_err(|e| Failure::permanent(format!("settings.environment.map: {e}")))?,
             ),
             _ => None,
         };
@@ -206,12 +225,13 @@ impl SceneCache {
         &self,
         client: &Client,
         grant: &LeaseGrant,
-    ) -> Result<Arc<PreparedScene>, String> {
+    ) -> Result<Arc<PreparedScene>, Failure> {
         let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
         let base = format!(
             "{}/{}",
             grant.scene,
-            serde_json::to_string(&grant.settings).map_err(|e| e.to_string())?
+            serde_json::to_string(&grant.settings)
+                .map_err(|e| Failure::permanent(e.to_string()))?
         );
         let frame_key = format!("{base}#{}", grant.task.frame);
         for key in [&frame_key, &base] {
@@ -227,7 +247,7 @@ impl SceneCache {
         let animated = loaded.scene.is_animated();
         let scene = &loaded.scene;
         let prepared = prepare_frame(scene, &grant.settings, loaded.env.as_ref(), grant.task.frame)
-            .map_err(|e| format!("preparing scene {}: {e}", grant.scene))?;
+            .map_err(|e| Failure::permanent(format!("preparing scene {}: {e}", grant.scene)))?;
         let key = if animated { frame_key } else { base };
         tracing::info!(
             scene = %grant.scene,
@@ -342,16 +362,9 @@ fn handle(
     heartbeat: Duration,
     cache: &SceneCache,
 ) -> Result<bool, String> {
-    let prepared = match cache.get_or_prepare(client, grant) {
-        Ok(p) => p,
-        Err(e) => {
-            let report = FailReport { error: e.clone() };
-            let _ = client.post_lease(worker, &grant.lease, "fail", None, Some(&report));
-            return Err(e);
-        }
-    };
     let lost = AtomicBool::new(false);
-    // Dropping `done` wakes the heartbeat thread at once when the render ends.
+    // The lease is renewed from the start: fetching and preparing a scene can take longer than
+    // the lease. Dropping `done` wakes the heartbeat thread at once when the work ends.
     let (done, wake) = std::sync::mpsc::channel::<()>();
     let rendered = std::thread::scope(|s| {
         let lost = &lost;
@@ -360,7 +373,7 @@ fn handle(
             {
                 match client.post_lease(worker, &grant.lease, "heartbeat", None, None) {
                     Ok(()) => {}
-                    Err(CallError::Status(code, msg)) => {
+                    Err(CallError::Status(code @ (403 | 404 | 409), msg)) => {
                         tracing::warn!(lease = %grant.lease, "lease lost (HTTP {code}: {msg})");
                         lost.store(true, Ordering::Relaxed);
                         return;
@@ -369,12 +382,31 @@ fn handle(
                 }
             }
         });
+        let prepared = match cache.get_or_prepare(client, grant) {
+            Ok(p) => p,
+            Err(failure) => {
+                drop(done);
+                return Err(failure);
+            }
+        };
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             render_task_threads(&prepared, grant.settings.seed, &grant.task, threads)
         }));
         drop(done);
-        result
+        Ok(result)
     });
+    let rendered = match rendered {
+        Ok(r) => r,
+        Err(Failure { transient: true, message }) => {
+            // Not the task's fault: let the lease lapse (or be renewed by nobody) and go on.
+            return Err(format!("{message}; the task is left to its lease timeout"));
+        }
+        Err(Failure { transient: false, message }) => {
+            let report = FailReport { error: message.clone() };
+            let _ = client.post_lease(worker, &grant.lease, "fail", None, Some(&report));
+            return Err(message);
+        }
+    };
     let result = match rendered {
         Ok(r) => r,
         Err(panic) => {

@@ -137,6 +137,8 @@ pub struct Frame {
     pub scale: Option<f64>,
     /// Pixel samples accepted for this frame.
     pub samples_done: u64,
+    /// The frame is complete and its sums left memory (they are in the database).
+    pub evicted: bool,
 }
 
 /// A job and everything the scheduler knows about it.
@@ -243,9 +245,10 @@ impl Job {
     ) -> Result<Job, String> {
         let tasks_per_tile = settings.spp.div_ceil(settings.samples_per_task);
         let rects = tiles(settings.width, settings.height, settings.tile_size);
-        let n_frames = (settings.frames.end - settings.frames.start + 1) as u64;
-        let total = n_frames * rects.len() as u64 * tasks_per_tile as u64;
-        if total > MAX_TASKS_PER_JOB {
+        let n_frames =
+            (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(0) as u128;
+        let total = n_frames * rects.len() as u128 * tasks_per_tile as u128;
+        if total > MAX_TASKS_PER_JOB as u128 {
             return Err(format!(
                 "{total} tasks ({n_frames} frames x {} tiles x {tasks_per_tile} sample ranges) is over the limit of {MAX_TASKS_PER_JOB}: raise tile_size or samples_per_task",
                 rects.len()
@@ -257,7 +260,9 @@ impl Job {
                 tiles: rects
                     .iter()
                     .map(|&rect| Tile {
-                        sums: TileAccum::new(rect),
+                        // Pixels are allocated by the first result: a long animation holds
+                        // only the frames in progress.
+                        sums: TileAccum { rect, pixels: Vec::new(), rejected: 0 },
                         tasks: vec![TaskState::Open; tasks_per_tile as usize],
                         merged: 0,
                         prefix: 0,
@@ -268,6 +273,7 @@ impl Job {
                     .collect(),
                 scale: None,
                 samples_done: 0,
+                evicted: false,
             })
             .collect();
         let tiles_open = frames.iter().map(|f| f.tiles.len()).sum();
@@ -380,7 +386,10 @@ impl Job {
         let counter = if failure { &mut self.failures } else { &mut self.expiries };
         let n = counter.entry(key).or_default();
         *n += 1;
-        *n
+        let n = *n;
+        // Past the time limit nothing is leased again: the last lease out ends the job.
+        self.finish_if_complete();
+        n
     }
 
     /// Returns a leased task without counting it against the task (the worker left cleanly).
@@ -391,6 +400,7 @@ impl Job {
             *slot = TaskState::Open;
             self.in_flight -= 1;
         }
+        self.finish_if_complete();
     }
 
     /// Accepts the sums of the leased task `key` (the caller has checked that they answer it):
@@ -409,11 +419,30 @@ impl Job {
         self.finish_if_complete();
     }
 
+    /// Whether frame index `f` needs no more samples.
+    pub fn frame_complete(&self, f: usize) -> bool {
+        self.frames[f].tiles.iter().all(Tile::is_complete)
+    }
+
+    /// Drops a complete frame's sums from memory (call once they are committed).
+    pub fn evict_frame(&mut self, f: usize) {
+        let frame = &mut self.frames[f];
+        for tile in &mut frame.tiles {
+            tile.sums.pixels = Vec::new();
+            tile.pending.clear();
+        }
+        frame.evicted = true;
+    }
+
     /// Adds the pending results that continue the tile's prefix, in task order.
     fn drain_pending(t: &mut Tile) {
         let mut advanced = false;
         while let Some(next) = t.pending.remove(&t.prefix) {
-            t.sums.merge(&next);
+            if t.sums.pixels.is_empty() {
+                t.sums = next; // the same bits as merging into an empty tile
+            } else {
+                t.sums.merge(&next);
+            }
             t.prefix += 1;
             advanced = true;
         }
@@ -484,7 +513,7 @@ impl Job {
             .and_then(|f| f.tiles.get_mut(tile as usize))
             .ok_or_else(|| format!("stored tile {frame}/{tile} is not in the job"))?;
         let count = |a: &TileAccum| a.pixels.iter().map(|p| p.n as u64).sum::<u64>();
-        let sums = sums.unwrap_or_else(|| TileAccum::new(t.sums.rect));
+        let sums = sums.unwrap_or(TileAccum { rect: t.sums.rect, pixels: Vec::new(), rejected: 0 });
         if prefix as usize > t.tasks.len() || sums.rect != t.sums.rect {
             return Err(format!("stored tile {frame}/{tile} does not fit the job"));
         }
@@ -579,11 +608,8 @@ impl Job {
     /// Drops the sums of a finished job from memory; its images are then read from the database.
     pub fn evict(&mut self) {
         debug_assert!(self.state.is_final());
-        for frame in &mut self.frames {
-            for tile in &mut frame.tiles {
-                tile.sums.pixels = Vec::new();
-                tile.pending.clear();
-            }
+        for f in 0..self.frames.len() {
+            self.evict_frame(f);
         }
         self.evicted = true;
     }
@@ -591,7 +617,7 @@ impl Job {
     /// The image of frame index `f` (what its files show), built tile by tile.
     pub fn image(&self, f: usize) -> FrameImage {
         let mut image = FrameImage::new(self.settings.width, self.settings.height);
-        for tile in &self.frames[f].tiles {
+        for tile in self.frames[f].tiles.iter().filter(|t| !t.sums.pixels.is_empty()) {
             image.put_tile(&tile.sums);
         }
         image
@@ -600,7 +626,7 @@ impl Job {
     /// The merged film of frame index `f`.
     pub fn film(&self, f: usize) -> Film {
         let mut film = Film::new(self.settings.width, self.settings.height);
-        for tile in &self.frames[f].tiles {
+        for tile in self.frames[f].tiles.iter().filter(|t| !t.sums.pixels.is_empty()) {
             film.merge_tile(&tile.sums);
         }
         film
@@ -773,5 +799,18 @@ mod tests {
         let forward = run(&[0, 1, 2, 3, 4, 5]);
         assert_eq!(forward, run(&[5, 4, 3, 2, 1, 0]));
         assert_eq!(forward, run(&[3, 0, 5, 1, 4, 2]));
+    }
+
+    #[test]
+    fn past_the_time_limit_the_last_lease_to_lapse_ends_the_job() {
+        let mut j = job(64, 32, None);
+        j.settings.time_limit_s = Some(1e-9);
+        let key = j.next_task().unwrap();
+        j.lease(key);
+        assert!(j.check_time_limit());
+        assert_eq!(j.state, JobState::Running, "a lease is still out");
+        assert_eq!(j.next_task(), None, "nothing more is issued");
+        j.release(key, false);
+        assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
     }
 }

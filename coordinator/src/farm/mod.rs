@@ -214,6 +214,13 @@ impl Farm {
                     .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;
             }
             job.restore_adaptive(&stored.scales);
+            if job.frames.len() > 1 {
+                for f in 0..job.frames.len() {
+                    if job.frame_complete(f) {
+                        job.evict_frame(f);
+                    }
+                }
+            }
             if stored.state.is_final() {
                 job.set_final(stored.state, stored.error);
                 job.evict();
@@ -253,13 +260,13 @@ impl Farm {
         Ok(())
     }
 
-    /// The bytes of a stored scene.
-    pub fn scene_bytes(&self, hash: &str) -> FarmResult<Vec<u8>> {
+    /// Where a stored scene's bytes are (read them outside the farm lock: the file never
+    /// changes, it is named by its content).
+    pub fn scene_file(&self, hash: &str) -> FarmResult<PathBuf> {
         if !is_hash(hash) || self.store.scene_format(hash)?.is_none() {
             return Err(FarmError::new(404, format!("no scene {hash}")));
         }
-        std::fs::read(self.store.scene_path(hash))
-            .map_err(|e| FarmError::new(500, format!("scene {hash}: {e}")))
+        Ok(self.store.scene_path(hash))
     }
 
     /// Checks settings against the farm's limits (the scene-dependent checks are
@@ -347,7 +354,7 @@ impl Farm {
     pub fn film(&self, id: &str, number: i64) -> FarmResult<(Film, JobStatus)> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
-        if !job.evicted {
+        if !job.frames[f].evicted {
             return Ok((job.film(f), job.status()));
         }
         let mut film = Film::new(job.settings.width, job.settings.height);
@@ -359,13 +366,24 @@ impl Farm {
 
     /// The summed tiles of frame index `f` of an evicted job, from the database.
     fn stored_tiles(&self, job: &Job, f: usize) -> FarmResult<Vec<common::film::TileAccum>> {
-        Ok(self
-            .store
-            .tiles(&job.id)?
-            .into_iter()
-            .filter(|t| t.frame as usize == f)
-            .filter_map(|t| t.sums)
-            .collect())
+        Ok(self.store.frame_sums(&job.id, f as u32)?)
+    }
+
+    /// Persists and evicts a job that a lease going back just finished (time limit reached).
+    fn settle(&mut self, id: &str) {
+        if let Some(job) = self.jobs.get(id) {
+            if job.state.is_final() && !job.evicted {
+                if let Err(e) = self.store.update_job(job) {
+                    tracing::error!(job = id, "recording the job's end failed: {e:#}");
+                }
+                self.evict_if_final(id);
+            }
+        }
+    }
+
+    /// Notes that a worker was heard from (a long poll that ended without work).
+    pub fn seen(&mut self, worker: &str) {
+        let _ = self.touch(worker);
     }
 
     /// Drops a finished job's sums from memory.
@@ -385,7 +403,7 @@ impl Farm {
     ) -> FarmResult<(crate::output::FrameImage, JobStatus)> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
-        if !job.evicted {
+        if !job.frames[f].evicted {
             return Ok((job.image(f), job.status()));
         }
         let mut image = crate::output::FrameImage::new(job.settings.width, job.settings.height);
@@ -477,6 +495,7 @@ impl Farm {
             if let Some(job) = self.jobs.get_mut(&l.job) {
                 job.give_back(l.key);
             }
+            self.settle(&l.job);
         }
         tracing::info!(worker, "worker left");
         Ok(())
@@ -525,7 +544,10 @@ impl Farm {
             lease_timeout_s: self.config.lease_timeout.as_secs_f64(),
         };
         if was_queued {
-            self.store.update_job(job)?;
+            if let Err(e) = self.store.update_job(job) {
+                job.give_back(key);
+                return Err(e.into());
+            }
         }
         self.leases.insert(
             grant.lease.clone(),
@@ -597,6 +619,12 @@ impl Farm {
             tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(), "job done");
         }
         self.evict_if_final(&job_id);
+        if let Some(job) = self.jobs.get_mut(&job_id) {
+            let f = key.frame as usize;
+            if !job.frames[f].evicted && job.frames.len() > 1 && job.frame_complete(f) {
+                job.evict_frame(f); // committed above: its images are read back from SQLite
+            }
+        }
         let c = &mut self.counters;
         c.tasks_merged += 1;
         c.samples_merged += samples;
@@ -639,6 +667,7 @@ impl Farm {
             self.drop_leases_of(&job_id);
             self.evict_if_final(&job_id);
         }
+        self.settle(&job_id);
         Ok(())
     }
 
@@ -675,6 +704,7 @@ impl Farm {
                 self.drop_leases_of(&l.job);
                 self.evict_if_final(&l.job);
             }
+            self.settle(&l.job);
         }
         for job in self.jobs.values_mut() {
             if job.check_time_limit() {

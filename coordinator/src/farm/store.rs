@@ -62,9 +62,11 @@ pub struct StoredTile {
     pub pending: Vec<(u32, TileAccum)>,
 }
 
-/// Scales as JSON. f64 round-trips exactly through serde_json's shortest representation.
+/// Scales as JSON, each f64 as its bit pattern (decimal text need not parse back to the same
+/// bits, and the adaptive decisions after a restart must be the same as before it).
 fn scales_json(job: &Job) -> String {
-    serde_json::to_string(&job.scales()).unwrap_or_else(|_| "[]".into())
+    let bits: Vec<Option<u64>> = job.scales().iter().map(|s| s.map(f64::to_bits)).collect();
+    serde_json::to_string(&bits).unwrap_or_else(|_| "[]".into())
 }
 
 fn bincode_config() -> impl bincode::config::Config {
@@ -218,8 +220,9 @@ impl Store {
         for row in rows {
             let (id, seq, scene, settings, priority, state, error, created_unix, elapsed_s, scales) =
                 row?;
-            let scales: Vec<Option<f64>> = serde_json::from_str(&scales)
+            let bits: Vec<Option<u64>> = serde_json::from_str(&scales)
                 .with_context(|| format!("job {id}: stored adaptive scales"))?;
+            let scales = bits.into_iter().map(|b| b.map(f64::from_bits)).collect();
             let settings = RenderSettings::from_json(&settings)
                 .map_err(|e| anyhow::anyhow!("job {id}: stored settings: {e}"))?;
             let state = JobState::parse(&state)
@@ -236,6 +239,19 @@ impl Store {
                 elapsed_s,
                 scales,
             });
+        }
+        Ok(out)
+    }
+
+    /// The summed tiles of one frame of a job (pending results left out).
+    pub fn frame_sums(&self, job: &str, frame: u32) -> Result<Vec<TileAccum>> {
+        let mut stmt = self.db.prepare("SELECT sums FROM tiles WHERE job = ?1 AND frame = ?2")?;
+        let rows = stmt.query_map(params![job, frame], |r| r.get::<_, Vec<u8>>(0))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (sums, _): (TileAccum, usize) =
+                bincode::serde::decode_from_slice(&row?, bincode_config())?;
+            out.push(sums);
         }
         Ok(out)
     }

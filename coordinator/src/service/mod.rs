@@ -373,7 +373,11 @@ async fn download_scene(
     State(state): State<AppState>,
     Path(hash): Path<String>,
 ) -> ApiResult<Response> {
-    let bytes = blocking(move || state.lock().scene_bytes(&hash)).await?;
+    let bytes = blocking(move || {
+        let path = state.lock().scene_file(&hash)?;
+        std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene {hash}: {e}")))
+    })
+    .await?;
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))], bytes)
         .into_response())
 }
@@ -404,9 +408,11 @@ async fn create_job(
     let st = state.clone();
     let status = blocking(move || {
         st.lock().check_settings(&settings)?;
-        let bytes = st.lock().scene_bytes(&req.scene).map_err(|e| {
-            FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message))
+        let path = st.lock().scene_file(&req.scene).map_err(|e| match e.status {
+            404 => FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message)),
+            _ => e,
         })?;
+        let bytes = std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene: {e}")))?;
         validate_job_scene(&bytes, &settings)?;
         st.lock().create_job(&req.scene, settings, req.priority)
     })
@@ -525,6 +531,7 @@ async fn lease(
             return Ok(Json(grant).into_response());
         }
         if tokio::time::timeout_at(deadline, notified).await.is_err() {
+            state.lock().seen(&worker);
             return Ok(StatusCode::NO_CONTENT.into_response());
         }
     }

@@ -155,16 +155,16 @@ fn prepare_inner(
     };
     let mut moving = Vec::new();
     for inst in &scene.instances {
-        if moves(inst.node) {
-            moving.push(inst);
-            continue;
-        }
         let mesh = &scene.meshes[inst.mesh];
         let material = &scene.materials[mesh.material];
         if let AlphaMode::Mask { cutoff } = material.alpha_mode {
             if material.base_color.w < cutoff && material.base_color_texture.is_none() {
                 continue; // Entirely cut out.
             }
+        }
+        if moves(inst.node) {
+            moving.push(inst);
+            continue;
         }
         let m = to_relative * inst.transform;
         let normal_m = DMat3::from_mat4(m).inverse().transpose();
