@@ -3,31 +3,10 @@
 //! that the `samples` channel is N everywhere: `exr_same A.exr B.exr [--samples N]`.
 
 use anyhow::{bail, Context, Result};
-use exr::prelude::*;
 
 fn channels(path: &str) -> Result<Vec<(String, Vec<u32>)>> {
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .with_context(|| format!("reading {path}"))?;
-    Ok(image
-        .layer_data
-        .channel_data
-        .list
-        .iter()
-        .map(|c| {
-            let bits = match &c.sample_data {
-                FlatSamples::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
-                FlatSamples::U32(v) => v.clone(),
-                FlatSamples::F16(v) => v.iter().map(|x| x.to_bits() as u32).collect(),
-            };
-            (c.name.to_string(), bits)
-        })
-        .collect())
+    let bytes = std::fs::read(path).with_context(|| format!("reading {path}"))?;
+    coordinator::output::read_channel_bits(&bytes).with_context(|| path.to_string())
 }
 
 fn main() -> Result<()> {

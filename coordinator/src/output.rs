@@ -176,3 +176,30 @@ pub fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
         .with_context(|| format!("reading {}", path.display()))?;
     Ok((w, h, texels.iter().map(|t| t.to_array()).collect()))
 }
+
+/// Every channel of an EXR (bytes), by name, as raw bits (f32 bits, u32 values, f16 bits), for
+/// bitwise comparisons.
+pub fn read_channel_bits(bytes: &[u8]) -> Result<Vec<(String, Vec<u32>)>> {
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .context("reading the EXR")?;
+    Ok(image
+        .layer_data
+        .channel_data
+        .list
+        .iter()
+        .map(|c| {
+            let bits = match &c.sample_data {
+                FlatSamples::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
+                FlatSamples::U32(v) => v.clone(),
+                FlatSamples::F16(v) => v.iter().map(|x| x.to_bits() as u32).collect(),
+            };
+            (c.name.to_string(), bits)
+        })
+        .collect())
+}

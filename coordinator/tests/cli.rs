@@ -19,29 +19,7 @@ fn temp(name: &str) -> PathBuf {
 
 /// Every channel of an EXR, by name, as raw bits.
 fn channels(path: &PathBuf) -> Vec<(String, Vec<u32>)> {
-    use exr::prelude::*;
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .unwrap();
-    image
-        .layer_data
-        .channel_data
-        .list
-        .iter()
-        .map(|c| {
-            let bits = match &c.sample_data {
-                FlatSamples::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
-                FlatSamples::U32(v) => v.clone(),
-                FlatSamples::F16(v) => v.iter().map(|x| x.to_bits() as u32).collect(),
-            };
-            (c.name.to_string(), bits)
-        })
-        .collect()
+    coordinator::output::read_channel_bits(&std::fs::read(path).unwrap()).unwrap()
 }
 
 fn render(workers: &str, out: &PathBuf) {

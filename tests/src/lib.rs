@@ -246,29 +246,7 @@ pub fn fetch_exr(url: &str, id: &str, frame: i64) -> Vec<u8> {
 
 /// Every channel of an EXR (bytes), by name, as raw bits.
 pub fn channels(bytes: &[u8]) -> Vec<(String, Vec<u32>)> {
-    use exr::prelude::*;
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_buffered(std::io::Cursor::new(bytes))
-        .unwrap();
-    image
-        .layer_data
-        .channel_data
-        .list
-        .iter()
-        .map(|c| {
-            let bits = match &c.sample_data {
-                FlatSamples::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
-                FlatSamples::U32(v) => v.clone(),
-                FlatSamples::F16(v) => v.iter().map(|x| x.to_bits() as u32).collect(),
-            };
-            (c.name.to_string(), bits)
-        })
-        .collect()
+    coordinator::output::read_channel_bits(bytes).unwrap()
 }
 
 /// The `samples` channel of an EXR.
