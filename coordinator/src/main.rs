@@ -128,6 +128,9 @@ enum Command {
         /// Largest spp a job may ask for.
         #[arg(long, default_value_t = 65536)]
         max_spp: u32,
+        /// Hours a task may stay leased to one worker, heartbeats or not (a hung render).
+        #[arg(long, default_value_t = 6.0)]
+        max_lease_hours: f64,
         /// Largest upload (scene or result) in MiB.
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
@@ -198,11 +201,16 @@ fn main() -> Result<()> {
             api_token,
             lease_timeout,
             max_spp,
+            max_lease_hours,
             max_upload_mib,
         } => {
             anyhow::ensure!(
                 lease_timeout.is_finite() && lease_timeout > 0.0,
                 "--lease-timeout must be a positive number of seconds"
+            );
+            anyhow::ensure!(
+                max_lease_hours.is_finite() && max_lease_hours > 0.0,
+                "--max-lease-hours must be a positive number"
             );
             let mut addr: SocketAddr = listen.parse().with_context(|| {
                 format!("--listen {listen}: expected an address like 0.0.0.0:8080")
@@ -223,6 +231,7 @@ fn main() -> Result<()> {
             }
             config.farm.lease_timeout = Duration::from_secs_f64(lease_timeout);
             config.farm.max_spp = max_spp;
+            config.farm.max_lease_lifetime = Duration::from_secs_f64(max_lease_hours * 3600.0);
             config.max_upload_bytes = max_upload_mib << 20;
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {

@@ -51,6 +51,8 @@ pub struct FarmConfig {
     pub data_dir: PathBuf,
     /// A lease not renewed for this long is given to another worker.
     pub lease_timeout: Duration,
+    /// No lease lives longer than this, heartbeats or not.
+    pub max_lease_lifetime: Duration,
     /// A task whose worker reports failure this many times fails its job.
     pub max_task_failures: u32,
     /// A task whose lease expires this many times fails its job.
@@ -67,6 +69,7 @@ impl FarmConfig {
         FarmConfig {
             data_dir,
             lease_timeout: Duration::from_secs(30),
+            max_lease_lifetime: Duration::from_secs(6 * 3600),
             max_task_failures: 3,
             max_task_expiries: 5,
             max_spp: 65536,
@@ -104,6 +107,9 @@ struct Lease {
     key: TaskKey,
     worker: String,
     deadline: Instant,
+    /// Heartbeats do not renew a lease past this (a worker whose render hangs keeps
+    /// heartbeating; the task must go to someone else eventually).
+    last_renewal: Instant,
 }
 
 /// A worker as the coordinator sees it.
@@ -556,6 +562,7 @@ impl Farm {
                 key,
                 worker: worker.to_string(),
                 deadline: Instant::now() + self.config.lease_timeout,
+                last_renewal: Instant::now() + self.config.max_lease_lifetime,
             },
         );
         self.counters.tasks_leased += 1;
@@ -583,7 +590,17 @@ impl Farm {
         self.touch(worker)?;
         self.live_lease(lease, worker)?;
         let timeout = self.config.lease_timeout;
-        self.leases.get_mut(lease).expect("checked").deadline = Instant::now() + timeout;
+        let l = self.leases.get_mut(lease).expect("checked");
+        if Instant::now() >= l.last_renewal {
+            return Err(FarmError::new(
+                409,
+                format!(
+                    "lease {lease} has reached its maximum lifetime of {} s and will not be renewed",
+                    self.config.max_lease_lifetime.as_secs()
+                ),
+            ));
+        }
+        l.deadline = Instant::now() + timeout;
         Ok(timeout.as_secs_f64())
     }
 
@@ -869,5 +886,34 @@ mod tests {
         expected.merge(&result_for(&second, 0.5).tile);
         let (film, _) = farm.film(&id, 0).unwrap();
         assert_eq!(film.pixels, expected.pixels);
+    }
+
+    /// A worker whose render hangs keeps heartbeating; past the lease's maximum lifetime the
+    /// heartbeats are refused and the task goes back to the queue.
+    #[test]
+    fn leases_do_not_outlive_their_maximum_lifetime() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = FarmConfig::new(dir.path().into());
+        config.lease_timeout = Duration::from_millis(40);
+        config.max_lease_lifetime = Duration::from_millis(100);
+        let mut farm = Farm::open(config).unwrap();
+        let hash = "cd".repeat(32);
+        farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+        let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
+        let id = farm.create_job(&hash, settings, 0).unwrap().id;
+        let w = farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+        let grant = farm.lease(&w).unwrap().unwrap();
+        for _ in 0..4 {
+            std::thread::sleep(Duration::from_millis(20));
+            farm.heartbeat(&grant.lease, &w).unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(40));
+        let refused = farm.heartbeat(&grant.lease, &w).unwrap_err();
+        assert_eq!(refused.status, 409);
+        assert!(refused.message.contains("maximum lifetime"), "{}", refused.message);
+        std::thread::sleep(Duration::from_millis(60));
+        assert!(farm.tick(), "the lease expired");
+        assert_eq!(farm.status(&id).unwrap().tasks_in_flight, 0);
+        assert!(farm.lease(&w).unwrap().is_some(), "the task is leased again");
     }
 }
