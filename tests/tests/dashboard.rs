@@ -1,0 +1,64 @@
+//! The dashboard at `/` in a real browser: headless Chromium loads the page from a running
+//! coordinator, runs its scripts against the REST API, and the resulting DOM shows the job (its
+//! id, state and preview) and the worker that rendered it.
+//!
+//! Needs `chromium` (Debian's package; `.ci/run` installs it and sets
+//! `RENDERFARM_BROWSER_TEST=required`). Without it the test says so and passes only when the
+//! browser is not required.
+
+use std::{process::Command, time::Duration};
+
+use serde_json::json;
+use tests::*;
+
+fn chromium() -> Option<String> {
+    ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .map(str::to_string)
+        .find(|b| Command::new(b).arg("--version").output().is_ok_and(|o| o.status.success()))
+}
+
+#[test]
+fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
+    let Some(browser) = chromium() else {
+        let required = std::env::var("RENDERFARM_BROWSER_TEST").is_ok_and(|v| v == "required");
+        assert!(!required, "no chromium found, but RENDERFARM_BROWSER_TEST=required");
+        eprintln!("SKIPPED: no chromium on this machine (apt-get install chromium)");
+        return;
+    };
+    let dir = temp_dir("dashboard");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let scene = upload(&url, &cornell_zip());
+    let id = create_job(&url, &scene, &json!({"width": 32, "height": 32, "spp": 8}), 3);
+    wait_done(&url, &id, Duration::from_secs(120));
+    let output = Command::new(browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--virtual-time-budget=10000",
+            "--dump-dom",
+        ])
+        .arg(format!("--user-data-dir={}", dir.join("profile").display()))
+        .arg(&url)
+        .output()
+        .unwrap();
+    let dom = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "chromium failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let jobs = dom.split("id=\"jobs-table\"").nth(1).expect("a jobs table in the page");
+    let jobs = jobs.split("</table>").next().unwrap();
+    assert!(jobs.contains(&id), "the job {id} is not listed:\n{jobs}");
+    assert!(jobs.contains("done"), "the job's state is not shown:\n{jobs}");
+    assert!(jobs.contains("<img"), "no preview of the finished job:\n{jobs}");
+    let workers = dom.split("id=\"workers-table\"").nth(1).expect("a workers table in the page");
+    let workers = workers.split("</table>").next().unwrap();
+    assert!(workers.contains("<td"), "no worker listed:\n{workers}");
+    assert!(dom.contains("id=\"upload-form\""), "no upload form");
+}
