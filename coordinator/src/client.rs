@@ -37,6 +37,31 @@ impl Remote {
         }
     }
 
+    /// Uploads a scene bundle and creates a job on it; returns (scene hash, job id).
+    pub fn create_job(
+        &self,
+        bundle: &[u8],
+        settings: &RenderSettings,
+        priority: i32,
+    ) -> Result<(String, String)> {
+        let agent = self.agent();
+        let base = self.url.trim_end_matches('/');
+        let scene: Value = self
+            .with_auth(agent.post(&format!("{base}/api/v1/scenes")))
+            .set("content-type", "application/octet-stream")
+            .send_bytes(bundle)
+            .map_err(|e| http_error("uploading the scene", e))?
+            .into_json()?;
+        let hash = scene["scene"].as_str().context("upload answer without a hash")?.to_string();
+        let job: Value = self
+            .with_auth(agent.post(&format!("{base}/api/v1/jobs")))
+            .send_json(json!({"scene": hash, "settings": settings, "priority": priority}))
+            .map_err(|e| http_error("creating the job", e))?
+            .into_json()?;
+        let id = job["id"].as_str().context("job answer without an id")?.to_string();
+        Ok((hash, id))
+    }
+
     fn get(&self, agent: &ureq::Agent, path: &str) -> Result<ureq::Response> {
         let url = format!("{}{path}", self.url.trim_end_matches('/'));
         self.with_auth(agent.get(&url)).call().map_err(|e| http_error(&format!("GET {path}"), e))
@@ -55,22 +80,9 @@ pub fn submit(
 ) -> Result<Value> {
     settings.validate()?;
     let (bundle, settings) = bundle_scene(scene_path, settings)?;
+    let (hash, id) = remote.create_job(&bundle, &settings, priority)?;
     let agent = remote.agent();
-    let base = remote.url.trim_end_matches('/');
-    let scene: Value = remote
-        .with_auth(agent.post(&format!("{base}/api/v1/scenes")))
-        .set("content-type", "application/octet-stream")
-        .send_bytes(&bundle)
-        .map_err(|e| http_error("uploading the scene", e))?
-        .into_json()?;
-    let hash = scene["scene"].as_str().context("upload answer without a hash")?;
-    let job: Value = remote
-        .with_auth(agent.post(&format!("{base}/api/v1/jobs")))
-        .send_json(json!({"scene": hash, "settings": settings, "priority": priority}))
-        .map_err(|e| http_error("creating the job", e))?
-        .into_json()?;
-    let id = job["id"].as_str().context("job answer without an id")?.to_string();
-    tracing::info!(job = %id, scene = hash, "job submitted");
+    tracing::info!(job = %id, scene = %hash, "job submitted");
     let mut unreachable_since: Option<Instant> = None;
     let status = loop {
         match remote.get(&agent, &format!("/api/v1/jobs/{id}")) {

@@ -147,20 +147,8 @@ pub fn render_file(
     config.farm.max_spp = common::settings::MAX_SPP;
     let service = crate::service::spawn("127.0.0.1:0", config)?;
     let url = service.url();
-    let agent = ureq::AgentBuilder::new().timeout(Duration::from_secs(600)).build();
-    let scene: serde_json::Value = agent
-        .post(&format!("{url}/api/v1/scenes"))
-        .set("content-type", "application/octet-stream")
-        .send_bytes(&bundle)
-        .map_err(|e| http_error("uploading the scene", e))?
-        .into_json()?;
-    let scene_hash = scene["scene"].as_str().context("upload answer without a hash")?.to_string();
-    let job: serde_json::Value = agent
-        .post(&format!("{url}/api/v1/jobs"))
-        .send_json(serde_json::json!({ "scene": scene_hash, "settings": job_settings }))
-        .map_err(|e| http_error("creating the job", e))?
-        .into_json()?;
-    let id = job["id"].as_str().context("job answer without an id")?.to_string();
+    let remote = crate::client::Remote { url: url.clone(), api_token: None };
+    let (scene_hash, id) = remote.create_job(&bundle, &job_settings, 0)?;
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
     let cache = client::SceneCache::default();

@@ -293,3 +293,29 @@ pub fn metric(url: &str, name: &str) -> f64 {
         .and_then(|v| v.parse().ok())
         .unwrap_or(0.0)
 }
+
+/// A coordinator on a free loopback port with `workers` one-thread workers and the cornell box
+/// uploaded: what most farm tests start from. Everything is killed when it is dropped.
+pub struct Cluster {
+    /// Base URL.
+    pub url: String,
+    /// Hash of the uploaded cornell box.
+    pub scene: String,
+    /// The coordinator process.
+    pub coordinator: Proc,
+    /// The worker processes.
+    pub workers: Vec<Proc>,
+}
+
+impl Cluster {
+    /// Starts it in `dir` (`extra` goes to `coordinator serve`).
+    pub fn start(dir: &Path, workers: usize, extra: &[&str]) -> Cluster {
+        let port = free_port();
+        let url = format!("http://127.0.0.1:{port}");
+        let coordinator = start_coordinator(&dir.join("data"), port, extra);
+        let workers =
+            (0..workers).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
+        let scene = upload(&url, &cornell_zip());
+        Cluster { url, scene, coordinator, workers }
+    }
+}

@@ -77,15 +77,11 @@ fn adaptive_stopping_is_deterministic_across_processes_and_worker_counts() {
     let dir = temp_dir("adaptive-determinism");
     let s = settings(512, Some(0.06));
     let local = render_reference(&dir, &s, 2);
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
-    let _workers: Vec<Proc> =
-        (0..3).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
-    let scene = upload(&url, &cornell_zip());
-    let id = create_job(&url, &scene, &s, 0);
-    let status = wait_done(&url, &id, Duration::from_secs(240));
-    let image = fetch_exr(&url, &id, 0);
+    let cluster = Cluster::start(&dir, 3, &[]);
+    let url = &cluster.url;
+    let id = create_job(url, &cluster.scene, &s, 0);
+    let status = wait_done(url, &id, Duration::from_secs(240));
+    let image = fetch_exr(url, &id, 0);
     assert_same_image(&local, &image, "adaptive job: render vs serve + 3 workers");
     let saved = status["samples_saved"].as_u64().unwrap();
     let done = status["samples_done"].as_u64().unwrap();

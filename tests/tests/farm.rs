@@ -26,13 +26,9 @@ fn three_workers_give_the_image_of_coordinator_render() {
     let dir = temp_dir("three");
     let s = settings(128, 32);
     let reference = render_reference(&dir, &s, 2);
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
-    let _workers: Vec<Proc> =
-        (0..3).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
-    let scene = upload(&url, &cornell_zip());
-    let id = create_job(&url, &scene, &s, 0);
+    let cluster = Cluster::start(&dir, 3, &[]);
+    let url = cluster.url.clone();
+    let id = create_job(&url, &cluster.scene, &s, 0);
     let status = wait_done(&url, &id, TIMEOUT);
     assert_eq!(status["samples_done"], 64 * 64 * 128);
     assert_eq!(status["progress"], 1.0);

@@ -119,6 +119,7 @@ fn main() -> Result<()> {
                 UVec2::new(x, y),
                 sample,
                 &mut stats,
+                &mut None,
             );
             let (film, radiance) = (traced.film, traced.radiance);
             let time = traced.time.map(|t| format!(" time {t:.6} s")).unwrap_or_default();

@@ -245,13 +245,34 @@ impl Store {
 
     /// The summed tiles of one frame of a job (pending results left out).
     pub fn frame_sums(&self, job: &str, frame: u32) -> Result<Vec<TileAccum>> {
-        let mut stmt = self.db.prepare("SELECT sums FROM tiles WHERE job = ?1 AND frame = ?2")?;
-        let rows = stmt.query_map(params![job, frame], |r| r.get::<_, Vec<u8>>(0))?;
+        let rows = self.tile_rows(
+            "SELECT frame, tile, prefix, sums FROM tiles WHERE job = ?1 AND frame = ?2",
+            params![job, frame],
+        )?;
+        Ok(rows.into_iter().map(|(_, _, _, sums)| sums).collect())
+    }
+
+    /// Rows of (frame, tile, a task number, decoded sums) from `sql`.
+    fn tile_rows(
+        &self,
+        sql: &str,
+        args: impl rusqlite::Params,
+    ) -> Result<Vec<(u32, u32, u32, TileAccum)>> {
+        let mut stmt = self.db.prepare(sql)?;
+        let rows = stmt.query_map(args, |r| {
+            Ok((
+                r.get::<_, u32>(0)?,
+                r.get::<_, u32>(1)?,
+                r.get::<_, u32>(2)?,
+                r.get::<_, Vec<u8>>(3)?,
+            ))
+        })?;
         let mut out = Vec::new();
         for row in rows {
+            let (frame, tile, k, blob) = row?;
             let (sums, _): (TileAccum, usize) =
-                bincode::serde::decode_from_slice(&row?, bincode_config())?;
-            out.push(sums);
+                bincode::serde::decode_from_slice(&blob, bincode_config())?;
+            out.push((frame, tile, k, sums));
         }
         Ok(out)
     }
@@ -260,37 +281,13 @@ impl Store {
     pub fn tiles(&self, job: &str) -> Result<Vec<StoredTile>> {
         let mut pending: std::collections::BTreeMap<(u32, u32), Vec<(u32, TileAccum)>> =
             Default::default();
-        let mut stmt =
-            self.db.prepare("SELECT frame, tile, task, sums FROM pending WHERE job = ?1")?;
-        let rows = stmt.query_map([job], |r| {
-            Ok((
-                r.get::<_, u32>(0)?,
-                r.get::<_, u32>(1)?,
-                r.get::<_, u32>(2)?,
-                r.get::<_, Vec<u8>>(3)?,
-            ))
-        })?;
-        for row in rows {
-            let (frame, tile, task, sums) = row?;
-            let (sums, _): (TileAccum, usize) =
-                bincode::serde::decode_from_slice(&sums, bincode_config())?;
+        let sql = "SELECT frame, tile, task, sums FROM pending WHERE job = ?1";
+        for (frame, tile, task, sums) in self.tile_rows(sql, [job])? {
             pending.entry((frame, tile)).or_default().push((task, sums));
         }
-        let mut stmt =
-            self.db.prepare("SELECT frame, tile, prefix, sums FROM tiles WHERE job = ?1")?;
-        let rows = stmt.query_map([job], |r| {
-            Ok((
-                r.get::<_, u32>(0)?,
-                r.get::<_, u32>(1)?,
-                r.get::<_, u32>(2)?,
-                r.get::<_, Vec<u8>>(3)?,
-            ))
-        })?;
+        let sql = "SELECT frame, tile, prefix, sums FROM tiles WHERE job = ?1";
         let mut out = Vec::new();
-        for row in rows {
-            let (frame, tile, prefix, sums) = row?;
-            let (sums, _): (TileAccum, usize) =
-                bincode::serde::decode_from_slice(&sums, bincode_config())?;
+        for (frame, tile, prefix, sums) in self.tile_rows(sql, [job])? {
             let pending = pending.remove(&(frame, tile)).unwrap_or_default();
             out.push(StoredTile { frame, tile, prefix, sums: Some(sums), pending });
         }

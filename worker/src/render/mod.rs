@@ -73,12 +73,13 @@ fn render_rows(
     let mut tile = TileAccum::new(rect);
     let mut stats = Stats::default();
     let mut sampler = Sampler::new(seed, task.frame);
+    let mut pose = None;
     let mut row = first;
     while row < rect.height {
         for col in 0..rect.width {
             let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
             for s in task.samples.start..task.samples.end {
-                let l = sample(scene, &mut sampler, pixel, s, &mut stats).radiance;
+                let l = sample(scene, &mut sampler, pixel, s, &mut stats, &mut pose).radiance;
                 tile.add_sample(col, row, s, l.to_array());
             }
         }
@@ -98,14 +99,16 @@ pub struct Sample {
 }
 
 /// Traces sample `s` of `pixel`: film position, lens position (thin lens only), time (only when
-/// something moves within the shutter), then the path.
+/// something moves within the shutter), then the path. `pose` is the calling thread's storage
+/// for placements at the sample's time (filled on first use, reused by later samples).
 #[inline]
-pub fn sample(
-    scene: &PreparedScene,
+pub fn sample<'a>(
+    scene: &'a PreparedScene,
     sampler: &mut Sampler,
     pixel: UVec2,
     s: u32,
     stats: &mut Stats,
+    pose: &mut Option<Pose<'a>>,
 ) -> Sample {
     sampler.start_pixel_sample(pixel, s);
     let film = pixel.as_vec2() + sampler.next_2d();
@@ -120,7 +123,8 @@ pub fn sample(
         Some((_, local)) => m.camera_ray(local.generate_ray(film, lens), time),
         None => scene.camera.generate_ray(film, lens),
     };
-    let pose = Pose::new(m, time);
-    let radiance = integrator::li(scene, ray, sampler, stats, Some(&pose));
+    let pose = pose.get_or_insert_with(|| Pose::new(m, time));
+    pose.set_time(time);
+    let radiance = integrator::li(scene, ray, sampler, stats, Some(pose));
     Sample { film, time: Some(time), radiance }
 }

@@ -141,6 +141,12 @@ impl<'a> Pose<'a> {
         Pose { motion, time, placed: RefCell::new(vec![None; motion.instances.len()]) }
     }
 
+    /// Moves the pose to another time (keeping its storage: one pose serves a thread's samples).
+    pub fn set_time(&mut self, time: f64) {
+        self.time = time;
+        self.placed.get_mut().fill(None);
+    }
+
     /// Placement `i` at this time.
     pub fn placed(&self, i: usize) -> Placed {
         if let Some(p) = self.placed.borrow()[i] {
