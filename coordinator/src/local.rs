@@ -145,6 +145,8 @@ pub fn render_file(
     let data = tempfile::Builder::new().prefix("renderfarm-").tempdir()?;
     let mut config = ServiceConfig::new(data.path().to_path_buf());
     config.farm.max_spp = common::settings::MAX_SPP;
+    // The data folder is deleted when the render ends: nothing to keep across a crash.
+    config.farm.durable = false;
     let service = crate::service::spawn("127.0.0.1:0", config)?;
     let url = service.url();
     let remote = crate::client::Remote { url: url.clone(), api_token: None };

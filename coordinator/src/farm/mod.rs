@@ -61,6 +61,9 @@ pub struct FarmConfig {
     pub max_spp: u32,
     /// Largest accepted width x height.
     pub max_pixels: u64,
+    /// Whether committed results must survive a crash (write-ahead log, synced). Only the
+    /// one-shot local render, whose data folder is temporary, turns this off.
+    pub durable: bool,
 }
 
 impl FarmConfig {
@@ -74,6 +77,7 @@ impl FarmConfig {
             max_task_expiries: 5,
             max_spp: 65536,
             max_pixels: 16384 * 16384,
+            durable: true,
         }
     }
 }
@@ -195,7 +199,7 @@ pub struct Farm {
 impl Farm {
     /// Opens the data folder and resumes every unfinished job from the database.
     pub fn open(config: FarmConfig) -> Result<Farm> {
-        let store = Store::open(&config.data_dir)?;
+        let store = Store::open(&config.data_dir, config.durable)?;
         let mut jobs = BTreeMap::new();
         let mut next_seq = 0;
         for stored in store.jobs()? {

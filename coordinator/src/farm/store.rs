@@ -74,15 +74,23 @@ fn bincode_config() -> impl bincode::config::Config {
 }
 
 impl Store {
-    /// Opens (creating) the store under `dir`.
-    pub fn open(dir: &Path) -> Result<Store> {
+    /// Opens (creating) the store under `dir`. `durable: false` is for scratch stores that
+    /// need not survive a crash: commits skip the write-ahead log and every sync.
+    pub fn open(dir: &Path, durable: bool) -> Result<Store> {
         let scenes_dir = dir.join("scenes");
         std::fs::create_dir_all(&scenes_dir)
             .with_context(|| format!("creating {}", scenes_dir.display()))?;
         let path = dir.join("farm.sqlite");
         let db = Connection::open(&path).with_context(|| format!("opening {}", path.display()))?;
-        db.pragma_update(None, "journal_mode", "WAL")?;
-        db.pragma_update(None, "synchronous", "NORMAL")?;
+        if durable {
+            db.pragma_update(None, "journal_mode", "WAL")?;
+            db.pragma_update(None, "synchronous", "NORMAL")?;
+        } else {
+            // A scratch store (the one-shot `coordinator render`, whose folder is deleted at
+            // exit): no write-ahead log and no syncs, so committing a result costs no disk time.
+            db.pragma_update(None, "journal_mode", "MEMORY")?;
+            db.pragma_update(None, "synchronous", "OFF")?;
+        }
         db.execute_batch(
             "CREATE TABLE IF NOT EXISTS scenes (
                  hash TEXT PRIMARY KEY, format TEXT NOT NULL, bytes INTEGER NOT NULL,

@@ -1,16 +1,23 @@
-//! Ray-scene intersection: an `obvhs` compressed wide BVH over triangles, entered through a
-//! watertight ray-triangle test (Woop, Benthin and Wald 2013, with pbrt-v4's conservative
-//! distance bound) so that rays never slip through shared edges or re-hit their own surface.
+//! Ray-scene intersection: a four-wide BVH with full-precision boxes, tested four children at a
+//! time with SIMD, entered through a watertight ray-triangle test (Woop, Benthin and Wald 2013,
+//! with pbrt-v4's conservative distance bound) so that rays never slip through shared edges or
+//! re-hit their own surface.
 //!
-//! Triangles are reordered by `primitive_indices` once at build time; `Accel::build` returns the
-//! order so that the caller can reorder its per-triangle shading data the same way.
+//! `obvhs` builds a binary BVH (PLOC, reinsertion, SAH leaf collapse); `Accel::build` collapses
+//! it into four-wide nodes (each inner node adopts the grandchildren of its largest children
+//! until it has four) whose boxes are stored per axis, so one node test is a handful of `Vec4`
+//! operations. Closest-hit traversal visits children nearest first and skips any whose entry
+//! distance lies beyond the closest hit so far; occlusion stops at the first blocker.
+//!
+//! Triangles are reordered once at build time so that every leaf is a contiguous range;
+//! `Accel::build` returns the order so that the caller can reorder its per-triangle shading data
+//! the same way.
 
 use std::time::Duration;
 
-use glam::{Vec3, Vec3A};
+use glam::{Vec3, Vec4};
 use obvhs::{
-    cwbvh::{builder::build_cwbvh_from_tris, CwBvh},
-    ray::{Ray as BvhRay, RayHit},
+    bvh2::{builder::build_bvh2_from_tris, Bvh2},
     triangle::Triangle,
     BvhBuildParams,
 };
@@ -32,32 +39,96 @@ pub struct Hit {
 
 /// The acceleration structure with its triangles.
 pub struct Accel {
-    bvh: CwBvh,
-    /// Triangle vertices in BVH order.
+    /// Four-wide nodes; node 0 is the root when `root` is an inner node.
+    nodes: Vec<Node4>,
+    /// What the traversal starts from: an inner node, or a single leaf for tiny scenes.
+    root: Child,
+    /// Triangle vertices in BVH order: every leaf is a contiguous range.
     tris: Vec<[Vec3; 3]>,
-    /// Length of the direction vectors handed to `obvhs`, a power of two about 2^-20 of the
-    /// scene's size. `obvhs` skips boxes closer than t = 1e-4 along a ray (a fixed epsilon in
-    /// its node test), which would lose contact shadows in small scenes; in these units that
-    /// epsilon is 1e-10 of the scene size whatever its scale. Powers of two keep t exact.
-    t_scale: f32,
+    /// Entries the traversal stack can need: 3 per level below the root, plus the root.
+    stack_len: usize,
+}
+
+/// A child reference: an inner node (`count == 0`, `index` into `nodes`) or a leaf of `count`
+/// triangles starting at `index`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Child {
+    index: u32,
+    count: u32,
+}
+
+/// Four children's boxes, stored per axis and bound so that one `Vec4` operation tests all four:
+/// `bounds[2 * axis]` holds the lower and `bounds[2 * axis + 1]` the upper bounds. An empty slot
+/// has lower bounds +inf and upper bounds -inf, which no ray enters.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Node4 {
+    bounds: [Vec4; 6],
+    children: [Child; 4],
+}
+
+/// One traversal stack entry: a child and the distance at which the ray enters its box.
+#[derive(Clone, Copy, Debug, Default)]
+struct Entry {
+    child: Child,
+    t_enter: f32,
+}
+
+/// Stack entries kept on the call stack; deeper trees use a heap stack.
+/// Stack entries kept on the call stack for shallow trees (depth up to 10: small and mid-sized
+/// scenes), and for deeper ones (up to 42); deeper still use a heap stack.
+const SHALLOW_STACK: usize = 32;
+const DEEP_STACK: usize = 128;
+
+/// Per-ray constants of the box test.
+struct BoxRay {
+    origin: [Vec4; 3],
+    inv_dir: [Vec4; 3],
+    /// Per axis: which of `Node4::bounds[2 * axis ..]` the ray enters through (0 or 1).
+    near: [usize; 3],
+}
+
+impl BoxRay {
+    #[inline]
+    fn new(ray: &Ray) -> Self {
+        let inv = [finite_inverse(ray.dir.x), finite_inverse(ray.dir.y), finite_inverse(ray.dir.z)];
+        let o = ray.origin.to_array();
+        BoxRay {
+            origin: o.map(Vec4::splat),
+            inv_dir: inv.map(Vec4::splat),
+            // Decided by the inverse's sign, so that -0.0 directions stay consistent with it.
+            near: inv.map(|i| usize::from(i < 0.0)),
+        }
+    }
+
+    /// Entry distances of the four boxes and a bit mask of those the ray enters within
+    /// (0, t_max]. Exit distances are scaled by 1 + 2 gamma(3) (pbrt-v4) so that rounding
+    /// never drops a box the ray grazes.
+    #[inline(always)]
+    fn test(&self, node: &Node4, t_max: f32) -> (Vec4, u32) {
+        let b = &node.bounds;
+        let axis = |a: usize| {
+            let near = (b[2 * a + self.near[a]] - self.origin[a]) * self.inv_dir[a];
+            let far = (b[2 * a + 1 - self.near[a]] - self.origin[a]) * self.inv_dir[a];
+            (near, far)
+        };
+        let (nx, fx) = axis(0);
+        let (ny, fy) = axis(1);
+        let (nz, fz) = axis(2);
+        let t_enter = nx.max(ny).max(nz.max(Vec4::ZERO));
+        let t_exit = fx.min(fy).min(fz.min(Vec4::splat(t_max))) * (1.0 + 2.0 * gamma(3));
+        (t_enter, t_enter.cmple(t_exit).bitmask())
+    }
 }
 
 /// Per-ray constants of the watertight test.
 struct Shear {
-    origin: Vec3,
-    /// The axis along which the ray's direction is largest (it becomes z).
-    kz: usize,
+    /// Coordinate axes in the sheared frame: the direction's largest axis becomes z, and x and y
+    /// follow cyclically.
+    axes: [usize; 3],
+    /// The origin's coordinates along `axes`.
+    origin: [f32; 3],
     s: Vec3,
-}
-
-/// Rotates coordinates so that axis `kz` becomes z (x and y follow cyclically).
-#[inline(always)]
-fn permute(v: Vec3, kz: usize) -> Vec3 {
-    match kz {
-        0 => Vec3::new(v.y, v.z, v.x),
-        1 => Vec3::new(v.z, v.x, v.y),
-        _ => v,
-    }
 }
 
 impl Shear {
@@ -76,15 +147,22 @@ impl Shear {
         } else {
             2
         };
-        let d = permute(d, kz);
-        Shear { origin: ray.origin, kz, s: Vec3::new(-d.x / d.z, -d.y / d.z, 1.0 / d.z) }
+        let axes = [(kz + 1) % 3, (kz + 2) % 3, kz];
+        let (dx, dy, dz) = (d[axes[0]], d[axes[1]], d[axes[2]]);
+        let o = ray.origin;
+        Shear {
+            axes,
+            origin: [o[axes[0]], o[axes[1]], o[axes[2]]],
+            s: Vec3::new(-dx / dz, -dy / dz, 1.0 / dz),
+        }
     }
 
     /// Returns (t, b1, b2) for a hit with `t` in (0, t_max).
-    #[inline]
+    #[inline(always)]
     fn intersect(&self, tri: &[Vec3; 3], t_max: f32) -> Option<(f32, f32, f32)> {
-        let kz = self.kz;
-        let rel = |p: Vec3| permute(p - self.origin, kz);
+        let [kx, ky, kz] = self.axes;
+        let [ox, oy, oz] = self.origin;
+        let rel = |p: Vec3| Vec3::new(p[kx] - ox, p[ky] - oy, p[kz] - oz);
         let (mut p0, mut p1, mut p2) = (rel(tri[0]), rel(tri[1]), rel(tri[2]));
         let s = self.s;
         p0.x += s.x * p0.z;
@@ -146,7 +224,7 @@ fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
     (a as f64 * b as f64 - c as f64 * d as f64) as f32
 }
 
-/// 1 / x, finite (keeps the slab test free of inf * 0). `x` is never -0.0 here.
+/// 1 / x, finite (keeps the slab test free of inf * 0); -0.0 gives a negative inverse.
 #[inline]
 fn finite_inverse(x: f32) -> f32 {
     let inv = 1.0 / x;
@@ -162,54 +240,35 @@ impl Accel {
     /// the triangle that `Hit::prim == i` refers to.
     pub fn build(triangles: &[[Vec3; 3]]) -> (Accel, Vec<u32>) {
         if triangles.is_empty() {
-            return (Accel { bvh: CwBvh::default(), tris: Vec::new(), t_scale: 1.0 }, Vec::new());
+            let empty =
+                Accel { nodes: Vec::new(), root: Child::default(), tris: Vec::new(), stack_len: 1 };
+            return (empty, Vec::new());
         }
         let bvh_tris: Vec<Triangle> = triangles
             .iter()
             .map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() })
             .collect();
-        // Build quality against build time: large scenes must build in well under 2 s (1M
-        // triangles: 0.75 s with `fast_build`); smaller ones get one triangle per leaf (5% faster
-        // on the Cornell box than up to three; `very_slow_build` quality measured no faster).
+        // Build quality against build time: large scenes must build in well under 2 s.
         // Never `pre_split`: it lists a triangle in several leaves, and every triangle must have
         // exactly one index here (lights and shading data are per index).
         let params = if triangles.len() > 200_000 {
-            BvhBuildParams::fast_build()
+            BvhBuildParams { max_prims_per_leaf: LARGE_LEAF_PRIMS, ..BvhBuildParams::fast_build() }
         } else {
-            BvhBuildParams { max_prims_per_leaf: 1, ..BvhBuildParams::medium_build() }
+            BvhBuildParams { max_prims_per_leaf: LEAF_PRIMS, ..BvhBuildParams::medium_build() }
         };
-        let mut bvh = build_cwbvh_from_tris(&bvh_tris, params, &mut Duration::default());
-        let order = std::mem::take(&mut bvh.primitive_indices);
+        let mut bvh2 = build_bvh2_from_tris(&bvh_tris, params, &mut Duration::default());
+        drop(bvh_tris);
+        let order = std::mem::take(&mut bvh2.primitive_indices);
         let tris = order.iter().map(|&i| triangles[i as usize]).collect();
-        bvh.primitive_indices = (0..order.len() as u32).collect();
-        let extent = (bvh.total_aabb.max - bvh.total_aabb.min).max_element();
-        let extent = if extent.is_finite() && extent > 0.0 { extent } else { 1.0 };
-        let t_scale = (extent.log2().round() - 20.0).clamp(-120.0, 100.0).exp2();
-        (Accel { bvh, tris, t_scale }, order)
-    }
-
-    /// The `obvhs` ray for `ray` (direction scaled by `t_scale`, t in those units).
-    #[inline]
-    fn bvh_ray(&self, ray: &Ray, t_max: f32) -> BvhRay {
-        // `+ 0.0` turns -0.0 into +0.0: obvhs picks slab ends by `direction < 0.0`, which must
-        // agree with the sign of the inverse (1 / -0.0 is -inf).
-        let d = ray.dir * self.t_scale + Vec3::ZERO;
-        BvhRay {
-            origin: Vec3A::from(ray.origin),
-            direction: Vec3A::from(d),
-            inv_direction: Vec3A::new(
-                finite_inverse(d.x),
-                finite_inverse(d.y),
-                finite_inverse(d.z),
-            ),
-            tmin: 0.0,
-            tmax: t_max / self.t_scale,
-        }
+        let (nodes, root, depth) = collapse(&bvh2);
+        drop(bvh2);
+        let accel = Accel { nodes, root, tris, stack_len: 3 * depth + 1 };
+        (accel, order)
     }
 
     /// Bytes held by the BVH nodes and the triangle vertices.
     pub fn memory_bytes(&self) -> usize {
-        self.bvh.nodes.len() * std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>()
+        self.nodes.len() * std::mem::size_of::<Node4>()
             + self.tris.len() * std::mem::size_of::<[Vec3; 3]>()
     }
 
@@ -246,24 +305,13 @@ impl Accel {
         if self.tris.is_empty() {
             return None;
         }
-        let shear = Shear::new(ray);
-        let mut best: Option<Hit> = None;
-        let mut hit = RayHit::none();
-        let scale = self.t_scale;
-        self.bvh.ray_traverse(self.bvh_ray(ray, t_max), &mut hit, |bvh_ray, id| {
-            match shear.intersect(&self.tris[id], bvh_ray.tmax * scale) {
-                Some((t, b1, b2)) => {
-                    let candidate = Hit { prim: id as u32, t, b1, b2 };
-                    if !accept(&candidate) {
-                        return f32::INFINITY;
-                    }
-                    best = Some(candidate);
-                    t / scale
-                }
-                None => f32::INFINITY,
-            }
-        });
-        best
+        if self.stack_len <= SHALLOW_STACK {
+            self.closest(ray, t_max, &accept, &mut [Entry::default(); SHALLOW_STACK])
+        } else if self.stack_len <= DEEP_STACK {
+            self.closest(ray, t_max, &accept, &mut [Entry::default(); DEEP_STACK])
+        } else {
+            self.closest(ray, t_max, &accept, &mut vec![Entry::default(); self.stack_len])
+        }
     }
 
     /// Whether anything blocks the ray for `t` in (0, t_max). Stops at the first blocker.
@@ -278,14 +326,106 @@ impl Accel {
         if self.tris.is_empty() {
             return false;
         }
+        if self.stack_len <= SHALLOW_STACK {
+            self.any(ray, t_max, &accept, &mut [Entry::default(); SHALLOW_STACK])
+        } else if self.stack_len <= DEEP_STACK {
+            self.any(ray, t_max, &accept, &mut [Entry::default(); DEEP_STACK])
+        } else {
+            self.any(ray, t_max, &accept, &mut vec![Entry::default(); self.stack_len])
+        }
+    }
+
+    /// Closest-hit traversal: children nearest first; popped entries that start beyond the
+    /// closest hit so far are skipped.
+    #[inline(always)]
+    fn closest(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        accept: &impl Fn(&Hit) -> bool,
+        stack: &mut [Entry],
+    ) -> Option<Hit> {
         let shear = Shear::new(ray);
-        let scale = self.t_scale;
-        !self.bvh.ray_traverse_miss(self.bvh_ray(ray, t_max), |bvh_ray, id| {
-            match shear.intersect(&self.tris[id], bvh_ray.tmax * scale) {
-                Some((t, b1, b2)) if accept(&Hit { prim: id as u32, t, b1, b2 }) => t / scale,
-                _ => f32::INFINITY,
+        let box_ray = BoxRay::new(ray);
+        let mut best: Option<Hit> = None;
+        let mut t_best = t_max;
+        stack[0] = Entry { child: self.root, t_enter: 0.0 };
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let Entry { child, t_enter } = stack[len];
+            if t_enter > t_best {
+                continue;
             }
-        })
+            if child.count > 0 {
+                for prim in child.index..child.index + child.count {
+                    if let Some((t, b1, b2)) = shear.intersect(&self.tris[prim as usize], t_best) {
+                        let candidate = Hit { prim, t, b1, b2 };
+                        if accept(&candidate) {
+                            t_best = t;
+                            best = Some(candidate);
+                        }
+                    }
+                }
+                continue;
+            }
+            let node = &self.nodes[child.index as usize];
+            let (t_enter, mut mask) = box_ray.test(node, t_best);
+            let t_enter = t_enter.to_array();
+            // Push far to near: the nearest child ends on top.
+            let first = len;
+            while mask != 0 {
+                let slot = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let entry = Entry { child: node.children[slot], t_enter: t_enter[slot] };
+                let mut i = len;
+                while i > first && stack[i - 1].t_enter < entry.t_enter {
+                    stack[i] = stack[i - 1];
+                    i -= 1;
+                }
+                stack[i] = entry;
+                len += 1;
+            }
+        }
+        best
+    }
+
+    /// Any-hit traversal for shadow rays.
+    #[inline(always)]
+    fn any(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        accept: &impl Fn(&Hit) -> bool,
+        stack: &mut [Entry],
+    ) -> bool {
+        let shear = Shear::new(ray);
+        let box_ray = BoxRay::new(ray);
+        stack[0] = Entry { child: self.root, t_enter: 0.0 };
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let child = stack[len].child;
+            if child.count > 0 {
+                for prim in child.index..child.index + child.count {
+                    if let Some((t, b1, b2)) = shear.intersect(&self.tris[prim as usize], t_max) {
+                        if accept(&Hit { prim, t, b1, b2 }) {
+                            return true;
+                        }
+                    }
+                }
+                continue;
+            }
+            let node = &self.nodes[child.index as usize];
+            let (_, mut mask) = box_ray.test(node, t_max);
+            while mask != 0 {
+                let slot = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                stack[len] = Entry { child: node.children[slot], t_enter: 0.0 };
+                len += 1;
+            }
+        }
+        false
     }
 
     /// Brute-force closest hit over every triangle (reference for tests and tiny scenes).
@@ -301,6 +441,76 @@ impl Accel {
         }
         best
     }
+}
+
+/// Most triangles per leaf: scenes up to 200,000 triangles get the careful build, larger ones
+/// `obvhs`'s fast one.
+const LEAF_PRIMS: u32 = 2;
+const LARGE_LEAF_PRIMS: u32 = 4;
+
+/// Collapses a binary BVH into four-wide nodes. Returns the nodes, the root and the depth of the
+/// four-wide tree (levels of inner nodes). Iterative: a degenerate binary tree may be deep.
+fn collapse(bvh2: &Bvh2) -> (Vec<Node4>, Child, usize) {
+    let leaf = |i: usize| {
+        let n = &bvh2.nodes[i];
+        Child { index: n.first_index, count: n.prim_count }
+    };
+    if bvh2.nodes[0].is_leaf() {
+        return (Vec::new(), leaf(0), 0);
+    }
+    let empty = Node4 {
+        bounds: [
+            Vec4::INFINITY,
+            Vec4::NEG_INFINITY,
+            Vec4::INFINITY,
+            Vec4::NEG_INFINITY,
+            Vec4::INFINITY,
+            Vec4::NEG_INFINITY,
+        ],
+        children: [Child::default(); 4],
+    };
+    let mut nodes = vec![empty];
+    let mut max_depth = 1;
+    // (binary node, four-wide node to fill, its depth)
+    let mut work = vec![(0usize, 0usize, 1usize)];
+    while let Some((n2, n4, depth)) = work.pop() {
+        max_depth = max_depth.max(depth);
+        let first = bvh2.nodes[n2].first_index as usize;
+        let mut kids = vec![first, first + 1];
+        // Open the inner child with the largest surface area until there are four.
+        while kids.len() < 4 {
+            let widest = kids
+                .iter()
+                .enumerate()
+                .filter(|&(_, &k)| !bvh2.nodes[k].is_leaf())
+                .max_by(|a, b| {
+                    let area = |k: usize| bvh2.nodes[k].aabb.half_area();
+                    area(*a.1).total_cmp(&area(*b.1))
+                })
+                .map(|(i, _)| i);
+            let Some(i) = widest else { break };
+            let k = kids.swap_remove(i);
+            let f = bvh2.nodes[k].first_index as usize;
+            kids.extend([f, f + 1]);
+        }
+        let mut node = empty;
+        for (slot, &k) in kids.iter().enumerate() {
+            let b = &bvh2.nodes[k].aabb;
+            for axis in 0..3 {
+                node.bounds[2 * axis][slot] = b.min[axis];
+                node.bounds[2 * axis + 1][slot] = b.max[axis];
+            }
+            node.children[slot] = if bvh2.nodes[k].is_leaf() {
+                leaf(k)
+            } else {
+                nodes.push(empty);
+                work.push((k, nodes.len() - 1, depth + 1));
+                Child { index: (nodes.len() - 1) as u32, count: 0 }
+            };
+        }
+        nodes[n4] = node;
+    }
+    (nodes, Child { index: 0, count: 0 }, max_depth)
 }
 
 #[cfg(test)]
@@ -354,6 +564,32 @@ mod tests {
                 }
                 assert_eq!(accel.occluded(&ray, t_max), b.is_some(), "soup {soup}: occlusion");
             }
+        }
+    }
+
+    #[test]
+    fn deep_trees_agree_with_brute_force() {
+        // Triangles nested toward one corner, each 0.7 times the last: the binary tree is a
+        // chain, deeper than the inline stacks, so the heap stack is exercised too.
+        let tris: Vec<[Vec3; 3]> = (0..200)
+            .map(|i| {
+                let s = 0.7f32.powi(i);
+                [Vec3::ZERO, Vec3::new(s, 0.0, 0.1 * s), Vec3::new(0.0, s, 0.2 * s)]
+            })
+            .collect();
+        let (accel, _) = Accel::build(&tris);
+        assert!(accel.stack_len > DEEP_STACK, "tree too shallow: {} entries", accel.stack_len);
+        let mut rng = Rng(9);
+        for _ in 0..2000 {
+            let o = Vec3::new(rng.f(), rng.f(), 1.0 + rng.f());
+            let target = Vec3::new(rng.f(), rng.f(), 0.0) * 0.7f32.powi((rng.f() * 40.0) as i32);
+            let ray = Ray::new(o, (target - o).normalize());
+            let (a, b) = (
+                accel.intersect(&ray, f32::INFINITY),
+                accel.intersect_brute_force(&ray, f32::INFINITY),
+            );
+            assert_eq!(a.map(|h| h.t), b.map(|h| h.t));
+            assert_eq!(accel.occluded(&ray, f32::INFINITY), b.is_some());
         }
     }
 
