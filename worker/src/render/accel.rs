@@ -43,14 +43,27 @@ pub struct Accel {
     nodes: Vec<Node4>,
     /// What the traversal starts from: an inner node, or a single leaf for tiny scenes.
     root: Child,
-    /// Triangle vertices in BVH order: every leaf is a contiguous range.
-    tris: Vec<[Vec3; 3]>,
+    /// The triangles, four to a block; a leaf is a run of blocks.
+    blocks: Vec<Tri4>,
+    /// For each triangle (BVH order), the block that holds it.
+    prim_block: Vec<u32>,
     /// Entries the traversal stack can need: 3 per level below the root, plus the root.
     stack_len: usize,
 }
 
+/// Up to four triangles of one leaf, stored per vertex and axis so that one `Vec4` operation
+/// works on all four: `v[k][axis]` holds vertex `k`'s coordinate along `axis`. Lane `i` is the
+/// triangle `first + i`; unused lanes hold NaN, which no test accepts.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(16))]
+struct Tri4 {
+    v: [[Vec4; 3]; 3],
+    first: u32,
+    count: u32,
+}
+
 /// A child reference: an inner node (`count == 0`, `index` into `nodes`) or a leaf of `count`
-/// triangles starting at `index`.
+/// triangles in the blocks starting at `index`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Child {
     index: u32,
@@ -218,6 +231,95 @@ impl Shear {
     }
 }
 
+impl Shear {
+    /// The closest hit with `t` in (0, t_max) among a block's triangles that `accept` keeps.
+    /// The same arithmetic as [`Shear::intersect`], four lanes at a time (no fused operations,
+    /// so every lane rounds exactly as the scalar test does); a lane whose edge function is
+    /// exactly zero takes the scalar test, which settles such rays in f64.
+    #[inline(always)]
+    fn intersect4(&self, block: &Tri4, t_max: f32, accept: &impl Fn(&Hit) -> bool) -> Option<Hit> {
+        let [kx, ky, kz] = self.axes;
+        let [ox, oy, oz] = self.origin.map(Vec4::splat);
+        let (sx, sy, sz) = (Vec4::splat(self.s.x), Vec4::splat(self.s.y), Vec4::splat(self.s.z));
+        let rel = |v: &[Vec4; 3]| {
+            let z = v[kz] - oz;
+            (v[kx] - ox + sx * z, v[ky] - oy + sy * z, z)
+        };
+        let (p0x, p0y, p0z) = rel(&block.v[0]);
+        let (p1x, p1y, p1z) = rel(&block.v[1]);
+        let (p2x, p2y, p2z) = rel(&block.v[2]);
+        let e0 = p1x * p2y - p1y * p2x;
+        let e1 = p2x * p0y - p2y * p0x;
+        let e2 = p0x * p1y - p0y * p1x;
+        let lanes = (1u32 << block.count) - 1;
+        let zero = Vec4::ZERO;
+        let edge_zero = (e0.cmpeq(zero) | e1.cmpeq(zero) | e2.cmpeq(zero)).bitmask() & lanes;
+        let inside = ((e0.cmpge(zero) & e1.cmpge(zero) & e2.cmpge(zero))
+            | (e0.cmple(zero) & e1.cmple(zero) & e2.cmple(zero)))
+        .bitmask();
+        let det = e0 + e1 + e2;
+        let t_scaled = e0 * (p0z * sz) + e1 * (p1z * sz) + e2 * (p2z * sz);
+        let t_max4 = Vec4::splat(t_max);
+        let in_range = ((det.cmplt(zero) & t_scaled.cmplt(zero) & t_scaled.cmpge(t_max4 * det))
+            | (det.cmpgt(zero) & t_scaled.cmpgt(zero) & t_scaled.cmple(t_max4 * det)))
+        .bitmask();
+        let finite = det.is_finite_mask().bitmask();
+        let mut candidates = inside & in_range & finite & lanes & !edge_zero;
+        let mut scalar = edge_zero;
+        if candidates == 0 && scalar == 0 {
+            return None;
+        }
+        let inv_det = Vec4::ONE / det;
+        let t = t_scaled * inv_det;
+        // The conservative bound on t's rounding error, as in the scalar test.
+        let (z0, z1, z2) = (p0z * sz, p1z * sz, p2z * sz);
+        let max_zt = z0.abs().max(z1.abs()).max(z2.abs());
+        let delta_z = Vec4::splat(gamma(3)) * max_zt;
+        let max_xt = p0x.abs().max(p1x.abs()).max(p2x.abs());
+        let max_yt = p0y.abs().max(p1y.abs()).max(p2y.abs());
+        let delta_x = Vec4::splat(gamma(5)) * (max_xt + max_zt);
+        let delta_y = Vec4::splat(gamma(5)) * (max_yt + max_zt);
+        let delta_e = Vec4::splat(2.0)
+            * (Vec4::splat(gamma(2)) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+        let max_e = e0.abs().max(e1.abs()).max(e2.abs());
+        let delta_t = Vec4::splat(3.0)
+            * (Vec4::splat(gamma(3)) * max_e * max_zt + delta_e * max_zt + delta_z * max_e)
+            * inv_det.abs();
+        candidates &= (t.cmpgt(delta_t) & t.cmplt(t_max4)).bitmask();
+        let (t, b1, b2) = (t.to_array(), (e1 * inv_det).to_array(), (e2 * inv_det).to_array());
+        let mut hits: [Option<Hit>; 4] = [None; 4];
+        while candidates != 0 {
+            let lane = candidates.trailing_zeros() as usize;
+            candidates &= candidates - 1;
+            hits[lane] = Some(Hit {
+                prim: block.first + lane as u32,
+                t: t[lane],
+                b1: b1[lane],
+                b2: b2[lane],
+            });
+        }
+        while scalar != 0 {
+            let lane = scalar.trailing_zeros() as usize;
+            scalar &= scalar - 1;
+            let tri = block.v.map(|[x, y, z]| Vec3::new(x[lane], y[lane], z[lane]));
+            hits[lane] = self.intersect(&tri, t_max).map(|(t, b1, b2)| Hit {
+                prim: block.first + lane as u32,
+                t,
+                b1,
+                b2,
+            });
+        }
+        // Nearest first (the lower lane on ties, as a scalar loop over the lanes would keep).
+        let mut best: Option<Hit> = None;
+        for hit in hits.into_iter().flatten() {
+            if best.is_none_or(|b| hit.t < b.t) && accept(&hit) {
+                best = Some(hit);
+            }
+        }
+        best
+    }
+}
+
 /// a * b - c * d rounded once: f32 products are exact in f64.
 #[inline]
 fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
@@ -240,8 +342,13 @@ impl Accel {
     /// the triangle that `Hit::prim == i` refers to.
     pub fn build(triangles: &[[Vec3; 3]]) -> (Accel, Vec<u32>) {
         if triangles.is_empty() {
-            let empty =
-                Accel { nodes: Vec::new(), root: Child::default(), tris: Vec::new(), stack_len: 1 };
+            let empty = Accel {
+                nodes: Vec::new(),
+                root: Child::default(),
+                blocks: Vec::new(),
+                prim_block: Vec::new(),
+                stack_len: 1,
+            };
             return (empty, Vec::new());
         }
         let bvh_tris: Vec<Triangle> = triangles
@@ -259,33 +366,42 @@ impl Accel {
         let mut bvh2 = build_bvh2_from_tris(&bvh_tris, params, &mut Duration::default());
         drop(bvh_tris);
         let order = std::mem::take(&mut bvh2.primitive_indices);
-        let tris = order.iter().map(|&i| triangles[i as usize]).collect();
-        let (nodes, root, depth) = collapse(&bvh2);
+        let tris: Vec<[Vec3; 3]> = order.iter().map(|&i| triangles[i as usize]).collect();
+        let (nodes, root, blocks, depth) = collapse(&bvh2, &tris);
         drop(bvh2);
-        let accel = Accel { nodes, root, tris, stack_len: 3 * depth + 1 };
+        let mut prim_block = vec![0u32; tris.len()];
+        for (b, block) in blocks.iter().enumerate() {
+            for i in 0..block.count {
+                prim_block[(block.first + i) as usize] = b as u32;
+            }
+        }
+        let accel = Accel { nodes, root, blocks, prim_block, stack_len: 3 * depth + 1 };
         (accel, order)
     }
 
     /// Bytes held by the BVH nodes and the triangle vertices.
     pub fn memory_bytes(&self) -> usize {
         self.nodes.len() * std::mem::size_of::<Node4>()
-            + self.tris.len() * std::mem::size_of::<[Vec3; 3]>()
+            + self.blocks.len() * std::mem::size_of::<Tri4>()
+            + self.prim_block.len() * std::mem::size_of::<u32>()
     }
 
     /// Number of triangles.
     pub fn len(&self) -> usize {
-        self.tris.len()
+        self.prim_block.len()
     }
 
     /// True when there is nothing to hit.
     pub fn is_empty(&self) -> bool {
-        self.tris.is_empty()
+        self.prim_block.is_empty()
     }
 
     /// Vertices of triangle `prim` (build order).
     #[inline]
-    pub fn triangle(&self, prim: u32) -> &[Vec3; 3] {
-        &self.tris[prim as usize]
+    pub fn triangle(&self, prim: u32) -> [Vec3; 3] {
+        let block = &self.blocks[self.prim_block[prim as usize] as usize];
+        let lane = (prim - block.first) as usize;
+        block.v.map(|[x, y, z]| Vec3::new(x[lane], y[lane], z[lane]))
     }
 
     /// The closest hit with `t` in (0, t_max).
@@ -302,7 +418,7 @@ impl Accel {
         t_max: f32,
         accept: impl Fn(&Hit) -> bool,
     ) -> Option<Hit> {
-        if self.tris.is_empty() {
+        if self.is_empty() {
             return None;
         }
         if self.stack_len <= SHALLOW_STACK {
@@ -323,7 +439,7 @@ impl Accel {
     /// Whether anything that `accept` keeps blocks the ray for `t` in (0, t_max).
     #[inline]
     pub fn occluded_filtered(&self, ray: &Ray, t_max: f32, accept: impl Fn(&Hit) -> bool) -> bool {
-        if self.tris.is_empty() {
+        if self.is_empty() {
             return false;
         }
         if self.stack_len <= SHALLOW_STACK {
@@ -358,13 +474,10 @@ impl Accel {
                 continue;
             }
             if child.count > 0 {
-                for prim in child.index..child.index + child.count {
-                    if let Some((t, b1, b2)) = shear.intersect(&self.tris[prim as usize], t_best) {
-                        let candidate = Hit { prim, t, b1, b2 };
-                        if accept(&candidate) {
-                            t_best = t;
-                            best = Some(candidate);
-                        }
+                for block in self.leaf(child) {
+                    if let Some(hit) = shear.intersect4(block, t_best, accept) {
+                        t_best = hit.t;
+                        best = Some(hit);
                     }
                 }
                 continue;
@@ -407,11 +520,9 @@ impl Accel {
             len -= 1;
             let child = stack[len].child;
             if child.count > 0 {
-                for prim in child.index..child.index + child.count {
-                    if let Some((t, b1, b2)) = shear.intersect(&self.tris[prim as usize], t_max) {
-                        if accept(&Hit { prim, t, b1, b2 }) {
-                            return true;
-                        }
+                for block in self.leaf(child) {
+                    if shear.intersect4(block, t_max, accept).is_some() {
+                        return true;
                     }
                 }
                 continue;
@@ -433,30 +544,52 @@ impl Accel {
         let shear = Shear::new(ray);
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
-        for (i, tri) in self.tris.iter().enumerate() {
-            if let Some((t, b1, b2)) = shear.intersect(tri, t_best) {
+        for i in 0..self.len() as u32 {
+            if let Some((t, b1, b2)) = shear.intersect(&self.triangle(i), t_best) {
                 t_best = t;
-                best = Some(Hit { prim: i as u32, t, b1, b2 });
+                best = Some(Hit { prim: i, t, b1, b2 });
             }
         }
         best
+    }
+
+    /// The blocks of a leaf.
+    #[inline(always)]
+    fn leaf(&self, child: Child) -> &[Tri4] {
+        let start = child.index as usize;
+        &self.blocks[start..start + child.count.div_ceil(4) as usize]
     }
 }
 
 /// Most triangles per leaf: scenes up to 200,000 triangles get the careful build, larger ones
 /// `obvhs`'s fast one.
-const LEAF_PRIMS: u32 = 2;
+const LEAF_PRIMS: u32 = 4;
 const LARGE_LEAF_PRIMS: u32 = 4;
 
 /// Collapses a binary BVH into four-wide nodes. Returns the nodes, the root and the depth of the
 /// four-wide tree (levels of inner nodes). Iterative: a degenerate binary tree may be deep.
-fn collapse(bvh2: &Bvh2) -> (Vec<Node4>, Child, usize) {
-    let leaf = |i: usize| {
+fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>, usize) {
+    let mut blocks = Vec::with_capacity(tris.len().div_ceil(2));
+    let mut leaf = |i: usize| {
         let n = &bvh2.nodes[i];
-        Child { index: n.first_index, count: n.prim_count }
+        let index = blocks.len() as u32;
+        for first in (n.first_index..n.first_index + n.prim_count).step_by(4) {
+            let count = (n.first_index + n.prim_count - first).min(4);
+            let mut block = Tri4 { v: [[Vec4::splat(f32::NAN); 3]; 3], first, count };
+            for lane in 0..count as usize {
+                for (k, p) in tris[first as usize + lane].iter().enumerate() {
+                    for axis in 0..3 {
+                        block.v[k][axis][lane] = p[axis];
+                    }
+                }
+            }
+            blocks.push(block);
+        }
+        Child { index, count: n.prim_count }
     };
     if bvh2.nodes[0].is_leaf() {
-        return (Vec::new(), leaf(0), 0);
+        let root = leaf(0);
+        return (Vec::new(), root, blocks, 0);
     }
     let empty = Node4 {
         bounds: [
@@ -510,7 +643,7 @@ fn collapse(bvh2: &Bvh2) -> (Vec<Node4>, Child, usize) {
         }
         nodes[n4] = node;
     }
-    (nodes, Child { index: 0, count: 0 }, max_depth)
+    (nodes, Child { index: 0, count: 0 }, blocks, max_depth)
 }
 
 #[cfg(test)]

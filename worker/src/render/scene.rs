@@ -215,7 +215,7 @@ fn prepare_inner(
     for (prim, tri) in shading.iter_mut().enumerate() {
         let material = &scene.materials[tri.material as usize];
         if material.emissive.max_element() > 0.0 {
-            let p = *accel.triangle(prim as u32);
+            let p = accel.triangle(prim as u32);
             let (emission, textured) = match &material.emissive_texture {
                 Some(r) => {
                     let mean = *texture_means[r.texture].get_or_insert_with(|| {
@@ -480,7 +480,7 @@ impl PreparedScene {
             let tri = pose.motion().instances[i].accel.triangle(local);
             return (tri.map(|p| placed.to_world.transform_point3(p)), true);
         }
-        (*self.accel.triangle(prim), false)
+        (self.accel.triangle(prim), false)
     }
 
     /// A vertex normal of triangle `prim` (world space, at the pose's time if it moves).
@@ -510,8 +510,8 @@ fn scene_radius(accel: &Accel) -> f32 {
     let mut hi = Vec3::splat(f32::NEG_INFINITY);
     for i in 0..accel.len() as u32 {
         for p in accel.triangle(i) {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
+            lo = lo.min(p);
+            hi = hi.max(p);
         }
     }
     if lo.x > hi.x {
