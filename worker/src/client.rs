@@ -291,12 +291,56 @@ pub fn run_with_cache(
         threads: config.threads as u32,
         version: env!("CARGO_PKG_VERSION").to_string(),
     };
-    let mut stats = WorkerStats::default();
+    // Results go out on their own thread, so that leasing and rendering the next task overlap
+    // with sending the last one; at most one result waits while another is being sent.
+    let (outbox, inbox) = std::sync::mpsc::sync_channel::<Outgoing>(1);
+    let client = &client;
+    std::thread::scope(|s| -> Result<WorkerStats> {
+        let sender = s.spawn(move || {
+            let mut stats = WorkerStats::default();
+            for out in inbox {
+                match send_result(client, &out.worker, &out.lease, &out.body) {
+                    Ok(true) => stats.merged += 1,
+                    Ok(false) => stats.refused += 1,
+                    Err(e) => tracing::warn!(lease = %out.lease, "{e}"),
+                }
+            }
+            stats
+        });
+        let me = lease_and_render(config, stop, cache, client, &request, outbox)?;
+        let stats = sender.join().expect("the result sender panicked");
+        if let Some(j) = me {
+            match client.leave(&j.id) {
+                Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
+                Err(e) => tracing::warn!("leaving: {e}"),
+            }
+        }
+        Ok(stats)
+    })
+}
+
+/// A rendered result on its way to the coordinator.
+struct Outgoing {
+    worker: String,
+    lease: String,
+    body: Vec<u8>,
+}
+
+/// The worker's main loop: joins, leases, renders and hands results to `outbox` until `stop`.
+/// Returns the membership to leave with.
+fn lease_and_render(
+    config: &JoinConfig,
+    stop: &AtomicBool,
+    cache: &SceneCache,
+    client: &Client,
+    request: &JoinRequest,
+    outbox: std::sync::mpsc::SyncSender<Outgoing>,
+) -> Result<Option<JoinResponse>> {
     let mut me: Option<JoinResponse> = None;
     let mut backoff = Duration::from_millis(200);
     while !stop.load(Ordering::Relaxed) {
         let Some(joined) = &me else {
-            match client.join(&request) {
+            match client.join(request) {
                 Ok(j) => {
                     tracing::info!(worker = %j.id, url = %client.base, "joined");
                     me = Some(j);
@@ -319,9 +363,14 @@ pub fn run_with_cache(
             Ok(None) => {}
             Ok(Some(grant)) => {
                 backoff = Duration::from_millis(200);
-                match handle(&client, &worker, &grant, config.threads, heartbeat, cache) {
-                    Ok(true) => stats.merged += 1,
-                    Ok(false) => stats.refused += 1,
+                match render(client, &worker, &grant, config.threads, heartbeat, cache) {
+                    Ok(Some(body)) => {
+                        let out = Outgoing { worker: worker.clone(), lease: grant.lease, body };
+                        if outbox.send(out).is_err() {
+                            bail!("the result sender stopped");
+                        }
+                    }
+                    Ok(None) => {}
                     Err(e) => tracing::warn!(lease = %grant.lease, "{e}"),
                 }
             }
@@ -336,13 +385,7 @@ pub fn run_with_cache(
             }
         }
     }
-    if let Some(j) = me {
-        match client.leave(&j.id) {
-            Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
-            Err(e) => tracing::warn!("leaving: {e}"),
-        }
-    }
-    Ok(stats)
+    Ok(me)
 }
 
 /// Sleeps up to `d`, waking early when `stop` is raised.
@@ -353,15 +396,16 @@ fn pause(stop: &AtomicBool, d: Duration) {
     }
 }
 
-/// Renders one leased task and sends the result. Ok(true): merged; Ok(false): refused as stale.
-fn handle(
+/// Renders one leased task into the body of its result. Ok(None): the lease was lost meanwhile
+/// (nothing to send).
+fn render(
     client: &Client,
     worker: &str,
     grant: &LeaseGrant,
     threads: usize,
     heartbeat: Duration,
     cache: &SceneCache,
-) -> Result<bool, String> {
+) -> Result<Option<Vec<u8>>, String> {
     let lost = AtomicBool::new(false);
     // The lease is renewed from the start: fetching and preparing a scene can take longer than
     // the lease. Dropping `done` wakes the heartbeat thread at once when the work ends.
@@ -421,15 +465,20 @@ fn handle(
         }
     };
     if lost.load(Ordering::Relaxed) {
-        return Ok(false);
+        return Ok(None);
     }
-    let body = encode_result(&result);
+    Ok(Some(encode_result(&result)))
+}
+
+/// Sends a result, retrying what the network lost. Ok(true): merged; Ok(false): refused as
+/// stale.
+fn send_result(client: &Client, worker: &str, lease: &str, body: &[u8]) -> Result<bool, String> {
     let mut attempt = 0;
     loop {
-        match client.post_lease(worker, &grant.lease, "result", Some(&body), None) {
+        match client.post_lease(worker, lease, "result", Some(body), None) {
             Ok(()) => return Ok(true),
             Err(CallError::Status(code, msg)) if code == 409 || code == 404 => {
-                tracing::info!(lease = %grant.lease, "result not needed any more: {msg}");
+                tracing::info!(lease = %lease, "result not needed any more: {msg}");
                 return Ok(false);
             }
             Err(CallError::Status(code, msg)) => {
@@ -437,7 +486,7 @@ fn handle(
             }
             Err(e) if attempt < 5 => {
                 attempt += 1;
-                tracing::warn!(lease = %grant.lease, "sending the result: {e}; retrying");
+                tracing::warn!(lease = %lease, "sending the result: {e}; retrying");
                 std::thread::sleep(Duration::from_millis(200 << attempt));
             }
             Err(e) => return Err(format!("sending the result: {e}")),
