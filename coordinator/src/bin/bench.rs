@@ -142,7 +142,7 @@ fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
                 &out_dir.join(format!("{name}-{spp}.exr")),
                 &|_, _| {},
             )?;
-            let seconds = wall.elapsed().as_secs_f64();
+            let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
             let (rmse, rel_mse) = metrics(&report.film.mean_rgb(), &reference);
             println!(
                 "{name},{spp},{threads},{seconds:.4},{:.4},{:.0},{:.0},{rmse:.6},{rel_mse:.6e},{:.6e}",
