@@ -72,6 +72,36 @@ fn main() -> anyhow::Result<()> {
         stats.rays
     });
     println!("samples: {:.3} us/sample, {:.2} rays/sample", secs / n * 1e6, rays as f64 / n);
+    let (secs, _) = fastest(|| {
+        let mut sampler = Sampler::new(1, 0);
+        let mut stats = Stats::default();
+        let mut tile =
+            common::film::TileAccum::new(common::film::Rect { x0: 0, y0: 0, width: w, height: h });
+        for y in 0..h {
+            for x in 0..w {
+                for s in 0..SPP {
+                    sampler.start_pixel_sample(UVec2::new(x, y), s);
+                    let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                    let ray = prepared.camera.generate_ray(film, Vec2::ZERO);
+                    let l = li(&prepared, ray, &mut sampler, &mut stats, None);
+                    tile.add_sample(x, y, s, l.to_array());
+                }
+            }
+        }
+        std::hint::black_box(&tile);
+        stats.rays
+    });
+    println!("samples into a film: {:.3} us/sample", secs / n * 1e6);
+    for threads in [1, 2] {
+        let task = common::protocol::TaskSpec {
+            frame: 0,
+            rect: common::film::Rect { x0: 0, y0: 0, width: w, height: h },
+            samples: common::protocol::SampleRange { start: 0, end: SPP },
+        };
+        let (secs, _) =
+            fastest(|| worker::render::render_task_threads(&prepared, 1, &task, threads).rays);
+        println!("render_task_threads, {threads} thread(s): {:.3} us/sample", secs / n * 1e6);
+    }
     let (secs, found) = fastest(|| {
         let mut k = 0;
         camera_rays(&prepared, w, h, |r| {

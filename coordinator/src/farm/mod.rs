@@ -396,11 +396,18 @@ impl Farm {
         let _ = self.touch(worker);
     }
 
-    /// Drops a finished job's sums from memory.
+    /// Drops a finished job's sums from memory (a scratch store writes them first; what it
+    /// cannot write stays in memory).
     fn evict_if_final(&mut self, id: &str) {
         if let Some(job) = self.jobs.get_mut(id) {
             if job.state.is_final() && !job.evicted {
-                job.evict();
+                let durable = self.config.durable;
+                let kept = (0..job.frames.len())
+                    .filter(|&f| !job.frames[f].evicted)
+                    .all(|f| keep_frame(&mut self.store, durable, job, f));
+                if kept {
+                    job.evict();
+                }
             }
         }
     }
@@ -631,10 +638,13 @@ impl Farm {
         job.merge(key, result.tile, samples);
         self.leases.remove(lease);
         let job = &self.jobs[&job_id];
-        if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k) {
-            // The sums in memory are ahead of the database: fail loudly rather than go on.
-            tracing::error!("committing a merged result failed: {e:#}");
-            return Err(e.into());
+        // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
+        if self.config.durable {
+            if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k) {
+                // The sums in memory are ahead of the database: fail loudly rather than go on.
+                tracing::error!("committing a merged result failed: {e:#}");
+                return Err(e.into());
+            }
         }
         if job.state == JobState::Done {
             tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(), "job done");
@@ -643,7 +653,10 @@ impl Farm {
         if let Some(job) = self.jobs.get_mut(&job_id) {
             let f = key.frame as usize;
             if !job.frames[f].evicted && job.frames.len() > 1 && job.frame_complete(f) {
-                job.evict_frame(f); // committed above: its images are read back from SQLite
+                // Committed (above, or by `keep_frame`): its images are read back from SQLite.
+                if keep_frame(&mut self.store, self.config.durable, job, f) {
+                    job.evict_frame(f);
+                }
             }
         }
         let c = &mut self.counters;
@@ -829,6 +842,22 @@ pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> Far
     Ok(())
 }
 
+/// Makes sure frame `f` of `job` is in the database before it leaves memory: a durable store
+/// committed every result already; a scratch store writes the frame now. False when that write
+/// failed (the frame then stays in memory).
+fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize) -> bool {
+    if durable {
+        return true;
+    }
+    match store.commit_frame(job, f as u32) {
+        Ok(()) => true,
+        Err(e) => {
+            tracing::error!(job = %job.id, frame = f, "writing a frame to the scratch store failed: {e:#}");
+            false
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -890,6 +919,47 @@ mod tests {
         expected.merge(&result_for(&second, 0.5).tile);
         let (film, _) = farm.film(&id, 0).unwrap();
         assert_eq!(film.pixels, expected.pixels);
+    }
+
+    /// A scratch store writes nothing per result, yet every frame it evicts (a finished frame of
+    /// a multi-frame job, then the whole job) reads back with the same bits as a durable store's.
+    #[test]
+    fn a_scratch_store_keeps_evicted_frames_bit_for_bit() {
+        let settings = RenderSettings {
+            width: 16,
+            height: 8,
+            tile_size: 8,
+            spp: 8,
+            samples_per_task: 4,
+            frames: common::settings::Frames { start: 0, end: 1, fps: 24.0 },
+            ..Default::default()
+        };
+        let hash = "ef".repeat(32);
+        let films = [true, false].map(|durable| {
+            let dir = tempfile::tempdir().unwrap();
+            let mut config = FarmConfig::new(dir.path().into());
+            config.durable = durable;
+            let mut farm = Farm::open(config).unwrap();
+            farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+            let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+            let w =
+                farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+            let mut grants = Vec::new();
+            while let Some(g) = farm.lease(&w).unwrap() {
+                grants.push(g);
+            }
+            assert_eq!(grants.len(), 8, "2 frames x 2 tiles x 2 sample ranges");
+            // Later sample ranges first, so that results wait as pending before they merge.
+            for (i, g) in grants.iter().enumerate().rev() {
+                farm.submit(&g.lease, &w, result_for(g, i as f32 * 0.1), 0).unwrap();
+            }
+            let job = &farm.jobs[&id];
+            assert_eq!(job.state, JobState::Done);
+            assert!(job.frames.iter().all(|f| f.evicted), "finished frames leave memory");
+            [0, 1].map(|f| farm.film(&id, f).unwrap().0)
+        });
+        assert_eq!(films[0], films[1]);
+        assert!(films[1].iter().all(|f| f.pixels.iter().all(|p| p.n == 8)));
     }
 
     /// A worker whose render hangs keeps heartbeating; past the lease's maximum lifetime the

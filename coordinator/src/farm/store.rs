@@ -179,27 +179,71 @@ impl Store {
         let tx = self.db.transaction()?;
         if let Some(acc) = t.pending.get(&k) {
             let sums = bincode::serde::encode_to_vec(acc, bincode_config())?;
-            tx.execute(
+            tx.prepare_cached(
                 "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums)
                  VALUES (?1, ?2, ?3, ?4, ?5)",
-                params![job.id, frame, tile, k, sums],
-            )?;
+            )?
+            .execute(params![job.id, frame, tile, k, sums])?;
         } else {
             let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
-            tx.execute(
+            tx.prepare_cached(
                 "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
                  ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
-                params![job.id, frame, tile, t.prefix, sums],
-            )?;
-            tx.execute(
+            )?
+            .execute(params![job.id, frame, tile, t.prefix, sums])?;
+            tx.prepare_cached(
                 "DELETE FROM pending WHERE job = ?1 AND frame = ?2 AND tile = ?3 AND task < ?4",
-                params![job.id, frame, tile, t.prefix],
-            )?;
+            )?
+            .execute(params![job.id, frame, tile, t.prefix])?;
         }
-        tx.execute(
+        tx.prepare_cached(
             "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
-            params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)],
-        )?;
+        )?
+        .execute(params![
+            job.id,
+            job.state.name(),
+            job.error,
+            job.elapsed(),
+            scales_json(job)
+        ])?;
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// Writes every tile of frame `frame` (its prefix sums and pending results) and the job's
+    /// row in one transaction: what a scratch store, which skips `commit_task`, keeps of a frame
+    /// before it leaves memory.
+    pub fn commit_frame(&mut self, job: &Job, frame: u32) -> Result<()> {
+        let tx = self.db.transaction()?;
+        for (i, t) in job.frames[frame as usize].tiles.iter().enumerate() {
+            let tile = i as u32;
+            if !t.sums.pixels.is_empty() {
+                let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
+                tx.prepare_cached(
+                    "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
+                     ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
+                )?
+                .execute(params![job.id, frame, tile, t.prefix, sums])?;
+            }
+            for (k, acc) in &t.pending {
+                let sums = bincode::serde::encode_to_vec(acc, bincode_config())?;
+                tx.prepare_cached(
+                    "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums)
+                     VALUES (?1, ?2, ?3, ?4, ?5)",
+                )?
+                .execute(params![job.id, frame, tile, k, sums])?;
+            }
+        }
+        tx.prepare_cached(
+            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
+        )?
+        .execute(params![
+            job.id,
+            job.state.name(),
+            job.error,
+            job.elapsed(),
+            scales_json(job)
+        ])?;
         tx.commit()?;
         Ok(())
     }
