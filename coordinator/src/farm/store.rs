@@ -73,6 +73,49 @@ fn bincode_config() -> impl bincode::config::Config {
     bincode::config::standard()
 }
 
+/// Upserts a tile's prefix and its sums.
+fn put_tile(
+    tx: &rusqlite::Transaction<'_>,
+    job: &Job,
+    frame: u32,
+    tile: u32,
+    t: &super::job::Tile,
+) -> Result<()> {
+    let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
+    tx.prepare_cached(
+        "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
+         ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
+    )?
+    .execute(params![job.id, frame, tile, t.prefix, sums])?;
+    Ok(())
+}
+
+/// Stores task `k`'s result, waiting for an earlier task of its tile.
+fn put_pending(
+    tx: &rusqlite::Transaction<'_>,
+    job: &Job,
+    frame: u32,
+    tile: u32,
+    k: u32,
+    acc: &TileAccum,
+) -> Result<()> {
+    let sums = bincode::serde::encode_to_vec(acc, bincode_config())?;
+    tx.prepare_cached(
+        "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums) VALUES (?1, ?2, ?3, ?4, ?5)",
+    )?
+    .execute(params![job.id, frame, tile, k, sums])?;
+    Ok(())
+}
+
+/// Updates the job's row: state, error, elapsed time, adaptive scales.
+fn put_job_state(tx: &rusqlite::Transaction<'_>, job: &Job) -> Result<()> {
+    tx.prepare_cached(
+        "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
+    )?
+    .execute(params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)])?;
+    Ok(())
+}
+
 impl Store {
     /// Opens (creating) the store under `dir`. `durable: false` is for scratch stores that
     /// need not survive a crash: commits skip the write-ahead log and every sync.
@@ -178,34 +221,15 @@ impl Store {
         let t = &job.frames[frame as usize].tiles[tile as usize];
         let tx = self.db.transaction()?;
         if let Some(acc) = t.pending.get(&k) {
-            let sums = bincode::serde::encode_to_vec(acc, bincode_config())?;
-            tx.prepare_cached(
-                "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums)
-                 VALUES (?1, ?2, ?3, ?4, ?5)",
-            )?
-            .execute(params![job.id, frame, tile, k, sums])?;
+            put_pending(&tx, job, frame, tile, k, acc)?;
         } else {
-            let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
-            tx.prepare_cached(
-                "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
-                 ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
-            )?
-            .execute(params![job.id, frame, tile, t.prefix, sums])?;
+            put_tile(&tx, job, frame, tile, t)?;
             tx.prepare_cached(
                 "DELETE FROM pending WHERE job = ?1 AND frame = ?2 AND tile = ?3 AND task < ?4",
             )?
             .execute(params![job.id, frame, tile, t.prefix])?;
         }
-        tx.prepare_cached(
-            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
-        )?
-        .execute(params![
-            job.id,
-            job.state.name(),
-            job.error,
-            job.elapsed(),
-            scales_json(job)
-        ])?;
+        put_job_state(&tx, job)?;
         tx.commit()?;
         Ok(())
     }
@@ -218,32 +242,13 @@ impl Store {
         for (i, t) in job.frames[frame as usize].tiles.iter().enumerate() {
             let tile = i as u32;
             if !t.sums.pixels.is_empty() {
-                let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
-                tx.prepare_cached(
-                    "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
-                     ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
-                )?
-                .execute(params![job.id, frame, tile, t.prefix, sums])?;
+                put_tile(&tx, job, frame, tile, t)?;
             }
-            for (k, acc) in &t.pending {
-                let sums = bincode::serde::encode_to_vec(acc, bincode_config())?;
-                tx.prepare_cached(
-                    "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums)
-                     VALUES (?1, ?2, ?3, ?4, ?5)",
-                )?
-                .execute(params![job.id, frame, tile, k, sums])?;
+            for (&k, acc) in &t.pending {
+                put_pending(&tx, job, frame, tile, k, acc)?;
             }
         }
-        tx.prepare_cached(
-            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
-        )?
-        .execute(params![
-            job.id,
-            job.state.name(),
-            job.error,
-            job.elapsed(),
-            scales_json(job)
-        ])?;
+        put_job_state(&tx, job)?;
         tx.commit()?;
         Ok(())
     }
