@@ -421,13 +421,7 @@ impl Accel {
         if self.is_empty() {
             return None;
         }
-        if self.stack_len <= SHALLOW_STACK {
-            self.closest(ray, t_max, &accept, &mut [Entry::default(); SHALLOW_STACK])
-        } else if self.stack_len <= DEEP_STACK {
-            self.closest(ray, t_max, &accept, &mut [Entry::default(); DEEP_STACK])
-        } else {
-            self.closest(ray, t_max, &accept, &mut vec![Entry::default(); self.stack_len])
-        }
+        self.with_stack(|stack| self.closest(ray, t_max, &accept, stack))
     }
 
     /// Whether anything blocks the ray for `t` in (0, t_max). Stops at the first blocker.
@@ -442,12 +436,19 @@ impl Accel {
         if self.is_empty() {
             return false;
         }
+        self.with_stack(|stack| self.any(ray, t_max, &accept, stack))
+    }
+
+    /// Runs `f` with a traversal stack deep enough for this tree: on the call stack unless the
+    /// tree is very deep.
+    #[inline(always)]
+    fn with_stack<R>(&self, f: impl FnOnce(&mut [Entry]) -> R) -> R {
         if self.stack_len <= SHALLOW_STACK {
-            self.any(ray, t_max, &accept, &mut [Entry::default(); SHALLOW_STACK])
+            f(&mut [Entry::default(); SHALLOW_STACK])
         } else if self.stack_len <= DEEP_STACK {
-            self.any(ray, t_max, &accept, &mut [Entry::default(); DEEP_STACK])
+            f(&mut [Entry::default(); DEEP_STACK])
         } else {
-            self.any(ray, t_max, &accept, &mut vec![Entry::default(); self.stack_len])
+            f(&mut vec![Entry::default(); self.stack_len])
         }
     }
 
