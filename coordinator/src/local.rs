@@ -163,6 +163,7 @@ pub fn render_file(
                     name: format!("local-{i}"),
                     wait_s: 1.0,
                     token: None,
+                    prefetch_below: client::PREFETCH_BELOW,
                 };
                 let (stop, cache) = (&stop, &cache);
                 s.spawn(move || client::run_with_cache(&config, stop, cache))
@@ -182,7 +183,7 @@ pub fn render_file(
             if status.state.is_final() || handles.iter().all(|h| h.is_finished()) {
                 break status;
             }
-            std::thread::sleep(Duration::from_millis(10));
+            std::thread::sleep(Duration::from_millis(2));
         };
         stop.store(true, Ordering::Relaxed);
         service.drain();

@@ -116,8 +116,13 @@ pub fn start_coordinator(data: &Path, port: u16, extra: &[&str]) -> Proc {
 
 /// `worker --join url --threads threads`, logging to `log`.
 pub fn start_worker(url: &str, threads: u32, log: PathBuf) -> Proc {
+    start_worker_with(url, threads, log, &[])
+}
+
+/// [`start_worker`] with more arguments.
+pub fn start_worker_with(url: &str, threads: u32, log: PathBuf, extra: &[&str]) -> Proc {
     let mut cmd = Command::new(bin_dir().join("worker"));
-    cmd.args(["--join", url, "--threads", &threads.to_string(), "--wait", "1"]);
+    cmd.args(["--join", url, "--threads", &threads.to_string(), "--wait", "1"]).args(extra);
     Proc::spawn(cmd, log)
 }
 

@@ -352,6 +352,33 @@ fn heartbeats_keep_long_tasks_alive_and_time_limits_stop_jobs() {
 }
 
 #[test]
+fn a_task_leased_ahead_is_renewed_while_it_waits() {
+    let dir = temp_dir("prefetch");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &["--lease-timeout", "0.5"]);
+    // Every task after the first is leased while the one before renders, and waits for it
+    // (about a second, twice the lease timeout) on heartbeats alone.
+    let _worker = start_worker_with(&url, 1, dir.join("worker.log"), &["--prefetch-below", "3600"]);
+    let scene = upload(&url, &cornell_zip());
+    let s =
+        json!({"width": 64, "height": 32, "spp": 2048, "samples_per_task": 1024, "tile_size": 32});
+    let id = create_job(&url, &scene, &s, 0);
+    let most_held = std::cell::Cell::new(0);
+    let status = wait_for(&url, &id, TIMEOUT, |status| {
+        for w in get(&format!("{url}/api/v1/workers")).json()["workers"].as_array().unwrap() {
+            most_held.set(most_held.get().max(w["leases"].as_u64().unwrap()));
+        }
+        matches!(status["state"].as_str(), Some("done" | "failed" | "cancelled"))
+    });
+    assert_eq!(status["state"], "done", "{status:#}");
+    assert_eq!(status["samples_done"], 64 * 32 * 2048);
+    assert_eq!(most_held.get(), 2, "the worker never held a task ahead, or held more than one");
+    assert_eq!(metric(&url, "renderfarm_tasks_expired_total"), 0.0, "a waiting lease expired");
+    assert_eq!(metric(&url, "renderfarm_tasks_merged_total"), 4.0);
+}
+
+#[test]
 fn a_task_that_keeps_failing_fails_its_job_with_the_reason() {
     let dir = temp_dir("failing");
     let port = free_port();

@@ -1,8 +1,9 @@
 //! `worker --join URL`: the worker's side of the farm protocol.
 //!
 //! Join, then loop: long-poll for a lease, fetch and cache the scene by hash (the BVH is built
-//! once per scene and settings, not per task), render the task on all threads while a second
-//! thread renews the lease, and send the partial sums back as bincode. The worker keeps nothing
+//! once per scene and settings, not per task), render the task on all threads while another
+//! thread renews the lease, and send the partial sums back as bincode. While a short task
+//! renders, the next one is already leased, and the last result is sent on a thread of its own. The worker keeps nothing
 //! that matters: if it dies, its lease expires and the task goes to another worker. When the
 //! coordinator forgets it (a restart), it joins again; when the coordinator is unreachable, it
 //! retries with a growing pause. After `stop` is raised it finishes the task in hand, sends it,
@@ -11,7 +12,7 @@
 use std::{
     sync::{
         atomic::{AtomicBool, Ordering},
-        Arc, Mutex,
+        Arc, Condvar, Mutex,
     },
     time::{Duration, Instant},
 };
@@ -43,7 +44,15 @@ pub struct JoinConfig {
     pub wait_s: f64,
     /// The coordinator's join token, sent as a bearer token on every request.
     pub token: Option<String>,
+    /// While a task renders, the next one is leased ahead when the last task took less than
+    /// this (the round trip is then worth hiding); a longer task is not followed by one held
+    /// back from idle workers. Zero never leases ahead.
+    pub prefetch_below: Duration,
 }
+
+/// The default of [`JoinConfig::prefetch_below`]: far above a round trip, so that what a
+/// task held back can cost an idle worker stays small.
+pub const PREFETCH_BELOW: Duration = Duration::from_millis(500);
 
 /// What a worker did before it stopped.
 #[derive(Clone, Debug, Default)]
@@ -276,7 +285,10 @@ pub fn run_with_cache(
     stop: &AtomicBool,
     cache: &SceneCache,
 ) -> Result<WorkerStats> {
+    // Leases, results and heartbeats go out on three threads at once: keep a connection for
+    // each instead of reconnecting.
     let agent = ureq::AgentBuilder::new()
+        .max_idle_connections_per_host(4)
         .timeout_connect(Duration::from_secs(5))
         .timeout_read(Duration::from_secs_f64(config.wait_s + 60.0))
         .timeout_write(Duration::from_secs(60))
@@ -291,10 +303,12 @@ pub fn run_with_cache(
         threads: config.threads as u32,
         version: env!("CARGO_PKG_VERSION").to_string(),
     };
-    // Results go out on their own thread, so that leasing and rendering the next task overlap
-    // with sending the last one; at most one result waits while another is being sent.
+    // Four threads: one leases (and keeps the next task ready while this one renders, so the
+    // round trip to the coordinator is hidden), one renders, one sends results (at most one
+    // waits while another is being sent), one renews the leases held.
     let (outbox, inbox) = std::sync::mpsc::sync_channel::<Outgoing>(1);
     let client = &client;
+    let renewer = Renewer::default();
     std::thread::scope(|s| -> Result<WorkerStats> {
         let sender = s.spawn(move || {
             let mut stats = WorkerStats::default();
@@ -307,9 +321,34 @@ pub fn run_with_cache(
             }
             stats
         });
-        let me = lease_and_render(config, stop, cache, client, &request, outbox)?;
+        let renewer = &renewer;
+        let renewing = s.spawn(move || renewer.run(client));
+        // A rendezvous: a grant is handed over only when the renderer takes it.
+        let (grants, granted) = std::sync::mpsc::sync_channel::<Granted<'_>>(0);
+        let (finished, render_times) = std::sync::mpsc::channel::<Duration>();
+        let renderer = s.spawn(move || {
+            for g in granted {
+                let start = Instant::now();
+                let body = render(client, &g.worker, &g.grant, config.threads, cache, g.renewing);
+                let _ = finished.send(start.elapsed());
+                match body {
+                    Ok(Some(body)) => {
+                        let out = Outgoing { worker: g.worker, lease: g.grant.lease, body };
+                        if outbox.send(out).is_err() {
+                            return;
+                        }
+                    }
+                    Ok(None) => {}
+                    Err(e) => tracing::warn!(lease = %g.grant.lease, "{e}"),
+                }
+            }
+        });
+        let me = lease_loop(config, stop, client, &request, grants, render_times, renewer);
+        renderer.join().expect("the renderer panicked");
+        renewer.quit();
+        renewing.join().expect("the lease renewer panicked");
         let stats = sender.join().expect("the result sender panicked");
-        if let Some(j) = me {
+        if let Some(j) = me? {
             match client.leave(&j.id) {
                 Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
                 Err(e) => tracing::warn!("leaving: {e}"),
@@ -326,18 +365,28 @@ struct Outgoing {
     body: Vec<u8>,
 }
 
-/// The worker's main loop: joins, leases, renders and hands results to `outbox` until `stop`.
-/// Returns the membership to leave with.
-fn lease_and_render(
+/// A leased task on its way to the renderer, its lease already being renewed.
+struct Granted<'a> {
+    worker: String,
+    grant: LeaseGrant,
+    renewing: Renewing<'a>,
+}
+
+/// The leasing loop: joins, leases and hands grants to the renderer until `stop`. Returns the
+/// membership to leave with.
+fn lease_loop<'a>(
     config: &JoinConfig,
     stop: &AtomicBool,
-    cache: &SceneCache,
     client: &Client,
     request: &JoinRequest,
-    outbox: std::sync::mpsc::SyncSender<Outgoing>,
+    grants: std::sync::mpsc::SyncSender<Granted<'a>>,
+    render_times: std::sync::mpsc::Receiver<Duration>,
+    renewer: &'a Renewer,
 ) -> Result<Option<JoinResponse>> {
     let mut me: Option<JoinResponse> = None;
     let mut backoff = Duration::from_millis(200);
+    // Unknown until a task has rendered: no lease ahead of the first one.
+    let mut last_render = Duration::MAX;
     while !stop.load(Ordering::Relaxed) {
         let Some(joined) = &me else {
             match client.join(request) {
@@ -359,19 +408,23 @@ fn lease_and_render(
         };
         let worker = joined.id.clone();
         let heartbeat = Duration::from_secs_f64(joined.heartbeat_s.max(0.05));
+        let asked = Instant::now();
         match client.lease(&worker, config.wait_s) {
             Ok(None) => {}
             Ok(Some(grant)) => {
                 backoff = Duration::from_millis(200);
-                match render(client, &worker, &grant, config.threads, heartbeat, cache) {
-                    Ok(Some(body)) => {
-                        let out = Outgoing { worker: worker.clone(), lease: grant.lease, body };
-                        if outbox.send(out).is_err() {
-                            bail!("the result sender stopped");
-                        }
-                    }
-                    Ok(None) => {}
-                    Err(e) => tracing::warn!(lease = %grant.lease, "{e}"),
+                let leased = asked.elapsed();
+                // Renewed from the start: the task may wait for the renderer, and fetching
+                // and preparing a scene can take longer than the lease.
+                let renewing = renewer.begin(&worker, &grant.lease, heartbeat);
+                if grants.send(Granted { worker, grant, renewing }).is_err() {
+                    bail!("the renderer stopped");
+                }
+                // The renderer has taken this task, so it has finished every earlier one.
+                last_render = render_times.try_iter().last().unwrap_or(last_render);
+                tracing::trace!(lease_s = leased.as_secs_f64(), "task leased");
+                if last_render >= config.prefetch_below {
+                    last_render = render_times.recv().unwrap_or(last_render);
                 }
             }
             Err(CallError::Status(404, msg)) => {
@@ -396,6 +449,108 @@ fn pause(stop: &AtomicBool, d: Duration) {
     }
 }
 
+/// Renews the leases a worker holds (the task rendering and the one waiting for it) while they
+/// are prepared and rendered: one thread for the worker's whole life (a thread per task costs
+/// more than a small task's render).
+#[derive(Default)]
+struct Renewer {
+    state: Mutex<RenewState>,
+    changed: Condvar,
+}
+
+#[derive(Default)]
+struct RenewState {
+    held: Vec<Renewal>,
+    quit: bool,
+}
+
+struct Renewal {
+    worker: String,
+    lease: String,
+    every: Duration,
+    /// When it was last renewed (or taken).
+    renewed: Instant,
+    lost: Arc<AtomicBool>,
+}
+
+/// A lease being renewed until this is ended or dropped.
+struct Renewing<'a> {
+    renewer: &'a Renewer,
+    lease: String,
+    lost: Arc<AtomicBool>,
+}
+
+impl Renewing<'_> {
+    /// Stops renewing; returns whether the coordinator said the lease was lost meanwhile.
+    fn end(self) -> bool {
+        self.lost.load(Ordering::Relaxed)
+    }
+}
+
+impl Drop for Renewing<'_> {
+    fn drop(&mut self) {
+        self.renewer.update(|st| st.held.retain(|r| r.lease != self.lease));
+    }
+}
+
+impl Renewer {
+    fn lock(&self) -> std::sync::MutexGuard<'_, RenewState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn update(&self, f: impl FnOnce(&mut RenewState)) {
+        f(&mut self.lock());
+        self.changed.notify_all();
+    }
+
+    fn begin(&self, worker: &str, lease: &str, every: Duration) -> Renewing<'_> {
+        let lost = Arc::new(AtomicBool::new(false));
+        let renewal = Renewal {
+            worker: worker.to_string(),
+            lease: lease.to_string(),
+            every,
+            renewed: Instant::now(),
+            lost: lost.clone(),
+        };
+        self.update(|st| st.held.push(renewal));
+        Renewing { renewer: self, lease: lease.to_string(), lost }
+    }
+
+    fn quit(&self) {
+        self.update(|st| st.quit = true);
+    }
+
+    /// The renewing thread: a heartbeat for each lease held, every `every` since it was taken or
+    /// last renewed.
+    fn run(&self, client: &Client) {
+        let mut st = self.lock();
+        while !st.quit {
+            let now = Instant::now();
+            let Some(r) = st.held.iter_mut().min_by_key(|r| r.renewed + r.every) else {
+                st = self.changed.wait(st).unwrap_or_else(|p| p.into_inner());
+                continue;
+            };
+            let due = r.renewed + r.every;
+            if due > now {
+                st = self.changed.wait_timeout(st, due - now).unwrap_or_else(|p| p.into_inner()).0;
+                continue;
+            }
+            r.renewed = now;
+            let (worker, lease, lost) = (r.worker.clone(), r.lease.clone(), r.lost.clone());
+            drop(st);
+            match client.post_lease(&worker, &lease, "heartbeat", None, None) {
+                Ok(()) => {}
+                Err(CallError::Status(code @ (403 | 404 | 409), msg)) => {
+                    tracing::warn!(lease = %lease, "lease lost (HTTP {code}: {msg})");
+                    lost.store(true, Ordering::Relaxed);
+                }
+                Err(e) => tracing::warn!(lease = %lease, "heartbeat: {e}"),
+            }
+            st = self.lock();
+        }
+    }
+}
+
 /// Renders one leased task into the body of its result. Ok(None): the lease was lost meanwhile
 /// (nothing to send).
 fn render(
@@ -403,42 +558,15 @@ fn render(
     worker: &str,
     grant: &LeaseGrant,
     threads: usize,
-    heartbeat: Duration,
     cache: &SceneCache,
+    renewal: Renewing<'_>,
 ) -> Result<Option<Vec<u8>>, String> {
-    let lost = AtomicBool::new(false);
-    // The lease is renewed from the start: fetching and preparing a scene can take longer than
-    // the lease. Dropping `done` wakes the heartbeat thread at once when the work ends.
-    let (done, wake) = std::sync::mpsc::channel::<()>();
-    let rendered = std::thread::scope(|s| {
-        let lost = &lost;
-        s.spawn(move || {
-            while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) = wake.recv_timeout(heartbeat)
-            {
-                match client.post_lease(worker, &grant.lease, "heartbeat", None, None) {
-                    Ok(()) => {}
-                    Err(CallError::Status(code @ (403 | 404 | 409), msg)) => {
-                        tracing::warn!(lease = %grant.lease, "lease lost (HTTP {code}: {msg})");
-                        lost.store(true, Ordering::Relaxed);
-                        return;
-                    }
-                    Err(e) => tracing::warn!(lease = %grant.lease, "heartbeat: {e}"),
-                }
-            }
-        });
-        let prepared = match cache.get_or_prepare(client, grant) {
-            Ok(p) => p,
-            Err(failure) => {
-                drop(done);
-                return Err(failure);
-            }
-        };
-        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+    let rendered = cache.get_or_prepare(client, grant).map(|prepared| {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             render_task_threads(&prepared, grant.settings.seed, &grant.task, threads)
-        }));
-        drop(done);
-        Ok(result)
+        }))
     });
+    let lost = renewal.end();
     let rendered = match rendered {
         Ok(r) => r,
         Err(Failure { transient: true, message }) => {
@@ -464,7 +592,7 @@ fn render(
             return Err(report.error);
         }
     };
-    if lost.load(Ordering::Relaxed) {
+    if lost {
         return Ok(None);
     }
     Ok(Some(encode_result(&result)))

@@ -31,6 +31,10 @@ struct Cli {
     /// Longest a lease request waits for work, in seconds.
     #[arg(long, default_value_t = 20.0)]
     wait: f64,
+    /// Lease the next task while one renders when tasks take less than this many seconds
+    /// (hides the round trip to the coordinator); 0 never leases ahead.
+    #[arg(long, default_value_t = worker::client::PREFETCH_BELOW.as_secs_f64())]
+    prefetch_below: f64,
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -85,7 +89,17 @@ fn main() -> Result<()> {
                     .context("installing the signal handler")?;
             }
             let token = cli.token.filter(|t| !t.trim().is_empty());
-            let config = worker::client::JoinConfig { url, threads, name, wait_s: cli.wait, token };
+            if !(cli.prefetch_below.is_finite() && cli.prefetch_below >= 0.0) {
+                anyhow::bail!("--prefetch-below must be a non-negative number of seconds");
+            }
+            let config = worker::client::JoinConfig {
+                url,
+                threads,
+                name,
+                wait_s: cli.wait,
+                token,
+                prefetch_below: std::time::Duration::from_secs_f64(cli.prefetch_below),
+            };
             let stats = worker::client::run(&config, &stop)?;
             tracing::info!(merged = stats.merged, refused = stats.refused, "worker stopped");
             return Ok(());
