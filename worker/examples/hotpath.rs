@@ -2,6 +2,9 @@
 //! figure is the fastest of several repetitions (the least disturbed by other load).
 //! `cargo run --release -p worker --example hotpath -- ../shared/scenes/cornell-box.gltf` (the
 //! render size comes from `SCENE.settings.json` beside the scene when there is one, else 256x256).
+//! `HOTPATH_REPEAT=1` runs each measurement once (for instruction counts under
+//! `valgrind --tool=callgrind`, which are steadier than times on a shared machine);
+//! `HOTPATH_ALL=1` prints every repetition's time.
 use std::time::Instant;
 
 use common::settings::RenderSettings;
@@ -20,10 +23,15 @@ const SPP: u32 = 4;
 fn fastest(mut f: impl FnMut() -> u64) -> (f64, u64) {
     let mut best = f64::INFINITY;
     let mut out = 0;
-    for _ in 0..REPEAT {
+    let repeat =
+        std::env::var("HOTPATH_REPEAT").ok().and_then(|r| r.parse().ok()).unwrap_or(REPEAT);
+    for _ in 0..repeat {
         let t = Instant::now();
         out = f();
         best = best.min(t.elapsed().as_secs_f64());
+        if std::env::var_os("HOTPATH_ALL").is_some() {
+            eprintln!("  run: {:.4} s", t.elapsed().as_secs_f64());
+        }
     }
     (best, out)
 }
