@@ -47,7 +47,7 @@ pub struct Accel {
     blocks: Vec<Tri4>,
     /// For each triangle (BVH order), the block that holds it.
     prim_block: Vec<u32>,
-    /// Entries the traversal stack can need: 3 per level below the root, plus the root.
+    /// Entries the traversal stack can need (`stack_need`).
     stack_len: usize,
 }
 
@@ -87,9 +87,10 @@ struct Entry {
     t_enter: f32,
 }
 
-/// Stack entries kept on the call stack; deeper trees use a heap stack.
-/// Stack entries kept on the call stack for shallow trees (depth up to 10: small and mid-sized
-/// scenes), and for deeper ones (up to 42); deeper still use a heap stack.
+/// Stack entries kept on the call stack for tiny trees (a few dozen triangles), small and
+/// mid-sized ones and deeper ones; deeper still use a heap stack. The smallest array that fits
+/// is used: it is initialised for every ray.
+const TINY_STACK: usize = 16;
 const SHALLOW_STACK: usize = 32;
 const DEEP_STACK: usize = 128;
 
@@ -286,17 +287,38 @@ impl Shear {
             * (Vec4::splat(gamma(3)) * max_e * max_zt + delta_e * max_zt + delta_z * max_e)
             * inv_det.abs();
         candidates &= (t.cmpgt(delta_t) & t.cmplt(t_max4)).bitmask();
-        let (t, b1, b2) = (t.to_array(), (e1 * inv_det).to_array(), (e2 * inv_det).to_array());
+        let t = t.to_array();
+        let hit = |lane: usize| Hit {
+            prim: block.first + lane as u32,
+            t: t[lane],
+            b1: e1[lane] * inv_det[lane],
+            b2: e2[lane] * inv_det[lane],
+        };
+        if scalar == 0 {
+            // The nearest candidate that `accept` keeps (the lower lane on ties).
+            while candidates != 0 {
+                let mut lane = candidates.trailing_zeros() as usize;
+                let mut rest = candidates & (candidates - 1);
+                while rest != 0 {
+                    let other = rest.trailing_zeros() as usize;
+                    rest &= rest - 1;
+                    if t[other] < t[lane] {
+                        lane = other;
+                    }
+                }
+                let h = hit(lane);
+                if accept(&h) {
+                    return Some(h);
+                }
+                candidates &= !(1 << lane);
+            }
+            return None;
+        }
         let mut hits: [Option<Hit>; 4] = [None; 4];
         while candidates != 0 {
             let lane = candidates.trailing_zeros() as usize;
             candidates &= candidates - 1;
-            hits[lane] = Some(Hit {
-                prim: block.first + lane as u32,
-                t: t[lane],
-                b1: b1[lane],
-                b2: b2[lane],
-            });
+            hits[lane] = Some(hit(lane));
         }
         while scalar != 0 {
             let lane = scalar.trailing_zeros() as usize;
@@ -367,7 +389,7 @@ impl Accel {
         drop(bvh_tris);
         let order = std::mem::take(&mut bvh2.primitive_indices);
         let tris: Vec<[Vec3; 3]> = order.iter().map(|&i| triangles[i as usize]).collect();
-        let (nodes, root, blocks, depth) = collapse(&bvh2, &tris);
+        let (nodes, root, blocks) = collapse(&bvh2, &tris);
         drop(bvh2);
         let mut prim_block = vec![0u32; tris.len()];
         for (b, block) in blocks.iter().enumerate() {
@@ -375,7 +397,8 @@ impl Accel {
                 prim_block[(block.first + i) as usize] = b as u32;
             }
         }
-        let accel = Accel { nodes, root, blocks, prim_block, stack_len: 3 * depth + 1 };
+        let stack_len = stack_need(&nodes);
+        let accel = Accel { nodes, root, blocks, prim_block, stack_len };
         (accel, order)
     }
 
@@ -443,7 +466,9 @@ impl Accel {
     /// tree is very deep.
     #[inline(always)]
     fn with_stack<R>(&self, f: impl FnOnce(&mut [Entry]) -> R) -> R {
-        if self.stack_len <= SHALLOW_STACK {
+        if self.stack_len <= TINY_STACK {
+            f(&mut [Entry::default(); TINY_STACK])
+        } else if self.stack_len <= SHALLOW_STACK {
             f(&mut [Entry::default(); SHALLOW_STACK])
         } else if self.stack_len <= DEEP_STACK {
             f(&mut [Entry::default(); DEEP_STACK])
@@ -567,9 +592,30 @@ impl Accel {
 const LEAF_PRIMS: u32 = 4;
 const LARGE_LEAF_PRIMS: u32 = 4;
 
-/// Collapses a binary BVH into four-wide nodes. Returns the nodes, the root and the depth of the
-/// four-wide tree (levels of inner nodes). Iterative: a degenerate binary tree may be deep.
-fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>, usize) {
+/// The most entries a traversal of `nodes` (children after their parents, the root first) can
+/// hold at once: popping a node with `k` children pushes them all, and while one child's subtree
+/// is traversed its `k - 1` siblings wait below it.
+fn stack_need(nodes: &[Node4]) -> usize {
+    let mut need = vec![0usize; nodes.len()];
+    for n in (0..nodes.len()).rev() {
+        let node = &nodes[n];
+        // An empty slot has an infinite lower bound.
+        let slots: Vec<usize> = (0..4).filter(|&i| node.bounds[0][i] != f32::INFINITY).collect();
+        let k = slots.len();
+        let below = slots
+            .iter()
+            .map(|&i| node.children[i])
+            .map(|c| if c.count == 0 { need[c.index as usize] } else { 0 })
+            .max()
+            .unwrap_or(0);
+        need[n] = k.max(k.saturating_sub(1) + below);
+    }
+    need.first().copied().unwrap_or(0).max(1)
+}
+
+/// Collapses a binary BVH into four-wide nodes. Returns the nodes, the root and the leaf
+/// blocks. Iterative: a degenerate binary tree may be deep.
+fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>) {
     let mut blocks = Vec::with_capacity(tris.len().div_ceil(2));
     let mut leaf = |i: usize| {
         let n = &bvh2.nodes[i];
@@ -590,7 +636,7 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>, u
     };
     if bvh2.nodes[0].is_leaf() {
         let root = leaf(0);
-        return (Vec::new(), root, blocks, 0);
+        return (Vec::new(), root, blocks);
     }
     let empty = Node4 {
         bounds: [
@@ -604,11 +650,9 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>, u
         children: [Child::default(); 4],
     };
     let mut nodes = vec![empty];
-    let mut max_depth = 1;
-    // (binary node, four-wide node to fill, its depth)
-    let mut work = vec![(0usize, 0usize, 1usize)];
-    while let Some((n2, n4, depth)) = work.pop() {
-        max_depth = max_depth.max(depth);
+    // (binary node, four-wide node to fill)
+    let mut work = vec![(0usize, 0usize)];
+    while let Some((n2, n4)) = work.pop() {
         let first = bvh2.nodes[n2].first_index as usize;
         let mut kids = vec![first, first + 1];
         // Open the inner child with the largest surface area until there are four.
@@ -638,13 +682,13 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>, u
                 leaf(k)
             } else {
                 nodes.push(empty);
-                work.push((k, nodes.len() - 1, depth + 1));
+                work.push((k, nodes.len() - 1));
                 Child { index: (nodes.len() - 1) as u32, count: 0 }
             };
         }
         nodes[n4] = node;
     }
-    (nodes, Child { index: 0, count: 0 }, blocks, max_depth)
+    (nodes, Child { index: 0, count: 0 }, blocks)
 }
 
 #[cfg(test)]
@@ -697,6 +741,45 @@ mod tests {
                     _ => panic!("soup {soup}: bvh {a:?} vs brute force {b:?}"),
                 }
                 assert_eq!(accel.occluded(&ray, t_max), b.is_some(), "soup {soup}: occlusion");
+            }
+        }
+    }
+
+    /// The most entries a traversal that enters every box holds, children pushed in slot order
+    /// or in reverse.
+    fn full_traversal_stack(accel: &Accel, reverse: bool) -> usize {
+        let mut stack = vec![accel.root];
+        let mut most = 1;
+        while let Some(c) = stack.pop() {
+            if c.count > 0 {
+                continue;
+            }
+            let node = &accel.nodes[c.index as usize];
+            let mut slots: Vec<usize> =
+                (0..4).filter(|&i| node.bounds[0][i] != f32::INFINITY).collect();
+            if reverse {
+                slots.reverse();
+            }
+            stack.extend(slots.iter().map(|&i| node.children[i]));
+            most = most.max(stack.len());
+        }
+        most
+    }
+
+    #[test]
+    fn the_stack_bound_covers_every_traversal_order() {
+        let mut rng = Rng(5);
+        for n in [1, 3, 32, 200, 2000] {
+            let tris: Vec<[Vec3; 3]> = (0..n)
+                .map(|_| {
+                    let c = rng.v(10.0);
+                    [c + rng.v(0.5), c + rng.v(0.5), c + rng.v(0.5)]
+                })
+                .collect();
+            let (accel, _) = Accel::build(&tris);
+            for reverse in [false, true] {
+                let used = full_traversal_stack(&accel, reverse);
+                assert!(used <= accel.stack_len, "{n} triangles: {used} > {}", accel.stack_len);
             }
         }
     }

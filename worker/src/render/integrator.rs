@@ -1,8 +1,10 @@
 //! The path tracer: next-event estimation and BSDF sampling combined with multiple importance
 //! sampling (power heuristic), Russian roulette, and a bounce limit.
 //!
-//! A loop, not recursion. Every bounce draws the same four sampler dimensions whatever happens,
-//! so dimension `k` always means the same thing for every sample of every pixel. The light
+//! A loop, not recursion. Every bounce takes the same four sampler dimensions in the same order
+//! whatever happens (light, lobe, direction, roulette; one it does not need is skipped, not
+//! drawn, and a path that ends takes no more), so dimension `k` always means the same thing for
+//! every sample of every pixel. The light
 //! sample's first coordinate also chooses the light, so its strata span all lights together.
 
 use glam::{Vec2, Vec3};
@@ -60,11 +62,6 @@ pub fn li(
     let mut prev_bsdf_pdf = 0.0f32;
     let lights = &scene.lights;
     loop {
-        let u_light = sampler.next_2d();
-        let u_lobe = sampler.next_1d();
-        let u_bsdf = sampler.next_2d();
-        let u_rr = sampler.next_1d();
-
         stats.rays += 1;
         let hit = scene.intersect(&ray, f32::INFINITY, pose);
         let Some(hit) = hit else {
@@ -151,7 +148,9 @@ pub fn li(
         }
         let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp);
 
-        // Next-event estimation.
+        // Next-event estimation. A bounce's numbers are drawn where they are used, in the
+        // same order whatever happens; a path that ends skips the rest.
+        let u_light = sampler.next_2d();
         if let Some((light_idx, choice_pdf, u_x)) = lights.choose_remapped(u_light.x) {
             let light = &lights.lights[light_idx as usize];
             if let Some(ls) = light.sample_li(p, Vec2::new(u_x, u_light.y)) {
@@ -194,7 +193,15 @@ pub fn li(
             }
         }
 
-        // BSDF sampling.
+        // BSDF sampling (a single-lobe BSDF needs no lobe choice).
+        let u_lobe = match bsdf {
+            Bsdf::Diffuse(_) => {
+                sampler.skip(1);
+                0.0
+            }
+            _ => sampler.next_1d(),
+        };
+        let u_bsdf = sampler.next_2d();
         let Some(bs) = bsdf.sample(wo_local, u_lobe, u_bsdf) else {
             break;
         };
@@ -211,7 +218,10 @@ pub fn li(
         depth += 1;
 
         // Russian roulette once paths have a few bounces.
-        if depth > RR_MIN_DEPTH {
+        if depth <= RR_MIN_DEPTH {
+            sampler.skip(1);
+        } else {
+            let u_rr = sampler.next_1d();
             let q = (1.0 - beta.max_element()).max(0.0);
             if u_rr < q {
                 break;

@@ -51,6 +51,13 @@ impl Sampler {
         mix64(self.pixel_hash ^ (d as u64).wrapping_mul(0xd1b5_4a32_d192_ed03))
     }
 
+    /// Passes over `n` dimensions without computing them (a draw this sample does not need,
+    /// so that later draws keep their dimensions).
+    #[inline]
+    pub fn skip(&mut self, n: u32) {
+        self.dimension += n;
+    }
+
     /// The next uniform number in [0, 1).
     #[inline]
     pub fn next_1d(&mut self) -> f32 {
