@@ -526,7 +526,9 @@ impl Renewer {
         let mut st = self.lock();
         while !st.quit {
             let now = Instant::now();
-            let Some(r) = st.held.iter_mut().min_by_key(|r| r.renewed + r.every) else {
+            // A lease the coordinator called lost is not asked about again.
+            let live = st.held.iter_mut().filter(|r| !r.lost.load(Ordering::Relaxed));
+            let Some(r) = live.min_by_key(|r| r.renewed + r.every) else {
                 st = self.changed.wait(st).unwrap_or_else(|p| p.into_inner());
                 continue;
             };
