@@ -373,7 +373,9 @@ fn a_task_leased_ahead_is_renewed_while_it_waits() {
     });
     assert_eq!(status["state"], "done", "{status:#}");
     assert_eq!(status["samples_done"], 64 * 32 * 2048);
-    assert_eq!(most_held.get(), 2, "the worker never held a task ahead, or held more than one");
+    // One rendering and one leased ahead; a third while the last result is still on its way.
+    let most = most_held.get();
+    assert!((2..=3).contains(&most), "the worker held {most} leases at once");
     assert_eq!(metric(&url, "renderfarm_tasks_expired_total"), 0.0, "a waiting lease expired");
     assert_eq!(metric(&url, "renderfarm_tasks_merged_total"), 4.0);
 }
