@@ -373,9 +373,10 @@ fn a_task_leased_ahead_is_renewed_while_it_waits() {
     });
     assert_eq!(status["state"], "done", "{status:#}");
     assert_eq!(status["samples_done"], 64 * 32 * 2048);
-    // One rendering and one leased ahead; a third while the last result is still on its way.
+    // One rendering and one leased ahead, plus up to two finished ones whose results are still
+    // on their way (one being sent, one queued behind it).
     let most = most_held.get();
-    assert!((2..=3).contains(&most), "the worker held {most} leases at once");
+    assert!((2..=4).contains(&most), "the worker held {most} leases at once");
     assert_eq!(metric(&url, "renderfarm_tasks_expired_total"), 0.0, "a waiting lease expired");
     assert_eq!(metric(&url, "renderfarm_tasks_merged_total"), 4.0);
 }
