@@ -80,6 +80,13 @@ struct Node4 {
     children: [Child; 4],
 }
 
+impl Node4 {
+    /// The slots that hold a child (an empty slot has an infinite lower bound).
+    fn slots(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..4).filter(|&i| self.bounds[0][i] != f32::INFINITY)
+    }
+}
+
 /// One traversal stack entry: a child and the distance at which the ray enters its box.
 #[derive(Clone, Copy, Debug, Default)]
 struct Entry {
@@ -599,12 +606,10 @@ fn stack_need(nodes: &[Node4]) -> usize {
     let mut need = vec![0usize; nodes.len()];
     for n in (0..nodes.len()).rev() {
         let node = &nodes[n];
-        // An empty slot has an infinite lower bound.
-        let slots: Vec<usize> = (0..4).filter(|&i| node.bounds[0][i] != f32::INFINITY).collect();
-        let k = slots.len();
-        let below = slots
-            .iter()
-            .map(|&i| node.children[i])
+        let k = node.slots().count();
+        let below = node
+            .slots()
+            .map(|i| node.children[i])
             .map(|c| if c.count == 0 { need[c.index as usize] } else { 0 })
             .max()
             .unwrap_or(0);
@@ -755,8 +760,7 @@ mod tests {
                 continue;
             }
             let node = &accel.nodes[c.index as usize];
-            let mut slots: Vec<usize> =
-                (0..4).filter(|&i| node.bounds[0][i] != f32::INFINITY).collect();
+            let mut slots: Vec<usize> = node.slots().collect();
             if reverse {
                 slots.reverse();
             }

@@ -4,8 +4,8 @@
 //! A loop, not recursion. Every bounce takes the same four sampler dimensions in the same order
 //! whatever happens (light, lobe, direction, roulette; one it does not need is skipped, not
 //! drawn, and a path that ends takes no more), so dimension `k` always means the same thing for
-//! every sample of every pixel. The light
-//! sample's first coordinate also chooses the light, so its strata span all lights together.
+//! every sample of every pixel. The light sample's first coordinate also chooses the light, so
+//! its strata span all lights together.
 
 use glam::{Vec2, Vec3};
 
@@ -193,13 +193,12 @@ pub fn li(
             }
         }
 
-        // BSDF sampling (a single-lobe BSDF needs no lobe choice).
-        let u_lobe = match bsdf {
-            Bsdf::Diffuse(_) => {
-                sampler.skip(1);
-                0.0
-            }
-            _ => sampler.next_1d(),
+        // BSDF sampling.
+        let u_lobe = if bsdf.chooses_lobe() {
+            sampler.next_1d()
+        } else {
+            sampler.skip(1);
+            0.0
         };
         let u_bsdf = sampler.next_2d();
         let Some(bs) = bsdf.sample(wo_local, u_lobe, u_bsdf) else {

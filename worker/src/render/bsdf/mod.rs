@@ -63,6 +63,12 @@ impl Bsdf {
         }
     }
 
+    /// Whether `sample` uses its lobe-choice number (a single-lobe BSDF does not).
+    #[inline]
+    pub fn chooses_lobe(&self) -> bool {
+        !matches!(self, Bsdf::Diffuse(_))
+    }
+
     /// Samples `wi` for `wo` with lobe choice `u_lobe` and direction numbers `u`.
     #[inline]
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
