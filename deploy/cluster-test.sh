@@ -77,7 +77,10 @@ scene=$(curl -sf "${auth[@]}" "$url/api/v1/jobs" | python3 -c 'import json,sys; 
 step "kill a worker and scale to 5 mid-job"
 id=$(submit_job "$settings")
 wait_for "$id" "done > 0" 60
-victim=$(compose ps -q worker | head -1)
+# Whole output first: `| head -1` would close the pipe early and, under pipefail, fail on
+# compose's SIGPIPE (exit 141) whenever compose writes its second line late.
+workers=$(compose ps -q worker)
+victim=${workers%%$'\n'*}
 docker kill "$victim" >/dev/null
 compose up -d --scale worker=5 --no-recreate
 wait_for "$id" "state == 'done'" 180
