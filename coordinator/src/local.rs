@@ -1,7 +1,8 @@
 //! The embedded default, `coordinator render`: one process runs the farm service on a loopback
-//! port (its state in a temporary folder) and N local workers that join it over HTTP, exactly as
-//! a cluster would; the scene is uploaded as a bundle and the finished frames written as EXR and
-//! PNG.
+//! port (its state in a temporary folder), uploads the scene to it as a bundle and submits the
+//! job over its REST API, and runs N local workers: the worker loop of `worker --join`, linked to
+//! the farm in-process (`service::LocalLink`: the same leases, checks and merging as a cluster's,
+//! without sockets or result encoding). The finished frames are written as EXR and PNG.
 
 use std::{
     path::{Path, PathBuf},
@@ -20,7 +21,7 @@ use common::{
     gltf::{DirResolver, Resolver},
     settings::{Environment, RenderSettings},
 };
-use worker::client::{self, JoinConfig};
+use worker::client::{self, WorkerOptions};
 
 use crate::{
     farm::job::{JobState, JobStatus},
@@ -129,7 +130,7 @@ pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
 
 /// Renders `scene_path` with `settings` on `workers` local workers into `out` (frame ranges
 /// write `OUT_####.exr`) through the farm: an in-process coordinator on a loopback port, the
-/// workers joining it over HTTP. A relative environment map path is relative to the working
+/// workers linked to it in-process. A relative environment map path is relative to the working
 /// directory. `progress` gets (samples done, samples planned).
 pub fn render_file(
     scene_path: &Path,
@@ -154,19 +155,18 @@ pub fn render_file(
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
     let cache = client::SceneCache::default();
+    let link = service.local_link();
     let status = std::thread::scope(|s| -> Result<JobStatus> {
         let handles: Vec<_> = (0..workers.max(1))
             .map(|i| {
-                let config = JoinConfig {
-                    url: url.clone(),
+                let options = WorkerOptions {
                     threads: 1,
                     name: format!("local-{i}"),
                     wait_s: 1.0,
-                    token: None,
                     prefetch_below: client::PREFETCH_BELOW,
                 };
-                let (stop, cache) = (&stop, &cache);
-                s.spawn(move || client::run_with_cache(&config, stop, cache))
+                let (stop, cache, link) = (&stop, &cache, &link);
+                s.spawn(move || client::run_linked(link, &options, stop, cache))
             })
             .collect();
         let farm = service.farm();

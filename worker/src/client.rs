@@ -1,13 +1,14 @@
-//! `worker --join URL`: the worker's side of the farm protocol.
+//! The worker's loop, the same for `worker --join URL` (over HTTP) and for the local workers of
+//! `coordinator render` (linked in-process): see [`crate::link`].
 //!
 //! Join, then loop: long-poll for a lease, fetch and cache the scene by hash (the BVH is built
 //! once per scene and settings, not per task), render the task on all threads while another
-//! thread renews the lease, and send the partial sums back as bincode. While a short task
-//! renders, the next one is already leased, and the last result is sent on a thread of its own. The worker keeps nothing
-//! that matters: if it dies, its lease expires and the task goes to another worker. When the
-//! coordinator forgets it (a restart), it joins again; when the coordinator is unreachable, it
-//! retries with a growing pause. After `stop` is raised it finishes the task in hand, sends it,
-//! leaves, and returns.
+//! thread renews the lease, and hand the partial sums in. While a short task renders, the next
+//! one is already leased, and the last result is sent on a thread of its own. The worker keeps
+//! nothing that matters: if it dies, its lease expires and the task goes to another worker.
+//! When the coordinator forgets it (a restart), it joins again; when the coordinator is
+//! unreachable, it retries with a growing pause. After `stop` is raised it finishes the task in
+//! hand, sends it, leaves, and returns.
 
 use std::{
     sync::{
@@ -21,36 +22,46 @@ use anyhow::{bail, Result};
 use common::{
     bundle::{Bundle, Limits},
     envmap::EnvMap,
-    protocol::{encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, WORKER_HEADER},
+    protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult},
     scene::Scene,
     settings::Environment,
 };
 
-use crate::render::{
-    render_task_threads,
-    scene::{prepare_frame, PreparedScene},
+use crate::{
+    link::{CallError, HttpLink, Link},
+    render::{
+        render_task_threads,
+        scene::{prepare_frame, PreparedScene},
+    },
 };
 
-/// How a worker joins.
+/// How a worker works, whatever links it to its coordinator.
 #[derive(Clone, Debug)]
-pub struct JoinConfig {
-    /// Base URL of the coordinator (`http://host:port`).
-    pub url: String,
+pub struct WorkerOptions {
     /// Render threads.
     pub threads: usize,
     /// Name shown in the workers list.
     pub name: String,
     /// Longest a lease request waits for work, in seconds.
     pub wait_s: f64,
-    /// The coordinator's join token, sent as a bearer token on every request.
-    pub token: Option<String>,
     /// While a task renders, the next one is leased ahead when the last task took less than
     /// this (the round trip is then worth hiding); a longer task is not followed by one held
     /// back from idle workers. Zero never leases ahead.
     pub prefetch_below: Duration,
 }
 
-/// The default of [`JoinConfig::prefetch_below`]: far above a round trip, so that what a
+/// How `worker --join` joins.
+#[derive(Clone, Debug)]
+pub struct JoinConfig {
+    /// Base URL of the coordinator (`http://host:port`).
+    pub url: String,
+    /// The coordinator's join token, sent as a bearer token on every request.
+    pub token: Option<String>,
+    /// How the worker works.
+    pub options: WorkerOptions,
+}
+
+/// The default of [`WorkerOptions::prefetch_below`]: far above a round trip, so that what a
 /// task held back can cost an idle worker stays small.
 pub const PREFETCH_BELOW: Duration = Duration::from_millis(500);
 
@@ -61,112 +72,6 @@ pub struct WorkerStats {
     pub merged: u64,
     /// Results it refused (stale leases and the like).
     pub refused: u64,
-}
-
-enum CallError {
-    /// The coordinator answered with this status and message.
-    Status(u16, String),
-    /// No answer (connection refused, reset, timed out).
-    Transport(String),
-}
-
-impl std::fmt::Display for CallError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            CallError::Status(code, msg) => write!(f, "HTTP {code}: {msg}"),
-            CallError::Transport(msg) => write!(f, "coordinator unreachable: {msg}"),
-        }
-    }
-}
-
-fn call_error(e: ureq::Error) -> CallError {
-    match e {
-        ureq::Error::Status(code, resp) => {
-            let text = resp.into_string().unwrap_or_default();
-            let msg = serde_json::from_str::<serde_json::Value>(&text)
-                .ok()
-                .and_then(|v| v.get("error").and_then(|e| e.as_str()).map(str::to_string))
-                .unwrap_or(text);
-            CallError::Status(code, msg)
-        }
-        ureq::Error::Transport(t) => CallError::Transport(t.to_string()),
-    }
-}
-
-struct Client {
-    agent: ureq::Agent,
-    base: String,
-    auth: Option<String>,
-}
-
-impl Client {
-    fn url(&self, path: &str) -> String {
-        format!("{}/api/v1{path}", self.base)
-    }
-
-    fn post(&self, path: &str) -> ureq::Request {
-        self.authorize(self.agent.post(&self.url(path)))
-    }
-
-    fn authorize(&self, req: ureq::Request) -> ureq::Request {
-        match &self.auth {
-            Some(value) => req.set("authorization", value),
-            None => req,
-        }
-    }
-
-    fn join(&self, req: &JoinRequest) -> Result<JoinResponse, CallError> {
-        let resp = self.post("/workers").send_json(req).map_err(call_error)?;
-        resp.into_json().map_err(|e| CallError::Transport(e.to_string()))
-    }
-
-    fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError> {
-        let resp = self
-            .post(&format!("/workers/{worker}/lease?wait_s={wait_s}"))
-            .call()
-            .map_err(call_error)?;
-        if resp.status() == 204 {
-            return Ok(None);
-        }
-        resp.into_json().map(Some).map_err(|e| CallError::Transport(e.to_string()))
-    }
-
-    fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {
-        let resp = self
-            .authorize(self.agent.get(&self.url(&format!("/scenes/{hash}"))))
-            .call()
-            .map_err(call_error)?;
-        let mut bytes = Vec::new();
-        std::io::Read::read_to_end(&mut resp.into_reader(), &mut bytes)
-            .map_err(|e| CallError::Transport(e.to_string()))?;
-        Ok(bytes)
-    }
-
-    fn post_lease(
-        &self,
-        worker: &str,
-        lease: &str,
-        what: &str,
-        body: Option<&[u8]>,
-        json: Option<&FailReport>,
-    ) -> Result<(), CallError> {
-        let req = self.post(&format!("/leases/{lease}/{what}")).set(WORKER_HEADER, worker);
-        let sent = match (body, json) {
-            (Some(bytes), _) => {
-                req.set("content-type", "application/octet-stream").send_bytes(bytes)
-            }
-            (None, Some(report)) => req.send_json(report),
-            (None, None) => req.call(),
-        };
-        sent.map(|_| ()).map_err(call_error)
-    }
-
-    fn leave(&self, worker: &str) -> Result<(), CallError> {
-        self.authorize(self.agent.delete(&self.url(&format!("/workers/{worker}"))))
-            .call()
-            .map(|_| ())
-            .map_err(call_error)
-    }
 }
 
 /// Why a task could not be prepared; only a permanent failure is reported against the task.
@@ -201,12 +106,12 @@ pub struct SceneCache {
 impl SceneCache {
     const CAPACITY: usize = 4;
 
-    fn load(&self, client: &Client, grant: &LeaseGrant, key: &str) -> Result<Arc<Loaded>, Failure> {
+    fn load(&self, link: &dyn Link, grant: &LeaseGrant, key: &str) -> Result<Arc<Loaded>, Failure> {
         let mut loaded = self.loaded.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(l) = loaded.as_ref().filter(|l| l.key == key) {
             return Ok(l.clone());
         }
-        let bytes = client.scene(&grant.scene).map_err(|e| Failure {
+        let bytes = link.scene(&grant.scene).map_err(|e| Failure {
             // Only the scene itself is worth reporting: a network error is not the task's.
             transient: matches!(e, CallError::Transport(_))
                 || matches!(e, CallError::Status(c, _) if c >= 500),
@@ -232,7 +137,7 @@ impl SceneCache {
 
     fn get_or_prepare(
         &self,
-        client: &Client,
+        link: &dyn Link,
         grant: &LeaseGrant,
     ) -> Result<Arc<PreparedScene>, Failure> {
         let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
@@ -251,7 +156,7 @@ impl SceneCache {
             }
         }
         let start = Instant::now();
-        let loaded = self.load(client, grant, &base)?;
+        let loaded = self.load(link, grant, &base)?;
         // An animated scene is posed and prepared per frame; a static one once.
         let animated = loaded.scene.is_animated();
         let scene = &loaded.scene;
@@ -272,48 +177,36 @@ impl SceneCache {
     }
 }
 
-/// Joins the coordinator at `config.url` and renders tasks until `stop` is raised (then leaves
+/// Joins the coordinator at `config.url` over HTTP and renders tasks until `stop` is raised (then leaves
 /// cleanly). Returns an error only for what retrying cannot fix (the coordinator refuses the
 /// join).
 pub fn run(config: &JoinConfig, stop: &AtomicBool) -> Result<WorkerStats> {
-    run_with_cache(config, stop, &SceneCache::default())
+    let link = HttpLink::new(&config.url, config.token.as_deref(), config.options.wait_s);
+    run_linked(&link, &config.options, stop, &SceneCache::default())
 }
 
-/// [`run`] with a scene cache shared with other workers of this process.
-pub fn run_with_cache(
-    config: &JoinConfig,
+/// [`run`] over any link, with a scene cache shared with other workers of this process.
+pub fn run_linked(
+    link: &dyn Link,
+    options: &WorkerOptions,
     stop: &AtomicBool,
     cache: &SceneCache,
 ) -> Result<WorkerStats> {
-    // Leases, results and heartbeats go out on three threads at once: keep a connection for
-    // each instead of reconnecting.
-    let agent = ureq::AgentBuilder::new()
-        .max_idle_connections_per_host(4)
-        .timeout_connect(Duration::from_secs(5))
-        .timeout_read(Duration::from_secs_f64(config.wait_s + 60.0))
-        .timeout_write(Duration::from_secs(60))
-        .build();
-    let client = Client {
-        agent,
-        base: config.url.trim_end_matches('/').to_string(),
-        auth: config.token.as_ref().map(|t| format!("Bearer {t}")),
-    };
     let request = JoinRequest {
-        name: config.name.clone(),
-        threads: config.threads as u32,
+        name: options.name.clone(),
+        threads: options.threads as u32,
         version: env!("CARGO_PKG_VERSION").to_string(),
     };
     // Four threads: one leases (and keeps the next task ready while this one renders, so the
     // round trip to the coordinator is hidden), one renders, one sends results (at most one
     // waits while another is being sent), one renews the leases held.
     let (outbox, inbox) = std::sync::mpsc::sync_channel::<Outgoing>(1);
-    let client = &client;
     let renewer = Renewer::default();
     std::thread::scope(|s| -> Result<WorkerStats> {
         let sender = s.spawn(move || {
             let mut stats = WorkerStats::default();
             for out in inbox {
-                match send_result(client, &out.worker, &out.lease, &out.body) {
+                match send_result(link, &out.worker, &out.lease, &out.result) {
                     Ok(true) => stats.merged += 1,
                     Ok(false) => stats.refused += 1,
                     Err(e) => tracing::warn!(lease = %out.lease, "{e}"),
@@ -322,18 +215,19 @@ pub fn run_with_cache(
             stats
         });
         let renewer = &renewer;
-        let renewing = s.spawn(move || renewer.run(client));
+        let renewing = s.spawn(move || renewer.run(link));
         // A rendezvous: a grant is handed over only when the renderer takes it.
         let (grants, granted) = std::sync::mpsc::sync_channel::<Granted<'_>>(0);
         let (finished, render_times) = std::sync::mpsc::channel::<Duration>();
         let renderer = s.spawn(move || {
             for g in granted {
                 let start = Instant::now();
-                let body = render(client, &g.worker, &g.grant, config.threads, cache, g.renewing);
+                let rendered =
+                    render(link, &g.worker, &g.grant, options.threads, cache, g.renewing);
                 let _ = finished.send(start.elapsed());
-                match body {
-                    Ok(Some(body)) => {
-                        let out = Outgoing { worker: g.worker, lease: g.grant.lease, body };
+                match rendered {
+                    Ok(Some(result)) => {
+                        let out = Outgoing { worker: g.worker, lease: g.grant.lease, result };
                         if outbox.send(out).is_err() {
                             return;
                         }
@@ -343,13 +237,13 @@ pub fn run_with_cache(
                 }
             }
         });
-        let me = lease_loop(config, stop, client, &request, grants, render_times, renewer);
+        let me = lease_loop(options, stop, link, &request, grants, render_times, renewer);
         renderer.join().expect("the renderer panicked");
         renewer.quit();
         renewing.join().expect("the lease renewer panicked");
         let stats = sender.join().expect("the result sender panicked");
         if let Some(j) = me? {
-            match client.leave(&j.id) {
+            match link.leave(&j.id) {
                 Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
                 Err(e) => tracing::warn!("leaving: {e}"),
             }
@@ -362,7 +256,7 @@ pub fn run_with_cache(
 struct Outgoing {
     worker: String,
     lease: String,
-    body: Vec<u8>,
+    result: TaskResult,
 }
 
 /// A leased task on its way to the renderer, its lease already being renewed.
@@ -375,9 +269,9 @@ struct Granted<'a> {
 /// The leasing loop: joins, leases and hands grants to the renderer until `stop`. Returns the
 /// membership to leave with.
 fn lease_loop<'a>(
-    config: &JoinConfig,
+    options: &WorkerOptions,
     stop: &AtomicBool,
-    client: &Client,
+    link: &dyn Link,
     request: &JoinRequest,
     grants: std::sync::mpsc::SyncSender<Granted<'a>>,
     render_times: std::sync::mpsc::Receiver<Duration>,
@@ -389,9 +283,9 @@ fn lease_loop<'a>(
     let mut last_render = Duration::MAX;
     while !stop.load(Ordering::Relaxed) {
         let Some(joined) = &me else {
-            match client.join(request) {
+            match link.join(request) {
                 Ok(j) => {
-                    tracing::info!(worker = %j.id, url = %client.base, "joined");
+                    tracing::info!(worker = %j.id, coordinator = %link.describe(), "joined");
                     me = Some(j);
                     backoff = Duration::from_millis(200);
                 }
@@ -409,7 +303,7 @@ fn lease_loop<'a>(
         let worker = joined.id.clone();
         let heartbeat = Duration::from_secs_f64(joined.heartbeat_s.max(0.05));
         let asked = Instant::now();
-        match client.lease(&worker, config.wait_s) {
+        match link.lease(&worker, options.wait_s) {
             Ok(None) => {}
             Ok(Some(grant)) => {
                 backoff = Duration::from_millis(200);
@@ -423,7 +317,7 @@ fn lease_loop<'a>(
                 // The renderer has taken this task, so it has finished every earlier one.
                 last_render = render_times.try_iter().last().unwrap_or(last_render);
                 tracing::trace!(lease_s = leased.as_secs_f64(), "task leased");
-                if last_render >= config.prefetch_below {
+                if last_render >= options.prefetch_below {
                     last_render = render_times.recv().unwrap_or(last_render);
                 }
             }
@@ -522,7 +416,7 @@ impl Renewer {
 
     /// The renewing thread: a heartbeat for each lease held, every `every` since it was taken or
     /// last renewed.
-    fn run(&self, client: &Client) {
+    fn run(&self, link: &dyn Link) {
         let mut st = self.lock();
         while !st.quit {
             let now = Instant::now();
@@ -540,7 +434,7 @@ impl Renewer {
             r.renewed = now;
             let (worker, lease, lost) = (r.worker.clone(), r.lease.clone(), r.lost.clone());
             drop(st);
-            match client.post_lease(&worker, &lease, "heartbeat", None, None) {
+            match link.heartbeat(&worker, &lease) {
                 Ok(()) => {}
                 Err(CallError::Status(code @ (403 | 404 | 409), msg)) => {
                     tracing::warn!(lease = %lease, "lease lost (HTTP {code}: {msg})");
@@ -553,17 +447,17 @@ impl Renewer {
     }
 }
 
-/// Renders one leased task into the body of its result. Ok(None): the lease was lost meanwhile
+/// Renders one leased task. Ok(None): the lease was lost meanwhile
 /// (nothing to send).
 fn render(
-    client: &Client,
+    link: &dyn Link,
     worker: &str,
     grant: &LeaseGrant,
     threads: usize,
     cache: &SceneCache,
     renewal: Renewing<'_>,
-) -> Result<Option<Vec<u8>>, String> {
-    let rendered = cache.get_or_prepare(client, grant).map(|prepared| {
+) -> Result<Option<TaskResult>, String> {
+    let rendered = cache.get_or_prepare(link, grant).map(|prepared| {
         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             render_task_threads(&prepared, grant.settings.seed, &grant.task, threads)
         }))
@@ -577,7 +471,7 @@ fn render(
         }
         Err(Failure { transient: false, message }) => {
             let report = FailReport { error: message.clone() };
-            let _ = client.post_lease(worker, &grant.lease, "fail", None, Some(&report));
+            let _ = link.fail(worker, &grant.lease, &report);
             return Err(message);
         }
     };
@@ -590,22 +484,27 @@ fn render(
                 .or_else(|| panic.downcast_ref::<String>().cloned())
                 .unwrap_or_else(|| "unknown panic".into());
             let report = FailReport { error: format!("the renderer panicked: {msg}") };
-            let _ = client.post_lease(worker, &grant.lease, "fail", None, Some(&report));
+            let _ = link.fail(worker, &grant.lease, &report);
             return Err(report.error);
         }
     };
     if lost {
         return Ok(None);
     }
-    Ok(Some(encode_result(&result)))
+    Ok(Some(result))
 }
 
 /// Sends a result, retrying what the network lost. Ok(true): merged; Ok(false): refused as
 /// stale.
-fn send_result(client: &Client, worker: &str, lease: &str, body: &[u8]) -> Result<bool, String> {
+fn send_result(
+    link: &dyn Link,
+    worker: &str,
+    lease: &str,
+    result: &TaskResult,
+) -> Result<bool, String> {
     let mut attempt = 0;
     loop {
-        match client.post_lease(worker, lease, "result", Some(body), None) {
+        match link.submit(worker, lease, result) {
             Ok(()) => return Ok(true),
             Err(CallError::Status(code, msg)) if code == 409 || code == 404 => {
                 tracing::info!(lease = %lease, "result not needed any more: {msg}");

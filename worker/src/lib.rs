@@ -3,7 +3,9 @@
 //! # Layout
 //! - [`render`]: the renderer (synchronous, no I/O): scene preparation, BVH, sampler, BSDFs,
 //!   lights, the path tracer, and `render_task`.
-//! - [`client`]: `worker --join`, the farm protocol over HTTP (lease, render, heartbeat, result).
+//! - [`client`]: the worker's loop (lease, render, heartbeat, result), over any [`link`].
+//! - [`link`]: the farm protocol's calls as a trait, and over HTTP (`worker --join`).
 
 pub mod client;
+pub mod link;
 pub mod render;

@@ -94,11 +94,13 @@ fn main() -> Result<()> {
             }
             let config = worker::client::JoinConfig {
                 url,
-                threads,
-                name,
-                wait_s: cli.wait,
                 token,
-                prefetch_below: std::time::Duration::from_secs_f64(cli.prefetch_below),
+                options: worker::client::WorkerOptions {
+                    threads,
+                    name,
+                    wait_s: cli.wait,
+                    prefetch_below: std::time::Duration::from_secs_f64(cli.prefetch_below),
+                },
             };
             let stats = worker::client::run(&config, &stop)?;
             tracing::info!(merged = stats.merged, refused = stats.refused, "worker stopped");

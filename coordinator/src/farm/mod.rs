@@ -470,7 +470,13 @@ impl Farm {
     }
 
     /// A worker joins.
-    pub fn join(&mut self, req: JoinRequest) -> JoinResponse {
+    pub fn join(&mut self, req: JoinRequest) -> FarmResult<JoinResponse> {
+        if req.threads == 0 || req.threads > 4096 {
+            return Err(FarmError::new(
+                422,
+                format!("threads: {} is not in 1..=4096", req.threads),
+            ));
+        }
         let id = random_id();
         let now = Instant::now();
         tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker joined");
@@ -491,7 +497,7 @@ impl Farm {
             },
         );
         let timeout = self.config.lease_timeout.as_secs_f64();
-        JoinResponse { id, lease_timeout_s: timeout, heartbeat_s: timeout / 4.0 }
+        Ok(JoinResponse { id, lease_timeout_s: timeout, heartbeat_s: timeout / 4.0 })
     }
 
     /// A worker leaves: its leases are given back at once (not counted against the tasks).
@@ -892,8 +898,10 @@ mod tests {
             let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
             farm.store.put_scene(&hash, "glb", b"scene").unwrap();
             let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
-            let w =
-                farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+            let w = farm
+                .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
+                .unwrap()
+                .id;
             let first = farm.lease(&w).unwrap().unwrap();
             let second = farm.lease(&w).unwrap().unwrap();
             assert_eq!((first.task.samples.start, second.task.samples.start), (0, 4));
@@ -904,7 +912,10 @@ mod tests {
         };
         let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
         assert_eq!(farm.status(&id).unwrap().samples_done, 64 * 4, "the pending result was lost");
-        let w = farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+        let w = farm
+            .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
+            .unwrap()
+            .id;
         let again = farm.lease(&w).unwrap().unwrap();
         assert_eq!(again.task, first.task, "only the unanswered task is leased again");
         assert!(farm.lease(&w).unwrap().is_none());
@@ -940,8 +951,10 @@ mod tests {
             let mut farm = Farm::open(config).unwrap();
             farm.store.put_scene(&hash, "glb", b"scene").unwrap();
             let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
-            let w =
-                farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+            let w = farm
+                .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
+                .unwrap()
+                .id;
             let mut grants = Vec::new();
             while let Some(g) = farm.lease(&w).unwrap() {
                 grants.push(g);
@@ -974,7 +987,10 @@ mod tests {
         farm.store.put_scene(&hash, "glb", b"scene").unwrap();
         let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
         let id = farm.create_job(&hash, settings, 0).unwrap().id;
-        let w = farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).id;
+        let w = farm
+            .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
+            .unwrap()
+            .id;
         let grant = farm.lease(&w).unwrap().unwrap();
         for _ in 0..4 {
             std::thread::sleep(Duration::from_millis(20));

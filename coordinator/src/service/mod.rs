@@ -8,7 +8,10 @@
 //! addition and the database commit.
 
 mod auth;
+mod local_link;
 mod metrics;
+
+pub use local_link::LocalLink;
 
 use std::{
     net::SocketAddr,
@@ -205,6 +208,7 @@ pub struct Running {
     farm: Arc<Mutex<Farm>>,
     draining: Arc<AtomicBool>,
     work: Arc<Notify>,
+    max_lease_wait: Duration,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<Result<()>>>,
 }
@@ -218,6 +222,16 @@ impl Running {
     /// The farm state, for an embedding process that wants to read it directly.
     pub fn farm(&self) -> Arc<Mutex<Farm>> {
         self.farm.clone()
+    }
+
+    /// A link for workers in this process: the farm protocol without HTTP.
+    pub fn local_link(&self) -> LocalLink {
+        LocalLink {
+            farm: self.farm.clone(),
+            work: self.work.clone(),
+            draining: self.draining.clone(),
+            max_lease_wait: self.max_lease_wait,
+        }
     }
 
     /// From now on lease requests answer "no work" at once instead of waiting, so that local
@@ -266,12 +280,13 @@ pub fn spawn(listen: &str, config: ServiceConfig) -> Result<Running> {
     let draining = Arc::new(AtomicBool::new(false));
     let work = Arc::new(Notify::new());
     let (d, w) = (draining.clone(), work.clone());
+    let max_lease_wait = config.max_lease_wait;
     let thread = std::thread::Builder::new().name("coordinator".into()).spawn(move || {
         runtime.block_on(serve_farm(listener, shared, config, Some((d, w)), async {
             let _ = rx.await;
         }))
     })?;
-    Ok(Running { addr, farm, draining, work, stop: Some(tx), thread: Some(thread) })
+    Ok(Running { addr, farm, draining, work, max_lease_wait, stop: Some(tx), thread: Some(thread) })
 }
 
 /// Opens the farm under `config` and serves it on `listener` until `shutdown` completes.
@@ -479,10 +494,7 @@ async fn join(
     body: Body,
 ) -> ApiResult<Response> {
     let req: JoinRequest = json_body(&headers, body).await?;
-    if req.threads == 0 || req.threads > 4096 {
-        return Err(FarmError::new(422, format!("threads: {} is not in 1..=4096", req.threads)));
-    }
-    let resp = state.lock().join(req);
+    let resp = state.lock().join(req)?;
     Ok((StatusCode::CREATED, Json(resp)).into_response())
 }
 

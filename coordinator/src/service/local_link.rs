@@ -1,0 +1,208 @@
+//! The in-process link of `coordinator render`: its local workers run the same worker loop as
+//! `worker --join` (leases, renewals, results, failures) but call the farm directly instead of
+//! over HTTP, so that a one-process render pays no sockets, no HTTP and no result encoding. The
+//! farm checks and merges their results exactly as it does a remote worker's.
+
+use std::{
+    sync::{
+        atomic::{AtomicBool, Ordering},
+        Arc, Mutex, MutexGuard,
+    },
+    time::{Duration, Instant},
+};
+
+use common::protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult};
+use tokio::sync::Notify;
+use worker::link::{CallError, Link};
+
+use crate::farm::{Farm, FarmError};
+
+/// How often an idle local worker asks again while its lease request waits for work.
+const POLL: Duration = Duration::from_millis(1);
+
+/// A link from local workers to a running service's farm (see [`super::Running::local_link`]).
+pub struct LocalLink {
+    pub(super) farm: Arc<Mutex<Farm>>,
+    /// Woken when work may have appeared, for the HTTP long polls of remote workers.
+    pub(super) work: Arc<Notify>,
+    pub(super) draining: Arc<AtomicBool>,
+    pub(super) max_lease_wait: Duration,
+}
+
+impl LocalLink {
+    fn lock(&self) -> MutexGuard<'_, Farm> {
+        self.farm.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// The farm's refusal as the HTTP API would answer it.
+fn refused(e: FarmError) -> CallError {
+    CallError::Status(e.status, e.message)
+}
+
+impl Link for LocalLink {
+    fn describe(&self) -> String {
+        "in-process".into()
+    }
+
+    fn join(&self, req: &JoinRequest) -> Result<JoinResponse, CallError> {
+        self.lock().join(req.clone()).map_err(refused)
+    }
+
+    fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError> {
+        let wait = if wait_s.is_finite() { wait_s.max(0.0) } else { 0.0 };
+        let deadline = Instant::now() + Duration::from_secs_f64(wait).min(self.max_lease_wait);
+        loop {
+            if self.draining.load(Ordering::Relaxed) {
+                return Ok(None);
+            }
+            if let Some(grant) = self.lock().lease(worker).map_err(refused)? {
+                return Ok(Some(grant));
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                self.lock().seen(worker);
+                return Ok(None);
+            }
+            std::thread::sleep(POLL.min(deadline - now));
+        }
+    }
+
+    fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {
+        let path = self.lock().scene_file(hash).map_err(refused)?;
+        std::fs::read(&path).map_err(|e| {
+            CallError::Status(500, format!("reading scene {hash} ({}): {e}", path.display()))
+        })
+    }
+
+    fn heartbeat(&self, worker: &str, lease: &str) -> Result<(), CallError> {
+        self.lock().heartbeat(lease, worker).map(|_| ()).map_err(refused)
+    }
+
+    fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError> {
+        let merged = {
+            let mut farm = self.lock();
+            // No bytes crossed a wire: the merged-bytes counter is for results received.
+            let merged = farm.submit(lease, worker, result.clone(), 0);
+            if merged.is_err() {
+                farm.counters.results_refused += 1;
+            }
+            merged
+        };
+        self.work.notify_waiters();
+        merged.map_err(refused)
+    }
+
+    fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError> {
+        let failed = self.lock().fail(lease, worker, &report.error);
+        self.work.notify_waiters();
+        failed.map_err(refused)
+    }
+
+    fn leave(&self, worker: &str) -> Result<(), CallError> {
+        let left = self.lock().leave(worker);
+        self.work.notify_waiters();
+        left.map_err(refused)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use common::{film::TileAccum, settings::RenderSettings};
+
+    use super::*;
+    use crate::{
+        farm::validate_upload,
+        local::bundle_scene,
+        service::{spawn, ServiceConfig},
+    };
+
+    fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
+        let spec = grant.task;
+        let mut tile = TileAccum::new(spec.rect);
+        for y in 0..spec.rect.height {
+            for x in 0..spec.rect.width {
+                for s in spec.samples.start..spec.samples.end {
+                    tile.add_sample(x, y, s, [v; 3]);
+                }
+            }
+        }
+        TaskResult { spec, tile, rays: 0 }
+    }
+
+    fn status(e: Result<impl std::fmt::Debug, CallError>) -> u16 {
+        match e {
+            Err(CallError::Status(code, _)) => code,
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    /// The in-process link answers as the HTTP API does: the farm's checks refuse what they
+    /// refuse over HTTP (and count it), a lease waits for work only as long as asked, and a
+    /// draining service answers at once.
+    #[test]
+    fn the_local_link_keeps_the_protocol_of_the_http_api() {
+        let dir = tempfile::tempdir().unwrap();
+        let service = spawn("127.0.0.1:0", ServiceConfig::new(dir.path().into())).unwrap();
+        let settings = RenderSettings {
+            width: 8,
+            height: 8,
+            tile_size: 8,
+            spp: 2,
+            samples_per_task: 2,
+            ..Default::default()
+        };
+        let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.gltf");
+        let (bundle, settings) = bundle_scene(&scene, &settings).unwrap();
+        let mut info = validate_upload(&bundle, None).unwrap();
+        let job = {
+            let farm = service.farm();
+            let mut farm = farm.lock().unwrap();
+            farm.put_scene(&bundle, &mut info).unwrap();
+            farm.create_job(&info.scene, settings, 0).unwrap().id
+        };
+        let link = service.local_link();
+        assert_eq!(link.scene(&info.scene).unwrap(), bundle);
+        assert_eq!(status(link.scene(&"0".repeat(64))), 404);
+
+        let bad = JoinRequest { name: "w".into(), threads: 0, version: String::new() };
+        assert_eq!(status(link.join(&bad)), 422);
+        let w = link.join(&JoinRequest { threads: 1, ..bad }).unwrap().id;
+        let grant = link.lease(&w, 0.0).unwrap().expect("the job's one task");
+        link.heartbeat(&w, &grant.lease).unwrap();
+        assert_eq!(status(link.heartbeat("nobody", &grant.lease)), 404);
+        let other =
+            link.join(&JoinRequest { name: "other".into(), threads: 1, version: String::new() });
+        let other = other.unwrap().id;
+        assert_eq!(status(link.heartbeat(&other, &grant.lease)), 403);
+        assert_eq!(status(link.submit(&other, &grant.lease, &result_for(&grant, 0.5))), 403);
+
+        // A result for other samples than the lease's is refused and counted; the task stays
+        // leased, and the true result is merged once.
+        let mut forged = result_for(&grant, 0.5);
+        forged.spec.samples.end += 1;
+        assert_eq!(status(link.submit(&w, &grant.lease, &forged)), 422);
+        link.submit(&w, &grant.lease, &result_for(&grant, 0.5)).unwrap();
+        let again = link.submit(&w, &grant.lease, &result_for(&grant, 0.5));
+        assert!(matches!(again, Err(CallError::Status(404 | 409, _))), "{again:?}");
+        {
+            let farm = service.farm();
+            let farm = farm.lock().unwrap();
+            assert_eq!(farm.counters.results_refused, 3);
+            assert_eq!(farm.status(&job).unwrap().samples_done, 64 * 2);
+        }
+
+        // No work left: the lease waits as long as asked, then answers none.
+        let asked = Instant::now();
+        assert!(link.lease(&w, 0.1).unwrap().is_none());
+        assert!(asked.elapsed() >= Duration::from_millis(100));
+        service.drain();
+        let asked = Instant::now();
+        assert!(link.lease(&w, 30.0).unwrap().is_none());
+        assert!(asked.elapsed() < Duration::from_secs(5), "a draining service made it wait");
+        link.leave(&w).unwrap();
+        assert_eq!(status(link.leave(&w)), 404);
+    }
+}

@@ -1,0 +1,164 @@
+//! How a worker reaches its coordinator: the farm protocol's calls as a trait ([`Link`]), over
+//! HTTP for `worker --join` ([`HttpLink`]); `coordinator render` links its local workers to its
+//! farm in-process instead (the coordinator's `service::LocalLink`), with the same leases,
+//! checks and merging but no sockets or encoding.
+
+use std::time::Duration;
+
+use common::protocol::{
+    encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult, WORKER_HEADER,
+};
+
+/// Why a call failed.
+#[derive(Clone, Debug)]
+pub enum CallError {
+    /// The coordinator answered with this HTTP status and message.
+    Status(u16, String),
+    /// No answer (connection refused, reset, timed out).
+    Transport(String),
+}
+
+impl std::fmt::Display for CallError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CallError::Status(code, msg) => write!(f, "HTTP {code}: {msg}"),
+            CallError::Transport(msg) => write!(f, "coordinator unreachable: {msg}"),
+        }
+    }
+}
+
+/// The worker's side of the farm protocol (`PRODUCT.md`, "Interfaces"): one method per call.
+pub trait Link: Sync {
+    /// Where the coordinator is, for messages.
+    fn describe(&self) -> String;
+    /// Joins the farm.
+    fn join(&self, req: &JoinRequest) -> Result<JoinResponse, CallError>;
+    /// Asks for a task, waiting up to `wait_s` seconds for one; `None`: no work.
+    fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError>;
+    /// The scene bundle with this hash.
+    fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError>;
+    /// Renews a lease.
+    fn heartbeat(&self, worker: &str, lease: &str) -> Result<(), CallError>;
+    /// Hands in a lease's result.
+    fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError>;
+    /// Reports that a lease's task cannot be rendered.
+    fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError>;
+    /// Leaves the farm.
+    fn leave(&self, worker: &str) -> Result<(), CallError>;
+}
+
+/// The farm protocol over HTTP (`/api/v1/...`), results as bincode.
+pub struct HttpLink {
+    agent: ureq::Agent,
+    base: String,
+    auth: Option<String>,
+}
+
+impl HttpLink {
+    /// A link to the coordinator at `url`, sending `token` as a bearer token. Lease requests may
+    /// wait up to `wait_s` seconds for work.
+    pub fn new(url: &str, token: Option<&str>, wait_s: f64) -> Self {
+        // Leases, results and heartbeats go out on three threads at once: keep a connection for
+        // each instead of reconnecting.
+        let agent = ureq::AgentBuilder::new()
+            .max_idle_connections_per_host(4)
+            .timeout_connect(Duration::from_secs(5))
+            .timeout_read(Duration::from_secs_f64(wait_s + 60.0))
+            .timeout_write(Duration::from_secs(60))
+            .build();
+        HttpLink {
+            agent,
+            base: url.trim_end_matches('/').to_string(),
+            auth: token.map(|t| format!("Bearer {t}")),
+        }
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("{}/api/v1{path}", self.base)
+    }
+
+    fn post(&self, path: &str) -> ureq::Request {
+        self.authorize(self.agent.post(&self.url(path)))
+    }
+
+    fn post_lease(&self, worker: &str, lease: &str, what: &str) -> ureq::Request {
+        self.post(&format!("/leases/{lease}/{what}")).set(WORKER_HEADER, worker)
+    }
+
+    fn authorize(&self, req: ureq::Request) -> ureq::Request {
+        match &self.auth {
+            Some(value) => req.set("authorization", value),
+            None => req,
+        }
+    }
+}
+
+fn call_error(e: ureq::Error) -> CallError {
+    match e {
+        ureq::Error::Status(code, resp) => {
+            let text = resp.into_string().unwrap_or_default();
+            let msg = serde_json::from_str::<serde_json::Value>(&text)
+                .ok()
+                .and_then(|v| v.get("error").and_then(|e| e.as_str()).map(str::to_string))
+                .unwrap_or(text);
+            CallError::Status(code, msg)
+        }
+        ureq::Error::Transport(t) => CallError::Transport(t.to_string()),
+    }
+}
+
+impl Link for HttpLink {
+    fn describe(&self) -> String {
+        self.base.clone()
+    }
+
+    fn join(&self, req: &JoinRequest) -> Result<JoinResponse, CallError> {
+        let resp = self.post("/workers").send_json(req).map_err(call_error)?;
+        resp.into_json().map_err(|e| CallError::Transport(e.to_string()))
+    }
+
+    fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError> {
+        let resp = self
+            .post(&format!("/workers/{worker}/lease?wait_s={wait_s}"))
+            .call()
+            .map_err(call_error)?;
+        if resp.status() == 204 {
+            return Ok(None);
+        }
+        resp.into_json().map(Some).map_err(|e| CallError::Transport(e.to_string()))
+    }
+
+    fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {
+        let resp = self
+            .authorize(self.agent.get(&self.url(&format!("/scenes/{hash}"))))
+            .call()
+            .map_err(call_error)?;
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut resp.into_reader(), &mut bytes)
+            .map_err(|e| CallError::Transport(e.to_string()))?;
+        Ok(bytes)
+    }
+
+    fn heartbeat(&self, worker: &str, lease: &str) -> Result<(), CallError> {
+        self.post_lease(worker, lease, "heartbeat").call().map(|_| ()).map_err(call_error)
+    }
+
+    fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError> {
+        self.post_lease(worker, lease, "result")
+            .set("content-type", "application/octet-stream")
+            .send_bytes(&encode_result(result))
+            .map(|_| ())
+            .map_err(call_error)
+    }
+
+    fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError> {
+        self.post_lease(worker, lease, "fail").send_json(report).map(|_| ()).map_err(call_error)
+    }
+
+    fn leave(&self, worker: &str) -> Result<(), CallError> {
+        self.authorize(self.agent.delete(&self.url(&format!("/workers/{worker}"))))
+            .call()
+            .map(|_| ())
+            .map_err(call_error)
+    }
+}
