@@ -863,11 +863,12 @@ fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize) -> bool {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use common::{film::TileAccum, protocol::TaskResult};
 
-    fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
+    /// A result with the counts `grant` asks for (values from `v`), as a worker would send.
+    pub(crate) fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
         let spec = grant.task;
         let mut tile = TileAccum::new(spec.rect);
         for y in 0..spec.rect.height {

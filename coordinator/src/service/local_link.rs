@@ -110,27 +110,14 @@ impl Link for LocalLink {
 mod tests {
     use std::path::Path;
 
-    use common::{film::TileAccum, settings::RenderSettings};
+    use common::settings::RenderSettings;
 
     use super::*;
     use crate::{
-        farm::validate_upload,
+        farm::{tests::result_for, validate_upload},
         local::bundle_scene,
         service::{spawn, ServiceConfig},
     };
-
-    fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
-        let spec = grant.task;
-        let mut tile = TileAccum::new(spec.rect);
-        for y in 0..spec.rect.height {
-            for x in 0..spec.rect.width {
-                for s in spec.samples.start..spec.samples.end {
-                    tile.add_sample(x, y, s, [v; 3]);
-                }
-            }
-        }
-        TaskResult { spec, tile, rays: 0 }
-    }
 
     fn status(e: Result<impl std::fmt::Debug, CallError>) -> u16 {
         match e {
