@@ -191,6 +191,9 @@ fn main() -> Result<()> {
                 .unwrap_or_else(|_| default_filter.into()),
         )
         .with_writer(std::io::stderr)
+        // A log that can no longer be written (stderr piped into `head`, a closed terminal) is
+        // dropped; the default would print a complaint to that same stderr, which panics.
+        .log_internal_errors(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     match cli.command {
@@ -257,14 +260,14 @@ fn main() -> Result<()> {
             if let Some(bar) = bar {
                 bar.finish_and_clear();
             }
-            eprintln!(
+            summary(format_args!(
                 "job {} done: {} samples in {:.2} s, estimated relative error {}; wrote {}",
                 status["id"].as_str().unwrap_or("?"),
                 status["samples_done"],
                 status["elapsed_s"].as_f64().unwrap_or(0.0),
                 status["est_rel_error"],
                 output.display()
-            );
+            ));
             Ok(())
         }
         Command::Render { scene, output, settings, workers } => {
@@ -295,7 +298,7 @@ fn main() -> Result<()> {
             } else {
                 "unknown (needs 2 spp)".to_string()
             };
-            eprintln!(
+            summary(format_args!(
                 "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s; estimated relMSE {}; wrote {}",
                 report.samples,
                 report.render_seconds,
@@ -304,10 +307,17 @@ fn main() -> Result<()> {
                 report.load_seconds,
                 est_text,
                 report.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
-            );
+            ));
             Ok(())
         }
     }
+}
+
+/// The closing summary on stderr. Unlike `eprintln!`, a stderr nobody reads any more (piped into
+/// `head`) is no reason to fail a render whose files are written.
+fn summary(line: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// Completes on SIGTERM or Ctrl-C.

@@ -97,3 +97,39 @@ fn environment_map_is_found_beside_the_settings_file() {
     assert!(!output.status.success());
     assert!(stderr.contains("sky.hdr") && !stderr.contains("panicked"), "{stderr}");
 }
+
+/// A render whose log reader goes away (`coordinator render ... 2>&1 | head -1`) still finishes
+/// and writes its image: a log line that cannot be written is dropped, not a panic that used to
+/// leave the local workers' lease renewers waiting forever.
+#[test]
+fn a_closed_log_pipe_does_not_stop_the_render() {
+    use std::io::{BufRead, BufReader};
+    let out = temp("closed-log.exr");
+    let mut child = coordinator()
+        .args(["render", "scenes/cornell-box.gltf", "-o"])
+        .arg(&out)
+        .args(["--width", "64", "--height", "64", "--spp", "16", "--workers", "2"])
+        .current_dir(repo())
+        .env("RUST_LOG", "trace")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Read the first log line, then hang up, as `head -1` does.
+    let mut first = String::new();
+    BufReader::new(child.stderr.take().unwrap()).read_line(&mut first).unwrap();
+    assert!(!first.is_empty(), "the trace log says something");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            panic!("the render hung after its log pipe closed");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(status.success(), "{status}");
+    assert!(out.exists());
+}

@@ -216,6 +216,11 @@ pub fn run_linked(
         });
         let renewer = &renewer;
         let renewing = s.spawn(move || renewer.run(link));
+        // On every way out of here, a panic of the leasing or rendering thread included, the
+        // renewer stops: otherwise it would keep renewing leases that nobody renders (the
+        // coordinator would never hand those tasks to another worker) and the scope would wait
+        // for it forever.
+        let stop_renewing = QuitOnDrop(renewer);
         // A rendezvous: a grant is handed over only when the renderer takes it.
         let (grants, granted) = std::sync::mpsc::sync_channel::<Granted<'_>>(0);
         let (finished, render_times) = std::sync::mpsc::channel::<Duration>();
@@ -239,7 +244,7 @@ pub fn run_linked(
         });
         let me = lease_loop(options, stop, link, &request, grants, render_times, renewer);
         renderer.join().expect("the renderer panicked");
-        renewer.quit();
+        drop(stop_renewing);
         renewing.join().expect("the lease renewer panicked");
         let stats = sender.join().expect("the result sender panicked");
         if let Some(j) = me? {
@@ -250,6 +255,15 @@ pub fn run_linked(
         }
         Ok(stats)
     })
+}
+
+/// Stops a `Renewer` when dropped.
+struct QuitOnDrop<'a>(&'a Renewer);
+
+impl Drop for QuitOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.quit();
+    }
 }
 
 /// A rendered result on its way to the coordinator.
@@ -520,5 +534,62 @@ fn send_result(
             }
             Err(e) => return Err(format!("sending the result: {e}")),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A coordinator link that lets the worker join and then fails inside the lease call.
+    struct PanicOnLease;
+
+    impl Link for PanicOnLease {
+        fn describe(&self) -> String {
+            "a link that panics".into()
+        }
+        fn join(&self, _: &JoinRequest) -> Result<JoinResponse, CallError> {
+            Ok(JoinResponse { id: "w".into(), lease_timeout_s: 30.0, heartbeat_s: 10.0 })
+        }
+        fn lease(&self, _: &str, _: f64) -> Result<Option<LeaseGrant>, CallError> {
+            panic!("lease exploded")
+        }
+        fn scene(&self, _: &str) -> Result<Vec<u8>, CallError> {
+            unreachable!("nothing was leased")
+        }
+        fn heartbeat(&self, _: &str, _: &str) -> Result<(), CallError> {
+            Ok(())
+        }
+        fn submit(&self, _: &str, _: &str, _: &TaskResult) -> Result<(), CallError> {
+            unreachable!("nothing was leased")
+        }
+        fn fail(&self, _: &str, _: &str, _: &FailReport) -> Result<(), CallError> {
+            unreachable!("nothing was leased")
+        }
+        fn leave(&self, _: &str) -> Result<(), CallError> {
+            Ok(())
+        }
+    }
+
+    /// A panic in the worker loop ends `run_linked` (the panic reaches its caller) instead of
+    /// leaving the lease renewer, and so the whole worker, waiting forever.
+    #[test]
+    fn a_panic_in_the_worker_loop_ends_the_worker() {
+        let (done, ended) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let options = WorkerOptions {
+                threads: 1,
+                name: "test".into(),
+                wait_s: 0.1,
+                prefetch_below: PREFETCH_BELOW,
+            };
+            let stop = AtomicBool::new(false);
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                run_linked(&PanicOnLease, &options, &stop, &SceneCache::default())
+            }));
+            let _ = done.send(outcome.is_err());
+        });
+        let panicked = ended.recv_timeout(Duration::from_secs(60));
+        assert_eq!(panicked, Ok(true), "run_linked hung or returned without the panic");
     }
 }

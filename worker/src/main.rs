@@ -67,6 +67,9 @@ fn main() -> Result<()> {
                 .unwrap_or_else(|_| "worker=info,common=info".into()),
         )
         .with_writer(std::io::stderr)
+        // A log that can no longer be written (stderr piped into `head`, a closed terminal) is
+        // dropped; the default would print a complaint to that same stderr, which panics.
+        .log_internal_errors(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
