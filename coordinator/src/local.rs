@@ -170,6 +170,7 @@ pub fn render_file(
             })
             .collect();
         let farm = service.farm();
+        let mut handins = 0;
         let status = loop {
             let status = farm
                 .lock()
@@ -183,7 +184,9 @@ pub fn render_file(
             if status.state.is_final() || handles.iter().all(|h| h.is_finished()) {
                 break status;
             }
-            std::thread::sleep(Duration::from_millis(2));
+            // Woken by the next result (the last one ends the job), or after a while in case
+            // the job ends otherwise (a time limit, a worker that stopped).
+            handins = service.wait_for_handins(handins, Duration::from_millis(50));
         };
         stop.store(true, Ordering::Relaxed);
         service.drain();

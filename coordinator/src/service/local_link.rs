@@ -6,7 +6,7 @@
 use std::{
     sync::{
         atomic::{AtomicBool, Ordering},
-        Arc, Mutex, MutexGuard,
+        Arc, Condvar, Mutex, MutexGuard,
     },
     time::{Duration, Instant},
 };
@@ -20,6 +20,31 @@ use crate::farm::{Farm, FarmError};
 /// How often an idle local worker asks again while its lease request waits for work.
 const POLL: Duration = Duration::from_millis(1);
 
+/// Counts what the local workers hand in (results, failures, departures), so that a thread of
+/// this process can sleep until the next one instead of polling the farm.
+#[derive(Debug, Default)]
+pub(crate) struct Handins {
+    count: Mutex<u64>,
+    changed: Condvar,
+}
+
+impl Handins {
+    fn bump(&self) {
+        *self.count.lock().unwrap_or_else(|p| p.into_inner()) += 1;
+        self.changed.notify_all();
+    }
+
+    /// Waits until more than `seen` hand-ins were counted, or `timeout` passed; returns the count.
+    pub(crate) fn wait_past(&self, seen: u64, timeout: Duration) -> u64 {
+        let count = self.count.lock().unwrap_or_else(|p| p.into_inner());
+        let (count, _) = self
+            .changed
+            .wait_timeout_while(count, timeout, |c| *c <= seen)
+            .unwrap_or_else(|p| p.into_inner());
+        *count
+    }
+}
+
 /// A link from local workers to a running service's farm (see [`super::Running::local_link`]).
 pub struct LocalLink {
     pub(super) farm: Arc<Mutex<Farm>>,
@@ -27,6 +52,7 @@ pub struct LocalLink {
     pub(super) work: Arc<Notify>,
     pub(super) draining: Arc<AtomicBool>,
     pub(super) max_lease_wait: Duration,
+    pub(super) handins: Arc<Handins>,
 }
 
 impl LocalLink {
@@ -90,18 +116,21 @@ impl Link for LocalLink {
             merged
         };
         self.work.notify_waiters();
+        self.handins.bump();
         merged.map_err(refused)
     }
 
     fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError> {
         let failed = self.lock().fail(lease, worker, &report.error);
         self.work.notify_waiters();
+        self.handins.bump();
         failed.map_err(refused)
     }
 
     fn leave(&self, worker: &str) -> Result<(), CallError> {
         let left = self.lock().leave(worker);
         self.work.notify_waiters();
+        self.handins.bump();
         left.map_err(refused)
     }
 }

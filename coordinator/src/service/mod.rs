@@ -209,6 +209,7 @@ pub struct Running {
     draining: Arc<AtomicBool>,
     work: Arc<Notify>,
     max_lease_wait: Duration,
+    handins: Arc<local_link::Handins>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<Result<()>>>,
 }
@@ -231,7 +232,14 @@ impl Running {
             work: self.work.clone(),
             draining: self.draining.clone(),
             max_lease_wait: self.max_lease_wait,
+            handins: self.handins.clone(),
         }
+    }
+
+    /// Waits until the local workers have handed in more than `seen` results, failures or
+    /// departures, or `timeout` passed; returns how many they have handed in.
+    pub fn wait_for_handins(&self, seen: u64, timeout: Duration) -> u64 {
+        self.handins.wait_past(seen, timeout)
     }
 
     /// From now on lease requests answer "no work" at once instead of waiting, so that local
@@ -286,7 +294,16 @@ pub fn spawn(listen: &str, config: ServiceConfig) -> Result<Running> {
             let _ = rx.await;
         }))
     })?;
-    Ok(Running { addr, farm, draining, work, max_lease_wait, stop: Some(tx), thread: Some(thread) })
+    Ok(Running {
+        addr,
+        farm,
+        draining,
+        work,
+        max_lease_wait,
+        handins: Arc::default(),
+        stop: Some(tx),
+        thread: Some(thread),
+    })
 }
 
 /// Opens the farm under `config` and serves it on `listener` until `shutdown` completes.
