@@ -130,8 +130,12 @@ pub struct Material {
     pub specular_color: Vec3,
     /// `KHR_materials_ior.ior` (1.5 without the extension).
     pub ior: f32,
-    /// `KHR_materials_transmission.transmissionFactor` (0 without the extension).
+    /// `KHR_materials_transmission.transmissionFactor` (0 without the extension): the share of
+    /// the light that enters the surface (is not reflected by its specular layer) that passes
+    /// through it instead of being diffused; the surface is thin-walled (no volume, no bending).
     pub transmission: f32,
+    /// `KHR_materials_transmission.transmissionTexture` (R = transmission, linear).
+    pub transmission_texture: Option<TextureRef>,
     /// `alphaMode` and `alphaCutoff`.
     pub alpha_mode: AlphaMode,
     /// `doubleSided`: emission leaves both faces when true, the front face only otherwise.
@@ -155,6 +159,7 @@ impl Default for Material {
             specular_color: Vec3::ONE,
             ior: 1.5,
             transmission: 0.0,
+            transmission_texture: None,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
         }

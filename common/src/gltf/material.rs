@@ -101,6 +101,13 @@ impl Loader<'_> {
         let metallic_roughness_texture =
             self.texture_info(pbr.metallic_roughness_texture.as_ref(), "metallicRoughnessTexture")?;
         let emissive_texture = self.texture_info(m.emissive_texture.as_ref(), "emissiveTexture")?;
+        let transmission_texture = match ext.and_then(|e| e.transmission.as_ref()) {
+            Some(t) => self.texture_info(
+                t.transmission_texture.as_ref(),
+                "KHR_materials_transmission.transmissionTexture",
+            )?,
+            None => None,
+        };
         let normal_texture = match &m.normal_texture {
             Some(n) => {
                 let transform =
@@ -134,6 +141,7 @@ impl Loader<'_> {
             specular_color,
             ior,
             transmission: transmission.min(1.0),
+            transmission_texture,
             alpha_mode,
             double_sided: m.double_sided,
         })

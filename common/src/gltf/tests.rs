@@ -487,7 +487,7 @@ fn materials_textures_and_extensions() {
             "KHR_materials_emissive_strength": {"emissiveStrength": 4.0},
             "KHR_materials_specular": {"specularFactor": 0.0, "specularColorFactor": [0.5, 0.5, 0.5]},
             "KHR_materials_ior": {"ior": 1.33},
-            "KHR_materials_transmission": {"transmissionFactor": 0.9}
+            "KHR_materials_transmission": {"transmissionFactor": 0.9, "transmissionTexture": {"index": 1, "texCoord": 1}}
          }}
     ]);
     doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(&png))}]);
@@ -516,6 +516,8 @@ fn materials_textures_and_extensions() {
     assert_eq!(normal.transform.expect("transform").scale, Vec2::splat(4.0));
     assert_eq!(m.emissive_texture.expect("emissive").texture, base.texture);
     assert_eq!(m.emissive_texture.expect("emissive").tex_coord, 1);
+    let transmission = m.transmission_texture.expect("transmission texture");
+    assert_eq!((transmission.texture, transmission.tex_coord), (normal.texture, 1));
     assert_eq!(scene.textures.len(), 2, "one per glTF texture used");
     let tex = &scene.textures[base.texture];
     assert_eq!((tex.width, tex.height), (2, 1));
@@ -531,6 +533,7 @@ fn materials_textures_and_extensions() {
         (plain.specular, plain.ior, plain.transmission, plain.metallic),
         (1.0, 1.5, 0.0, 1.0)
     );
+    assert!(plain.transmission_texture.is_none());
 
     // An undecodable image is an error naming it.
     doc["images"] = json!([{"uri": data_uri(b"definitely not a PNG")}]);

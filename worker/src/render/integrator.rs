@@ -52,6 +52,18 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
     a2 / (a2 + b2)
 }
 
+/// Whether a direction with shading-frame z `cos_s` and geometric cosine `cos_g` (both relative
+/// to wo's side) lies on one side of both surfaces: wo's side, or the far side for a BSDF that
+/// transmits. A direction between the two (a bent shading normal) carries no light.
+#[inline]
+fn same_side(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
+    if cos_s > 0.0 {
+        cos_g > 0.0
+    } else {
+        transmits && cos_s < 0.0 && cos_g < 0.0
+    }
+}
+
 /// Radiance arriving at the camera along `ray`.
 /// `pose` places what moves at the sample's time (`None`: nothing moves).
 pub fn li(
@@ -153,6 +165,7 @@ pub fn li(
             break; // Grazing with a bent normal: no consistent reflection.
         }
         let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp);
+        let transmits = bsdf.transmits();
 
         // Next-event estimation. A bounce's numbers are drawn where they are used, in the
         // same order whatever happens; a path that ends skips the rest.
@@ -161,9 +174,8 @@ pub fn li(
             let light = &lights.lights[light_idx as usize];
             if let Some(ls) = light.sample_li(p, Vec2::new(u_x, u_light.y)) {
                 let wi_local = frame.to_local(ls.wi);
-                // Reflection only: wi must leave on wo's side of the geometric surface too.
-                if wi_local.z > 0.0 && ls.wi.dot(ng) > 0.0 {
-                    let f = bsdf.eval(wo_local, wi_local) * wi_local.z;
+                if same_side(wi_local.z, ls.wi.dot(ng), transmits) {
+                    let f = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
                     if f != Vec3::ZERO {
                         let origin = offset_ray_origin(p, p_error, ng, ls.wi);
                         let (shadow, t_max) = match ls.point {
@@ -211,10 +223,10 @@ pub fn li(
             break;
         };
         let wi = frame.to_world(bs.wi);
-        if wi.dot(ng) <= 0.0 {
+        if !same_side(bs.wi.z, wi.dot(ng), transmits) {
             break;
         }
-        beta *= bs.f * (bs.wi.z / bs.pdf);
+        beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }

@@ -42,8 +42,8 @@ pub fn is_cut_out(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> bool
     }
 }
 
-/// The BSDF at the point. A material with no metal and no specular layer is pure Lambert, the
-/// cheap path (the Cornell box and furnace scenes are all such).
+/// The BSDF at the point. A material with no metal, no specular layer and no transmission is pure
+/// Lambert, the cheap path (the Cornell box and furnace scenes are all such).
 #[inline]
 pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
@@ -54,17 +54,15 @@ pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Bsdf {
         metallic *= t.z;
     }
     let metallic = metallic.clamp(0.0, 1.0);
-    if metallic == 0.0 && m.specular <= 0.0 {
+    let mut transmission = m.transmission;
+    if let Some(r) = &m.transmission_texture {
+        transmission *= texture::sample(textures, r, sp.uvs, false).x;
+    }
+    if metallic == 0.0 && m.specular <= 0.0 && transmission <= 0.0 {
         return Bsdf::Diffuse(Diffuse { albedo: base });
     }
-    Bsdf::MetalRough(MetalRough::new(
-        base,
-        metallic,
-        roughness,
-        m.ior,
-        m.specular,
-        m.specular_color,
-    ))
+    let bsdf = MetalRough::new(base, metallic, roughness, m.ior, m.specular, m.specular_color);
+    Bsdf::MetalRough(bsdf.with_transmission(transmission))
 }
 
 /// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB).

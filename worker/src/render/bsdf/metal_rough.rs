@@ -1,13 +1,18 @@
-//! The glTF 2.0 metallic-roughness BRDF (spec appendix B) with `KHR_materials_specular` and
-//! `KHR_materials_ior`:
+//! The glTF 2.0 metallic-roughness BSDF (spec appendix B) with `KHR_materials_specular`,
+//! `KHR_materials_ior` and `KHR_materials_transmission`:
 //!
-//! f = (1 - metallic) * [ (1 - s * max(F_d)) * base / pi + s * F_d * spec ] + metallic * F_m * spec
+//! f = (1 - metallic) * [ (1 - s * max(F_d)) * base * ((1 - t) / pi + t * spec_t) + s * F_d * spec ]
+//!     + metallic * F_m * spec
 //!
 //! where spec = D G2 / (4 |n.wo| |n.wi|) is GGX with height-correlated Smith masking
 //! (alpha = roughness²), F_d the dielectric Schlick Fresnel with f0 = min(((ior-1)/(ior+1))² *
-//! specular_color, 1), F_m the conductor Schlick Fresnel with f0 = base, and s = specularFactor.
-//! Sampling picks the GGX lobe (visible normals, Heitz 2018) or the cosine lobe with
-//! probabilities from their estimated albedos.
+//! specular_color, 1), F_m the conductor Schlick Fresnel with f0 = base, s = specularFactor and
+//! t = transmission. The surface is thin-walled (the transmission extension without a volume):
+//! spec_t, for `wi` on the far side, is the specular lobe evaluated with `wi` mirrored through the
+//! surface plane (half vector normalize(wo + mirror(wi)), as the extension defines it), so light
+//! passes straight through, blurred by the roughness, and tinted by the base colour.
+//! Sampling picks the GGX lobe (visible normals, Heitz 2018), the mirrored GGX lobe or the cosine
+//! lobe with probabilities from their estimated albedos.
 
 use std::f32::consts::FRAC_1_PI;
 
@@ -32,6 +37,9 @@ pub struct MetalRough {
     pub f0_dielectric: Vec3,
     /// `specularFactor`.
     pub specular: f32,
+    /// `transmissionFactor` in [0, 1]: the share of the light entering the surface that passes
+    /// through it instead of being diffused.
+    pub transmission: f32,
 }
 
 #[inline]
@@ -63,50 +71,95 @@ impl MetalRough {
             ggx: Ggx::new(roughness.clamp(0.0, 1.0).powi(2)),
             f0_dielectric: (specular_color * r).min(Vec3::ONE).max(Vec3::ZERO),
             specular: specular.clamp(0.0, 1.0),
+            transmission: 0.0,
         }
     }
 
-    /// Probability of sampling the GGX lobe for `wo`, from the lobes' albedos at normal-ish
-    /// incidence. Must be the same in `sample` and `pdf`.
+    /// The same BSDF with `KHR_materials_transmission`'s `transmission` (clamped to [0, 1]).
+    pub fn with_transmission(self, transmission: f32) -> Self {
+        let transmission = if transmission > 0.0 { transmission.min(1.0) } else { 0.0 };
+        MetalRough { transmission, ..self }
+    }
+
+    /// Whether light can pass through to the far side.
     #[inline]
-    fn specular_probability(&self, wo: Vec3) -> f32 {
+    pub fn transmits(&self) -> bool {
+        self.transmission > 0.0 && self.metallic < 1.0
+    }
+
+    /// Probabilities of sampling the GGX reflection lobe and the mirrored (transmission) lobe for
+    /// `wo`, from the lobes' albedos at normal-ish incidence; the cosine lobe takes the rest.
+    /// Must be the same in `sample` and `pdf`.
+    #[inline]
+    fn lobe_probabilities(&self, wo: Vec3) -> (f32, f32) {
         let w = schlick_weight(wo.z);
         let f_m = self.base + (Vec3::ONE - self.base) * w;
         let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
         let f_d_max = f_d.max_element();
         let spec = self.metallic * luminance(f_m) + (1.0 - self.metallic) * self.specular * f_d_max;
-        let diff = (1.0 - self.metallic) * (1.0 - self.specular * f_d_max) * luminance(self.base);
-        if spec + diff <= 0.0 {
-            return 0.0;
+        let entering =
+            (1.0 - self.metallic) * (1.0 - self.specular * f_d_max) * luminance(self.base);
+        let (diff, trans) = if self.transmission > 0.0 {
+            (entering * (1.0 - self.transmission), entering * self.transmission)
+        } else {
+            (entering, 0.0)
+        };
+        let total = spec + diff + trans;
+        if total <= 0.0 {
+            return (0.0, 0.0);
         }
-        spec / (spec + diff)
+        (spec / total, trans / total)
     }
 
-    /// f(wo, wi).
+    /// f(wo, wi): reflection for `wi.z > 0`, transmission for `wi.z < 0`.
     #[inline]
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
+        if wo.z <= 0.0 || wi.z == 0.0 {
             return Vec3::ZERO;
+        }
+        if wi.z < 0.0 {
+            if !self.transmits() {
+                return Vec3::ZERO;
+            }
+            // Thin-walled: the specular lobe seen through the surface.
+            let wm = mirror(wi);
+            let h = (wo + wm).normalize();
+            let w = schlick_weight(wo.dot(h));
+            let spec_t = self.ggx.d(h) * self.ggx.g2(wo, wm) / (4.0 * wo.z * wm.z);
+            let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
+            let entering = 1.0 - self.specular * f_d.max_element();
+            return (1.0 - self.metallic) * entering * self.transmission * self.base * spec_t;
         }
         let h = (wo + wi).normalize();
         let w = schlick_weight(wo.dot(h));
         let spec = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
         let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
         let f_m = self.base + (Vec3::ONE - self.base) * w;
-        let dielectric = (1.0 - self.specular * f_d.max_element()) * self.base * FRAC_1_PI
-            + self.specular * f_d * spec;
+        let mut diffuse = (1.0 - self.specular * f_d.max_element()) * self.base * FRAC_1_PI;
+        if self.transmission > 0.0 {
+            diffuse *= 1.0 - self.transmission;
+        }
+        let dielectric = diffuse + self.specular * f_d * spec;
         (1.0 - self.metallic) * dielectric + self.metallic * f_m * spec
     }
 
     /// Density of `wi`.
     #[inline]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
+        if wo.z <= 0.0 || wi.z == 0.0 {
             return 0.0;
         }
-        let p_spec = self.specular_probability(wo);
+        let (p_spec, p_trans) = self.lobe_probabilities(wo);
+        if wi.z < 0.0 {
+            if p_trans <= 0.0 {
+                return 0.0;
+            }
+            let h = (wo + mirror(wi)).normalize();
+            return p_trans * self.ggx.reflection_pdf(wo, h);
+        }
         let h = (wo + wi).normalize();
-        p_spec * self.ggx.reflection_pdf(wo, h) + (1.0 - p_spec) * cosine_hemisphere_pdf(wi.z)
+        p_spec * self.ggx.reflection_pdf(wo, h)
+            + (1.0 - p_spec - p_trans) * cosine_hemisphere_pdf(wi.z)
     }
 
     /// Samples a lobe by `u_lobe`, then a direction from it.
@@ -115,14 +168,21 @@ impl MetalRough {
         if wo.z <= 0.0 {
             return None;
         }
-        let p_spec = self.specular_probability(wo);
+        let (p_spec, p_trans) = self.lobe_probabilities(wo);
         let (wi, lobe) = if u_lobe < p_spec {
             let h = self.ggx.sample_visible_normal(wo, u);
             (reflect(wo, h), Lobe::Glossy)
+        } else if u_lobe < p_spec + p_trans {
+            let h = self.ggx.sample_visible_normal(wo, u);
+            let wm = reflect(wo, h);
+            if wm.z <= 0.0 {
+                return None;
+            }
+            (mirror(wm), Lobe::Transmission)
         } else {
             (sample_cosine_hemisphere(u), Lobe::Diffuse)
         };
-        if wi.z <= 0.0 {
+        if wi.z == 0.0 || (wi.z < 0.0 && lobe != Lobe::Transmission) {
             return None;
         }
         let pdf = self.pdf(wo, wi);
@@ -131,4 +191,10 @@ impl MetalRough {
         }
         Some(BsdfSample { f: self.eval(wo, wi), wi, pdf, lobe })
     }
+}
+
+/// `w` mirrored through the surface plane (z = 0).
+#[inline]
+fn mirror(w: Vec3) -> Vec3 {
+    Vec3::new(w.x, w.y, -w.z)
 }

@@ -2,7 +2,8 @@
 //!
 //! Directions follow pbrt: `wo` points toward the viewer (where light leaves), `wi` toward where
 //! light comes from; both are in the local shading frame (+z = shading normal, flipped by the
-//! integrator to `wo`'s side). `eval` returns f(wo, wi) without the cosine; `pdf` is per solid
+//! integrator to `wo`'s side). `wi.z < 0` is light from the far side, which only a transmitting
+//! BSDF passes. `eval` returns f(wo, wi) without the cosine; `pdf` is per solid
 //! angle; `sample` takes its uniform numbers as arguments.
 
 mod diffuse;
@@ -20,6 +21,8 @@ pub enum Lobe {
     Diffuse,
     /// Glossy (microfacet) reflection.
     Glossy,
+    /// Transmission to the far side (thin-walled).
+    Transmission,
 }
 
 /// A sampled direction.
@@ -61,6 +64,12 @@ impl Bsdf {
             Bsdf::Diffuse(b) => b.pdf(wo, wi),
             Bsdf::MetalRough(b) => b.pdf(wo, wi),
         }
+    }
+
+    /// Whether `wi` on the far side of the surface (local z < 0) can carry light.
+    #[inline]
+    pub fn transmits(&self) -> bool {
+        matches!(self, Bsdf::MetalRough(b) if b.transmits())
     }
 
     /// Whether `sample` uses its lobe-choice number (a single-lobe BSDF does not).

@@ -1,5 +1,6 @@
-//! Tests of the BSDFs: chi-square of `sample` against `pdf` for `Diffuse`, `MetalRough` and GGX
-//! visible-normal reflection, the agreement of `sample` with `eval`/`pdf`, and energy (albedo).
+//! Tests of the BSDFs: chi-square of `sample` against `pdf` for `Diffuse`, `MetalRough` (with and
+//! without transmission) and GGX visible-normal reflection, the agreement of `sample` with
+//! `eval`/`pdf`, and energy (albedo).
 
 use glam::{Vec2, Vec3};
 
@@ -33,8 +34,13 @@ const GGX_COS_WO: [f32; 2] = [0.8, 0.1];
 /// cos(theta) of the outgoing directions of the `Diffuse` cases.
 const DIFFUSE_COS_WO: [f32; 2] = [0.6, 0.05];
 
+/// (transmission, roughness) of the transmitting `MetalRough` cases (metallic 0, specular 1):
+/// fully and half transmitting, rough and near-specular.
+const TRANSMISSION_CASES: [(f32, f32); 3] = [(1.0, 0.3), (0.5, 0.7), (1.0, 0.05)];
+
 /// Chi-square tests in this file.
 pub(super) const N_CHI2: usize = ROUGHNESS.len() * METAL_SPECULAR.len() * COS_WO.len()
+    + TRANSMISSION_CASES.len() * COS_WO.len()
     + 1
     + GGX_ALPHA.len() * GGX_COS_WO.len()
     + DIFFUSE_COS_WO.len();
@@ -100,6 +106,93 @@ fn metal_rough_roughness_07_matches_pdf() {
 #[test]
 fn metal_rough_roughness_1_matches_pdf() {
     assert_metal_rough_fits(ROUGHNESS[3]);
+}
+
+/// `metal_rough` with `KHR_materials_transmission`.
+fn transmitting(base: Vec3, transmission: f32, roughness: f32) -> Bsdf {
+    Bsdf::MetalRough(
+        MetalRough::new(base, 0.0, roughness, 1.5, 1.0, Vec3::ONE).with_transmission(transmission),
+    )
+}
+
+#[test]
+fn transmitting_metal_rough_matches_pdf_over_the_sphere() {
+    // Directions on both sides: the mirrored lobe below the surface, reflection and the cosine
+    // lobe above, and `pdf` must integrate to 1 over the whole sphere.
+    for (transmission, roughness) in TRANSMISSION_CASES {
+        let bsdf = transmitting(BASE, transmission, roughness);
+        for cos_wo in COS_WO {
+            let wo = wo_at(cos_wo);
+            let name = format!("transmitting_t{transmission}_r{roughness}_coswo{cos_wo}");
+            assert_fits(
+                &name,
+                Spherical::sphere(),
+                |u| {
+                    let s = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z))?;
+                    assert!(
+                        s.pdf > 0.0 && s.pdf.is_finite(),
+                        "{name}: pdf {} at {:?}",
+                        s.pdf,
+                        s.wi
+                    );
+                    Some(s.wi)
+                },
+                |wi| bsdf.pdf(wo, wi),
+            );
+        }
+    }
+}
+
+/// Monte Carlo albedo of channel 0 over both sides, and the part of it that passes through.
+fn albedo_both_sides(bsdf: &Bsdf, wo: Vec3, n: usize, rng: &mut Rng) -> [(f64, f64); 2] {
+    let mut parts = [(0.0f64, 0.0f64); 2];
+    for _ in 0..n {
+        let u = rng.next_vec3();
+        let Some(s) = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z)) else { continue };
+        let x = (s.f.x * s.wi.z.abs() / s.pdf) as f64;
+        for (k, part) in parts.iter_mut().enumerate() {
+            if k == 0 || s.wi.z < 0.0 {
+                part.0 += x;
+                part.1 += x * x;
+            }
+        }
+    }
+    parts.map(|(sum, sum2)| {
+        let mean = sum / n as f64;
+        (mean, ((sum2 / n as f64 - mean * mean).max(0.0) / n as f64).sqrt())
+    })
+}
+
+#[test]
+fn thin_transmission_passes_what_the_surface_does_not_reflect() {
+    // White, fully transmitting glass (ior 1.5, f0 = 0.04): nothing is diffused, so everything
+    // either reflects or passes through. Near-specular at normal incidence: 4% reflects and 96%
+    // passes (single scattering loses a little more as roughness grows); never more than 100%.
+    let mut rng = Rng::from_name("thin_transmission_passes_what_the_surface_does_not_reflect");
+    let n = 200_000;
+    for roughness in ROUGHNESS {
+        let bsdf = transmitting(Vec3::ONE, 1.0, roughness);
+        for cos_wo in [1.0, 0.7, 0.3, 0.05] {
+            let [(total, e_total), (through, e_through)] =
+                albedo_both_sides(&bsdf, wo_at(cos_wo), n, &mut rng);
+            println!(
+                "transmitting r{roughness} coswo{cos_wo}: albedo {total:.5} +- {e_total:.5}, \
+                 through {through:.5} +- {e_through:.5}"
+            );
+            assert!(total <= 1.0 + 3.0 * e_total + 1e-6, "r{roughness} cos {cos_wo}: {total}");
+            if roughness == 0.05 && cos_wo == 1.0 {
+                assert!((total - 1.0).abs() < 5e-3, "near-specular albedo {total} +- {e_total}");
+                assert!((through - 0.96).abs() < 5e-3, "near-specular through {through}");
+            }
+        }
+    }
+    // Half transmitting: the far side gets half of what full transmission passes.
+    let full = transmitting(Vec3::ONE, 1.0, 0.3);
+    let half = transmitting(Vec3::ONE, 0.5, 0.3);
+    let wo = wo_at(0.7);
+    let [_, (f, ef)] = albedo_both_sides(&full, wo, n, &mut rng);
+    let [_, (h, eh)] = albedo_both_sides(&half, wo, n, &mut rng);
+    assert!((h - 0.5 * f).abs() <= 3.0 * (eh * eh + 0.25 * ef * ef).sqrt(), "{h} vs half of {f}");
 }
 
 #[test]
@@ -221,6 +314,8 @@ fn bsdf_sample_agrees_with_eval_and_pdf() {
         for (metallic, specular) in METAL_SPECULAR.into_iter().chain([(0.0, 0.0)]) {
             bsdfs.push(metal_rough(BASE, metallic, roughness, specular));
         }
+        bsdfs.push(transmitting(BASE, 1.0, roughness));
+        bsdfs.push(transmitting(BASE, 0.4, roughness));
     }
     let mut rng = Rng::from_name("bsdf_sample_agrees_with_eval_and_pdf");
     for bsdf in &bsdfs {
@@ -231,7 +326,8 @@ fn bsdf_sample_agrees_with_eval_and_pdf() {
                 let Some(s) = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z)) else { continue };
                 // Formatted only on failure: this loop runs millions of times.
                 let case = || format!("{bsdf:?} wo {wo:?} u {u:?}: {s:?}");
-                assert!((s.wi.length() - 1.0).abs() < 1e-5 && s.wi.z > 0.0, "{}", case());
+                let side_ok = s.wi.z > 0.0 || (s.wi.z < 0.0 && bsdf.transmits());
+                assert!((s.wi.length() - 1.0).abs() < 1e-5 && side_ok, "{}", case());
                 assert!(s.pdf > 0.0 && s.pdf.is_finite(), "{}", case());
                 assert!(s.f.is_finite() && s.f.min_element() >= 0.0, "{}", case());
                 let (f, pdf) = (bsdf.eval(wo, s.wi), bsdf.pdf(wo, s.wi));
