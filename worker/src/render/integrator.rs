@@ -189,7 +189,7 @@ pub fn li(
                         stats.rays += 1;
                         let blocked = scene.occluded(&shadow, t_max, pose);
                         if !blocked {
-                            let li = match light {
+                            let mut li = match light {
                                 Light::Triangle(l) if l.textured => {
                                     let m = &scene.materials
                                         [scene.shading[l.prim as usize].material as usize];
@@ -198,6 +198,13 @@ pub fn li(
                                 }
                                 _ => ls.li,
                             };
+                            if scene.alpha_tested {
+                                // An emitter that is only partly there (MASK, BLEND) is hit by
+                                // sampled paths that often: light sampling counts it so.
+                                if let Light::Triangle(l) = light {
+                                    li *= scene.coverage(l.prim, ls.barycentrics);
+                                }
+                            }
                             let light_pdf = ls.pdf * choice_pdf;
                             let weight = if ls.is_delta {
                                 1.0

@@ -33,12 +33,21 @@ pub fn base_color(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec4
     c
 }
 
-/// Whether the material cuts out the point (alphaMode MASK below the cutoff).
+/// The probability that the surface is there at the point: 1 for OPAQUE, 0 or 1 for MASK (alpha
+/// against the cutoff), alpha for BLEND (alpha as coverage: the surface is composited over what
+/// lies behind it, as glTF's "over" operator says, in expectation).
 #[inline]
-pub fn is_cut_out(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> bool {
+pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
     match m.alpha_mode {
-        AlphaMode::Mask { cutoff } => base_color(textures, m, sp).w < cutoff,
-        _ => false,
+        AlphaMode::Opaque => 1.0,
+        AlphaMode::Mask { cutoff } => {
+            if base_color(textures, m, sp).w < cutoff {
+                0.0
+            } else {
+                1.0
+            }
+        }
+        AlphaMode::Blend => base_color(textures, m, sp).w.clamp(0.0, 1.0),
     }
 }
 

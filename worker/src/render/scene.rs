@@ -24,6 +24,7 @@ use super::{
     },
     material::{self, SurfacePoint},
     motion::{Motion, MotionInstance, Pose},
+    sampler::mix64,
 };
 
 /// Marks "no such index" in the compact per-triangle tables.
@@ -157,10 +158,13 @@ fn prepare_inner(
     for inst in &scene.instances {
         let mesh = &scene.meshes[inst.mesh];
         let material = &scene.materials[mesh.material];
-        if let AlphaMode::Mask { cutoff } = material.alpha_mode {
-            if material.base_color.w < cutoff && material.base_color_texture.is_none() {
-                continue; // Entirely cut out.
-            }
+        let invisible = match material.alpha_mode {
+            AlphaMode::Mask { cutoff } => material.base_color.w < cutoff,
+            AlphaMode::Blend => material.base_color.w <= 0.0,
+            AlphaMode::Opaque => false,
+        };
+        if invisible && material.base_color_texture.is_none() {
+            continue; // Entirely cut out (a vertex colour only scales alpha down).
         }
         if moves(inst.node) {
             moving.push(inst);
@@ -358,9 +362,11 @@ fn prepare_inner(
             scene_radius = scene_radius.max(lo.abs().max(hi.abs()).length());
         }
     }
-    let alpha_tested = scene.materials.iter().any(|m| {
-        matches!(m.alpha_mode, AlphaMode::Mask { .. })
-            && (m.base_color_texture.is_some() || has_colors)
+    let varies = |m: &Material| m.base_color_texture.is_some() || has_colors;
+    let alpha_tested = scene.materials.iter().any(|m| match m.alpha_mode {
+        AlphaMode::Mask { .. } => varies(m),
+        AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
+        AlphaMode::Opaque => false,
     });
     Ok(PreparedScene {
         origin,
@@ -441,7 +447,7 @@ impl PreparedScene {
     /// The closest hit before `t_max`: the static BVH, then what moves (at the pose's time).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32, pose: Option<&Pose<'_>>) -> Option<Hit> {
-        let accept = |h: &Hit| !self.is_cut_out(h);
+        let accept = |h: &Hit| !self.is_cut_out(h, ray);
         let best = if self.alpha_tested {
             self.accel.intersect_filtered(ray, t_max, accept)
         } else {
@@ -456,7 +462,7 @@ impl PreparedScene {
     /// Whether anything blocks the ray before `t_max`.
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32, pose: Option<&Pose<'_>>) -> bool {
-        let accept = |h: &Hit| !self.is_cut_out(h);
+        let accept = |h: &Hit| !self.is_cut_out(h, ray);
         let blocked = if self.alpha_tested {
             self.accel.occluded_filtered(ray, t_max, accept)
         } else {
@@ -493,16 +499,42 @@ impl PreparedScene {
         }
     }
 
-    /// Whether the surface at a hit is cut out by its material's alpha (MASK).
+    /// Whether `ray` passes through the surface at `hit`: always where a MASK material is cut
+    /// out, with probability 1 - alpha on a BLEND material. The decision is a hash of the ray and
+    /// the triangle, so it is the same every time this ray meets this triangle and, like every
+    /// number of a sample, depends only on the sample.
     #[inline]
-    pub fn is_cut_out(&self, hit: &super::accel::Hit) -> bool {
+    pub fn is_cut_out(&self, hit: &super::accel::Hit, ray: &Ray) -> bool {
         let m = &self.materials[self.shading[hit.prim as usize].material as usize];
-        if !matches!(m.alpha_mode, AlphaMode::Mask { .. }) {
+        if m.alpha_mode == AlphaMode::Opaque {
             return false;
         }
         let sp = self.surface_point(hit.prim, [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2]);
-        material::is_cut_out(&self.textures, m, &sp)
+        let coverage = material::coverage(&self.textures, m, &sp);
+        coverage < 1.0 && coverage <= coverage_number(ray, hit.prim)
     }
+
+    /// The probability that the surface of triangle `prim` is there at barycentrics `b`.
+    #[inline]
+    pub fn coverage(&self, prim: u32, b: [f32; 3]) -> f32 {
+        let m = &self.materials[self.shading[prim as usize].material as usize];
+        if m.alpha_mode == AlphaMode::Opaque {
+            return 1.0;
+        }
+        material::coverage(&self.textures, m, &self.surface_point(prim, b))
+    }
+}
+
+/// A uniform number in [0, 1) from a ray and a triangle (the stochastic coverage of BLEND).
+#[inline]
+fn coverage_number(ray: &Ray, prim: u32) -> f32 {
+    let o = ray.origin.to_array().map(f32::to_bits);
+    let d = ray.dir.to_array().map(f32::to_bits);
+    let mut h = mix64(((o[0] as u64) << 32 | o[1] as u64) ^ 0x243f_6a88_85a3_08d3);
+    h = mix64(h ^ ((o[2] as u64) << 32 | d[0] as u64));
+    h = mix64(h ^ ((d[1] as u64) << 32 | d[2] as u64));
+    h = mix64(h ^ prim as u64);
+    (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
 }
 
 fn scene_radius(accel: &Accel) -> f32 {
