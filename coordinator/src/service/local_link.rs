@@ -148,6 +148,28 @@ mod tests {
         service::{spawn, ServiceConfig},
     };
 
+    /// A waiter wakes at the hand-in, not at its timeout.
+    #[test]
+    fn a_handin_wakes_the_waiter() {
+        let handins = Arc::new(Handins::default());
+        let bumper = {
+            let handins = handins.clone();
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(50));
+                handins.bump();
+            })
+        };
+        let asked = Instant::now();
+        assert_eq!(handins.wait_past(0, Duration::from_secs(30)), 1);
+        assert!(asked.elapsed() < Duration::from_secs(10), "woke only at the timeout");
+        // Already past: no wait at all; nothing new: the timeout.
+        assert_eq!(handins.wait_past(0, Duration::from_secs(30)), 1);
+        let asked = Instant::now();
+        assert_eq!(handins.wait_past(1, Duration::from_millis(20)), 1);
+        assert!(asked.elapsed() >= Duration::from_millis(20));
+        bumper.join().unwrap();
+    }
+
     fn status(e: Result<impl std::fmt::Debug, CallError>) -> u16 {
         match e {
             Err(CallError::Status(code, _)) => code,

@@ -530,9 +530,9 @@ impl PreparedScene {
 fn coverage_number(ray: &Ray, prim: u32) -> f32 {
     let o = ray.origin.to_array().map(f32::to_bits);
     let d = ray.dir.to_array().map(f32::to_bits);
-    let mut h = mix64(((o[0] as u64) << 32 | o[1] as u64) ^ 0x243f_6a88_85a3_08d3);
-    h = mix64(h ^ ((o[2] as u64) << 32 | d[0] as u64));
-    h = mix64(h ^ ((d[1] as u64) << 32 | d[2] as u64));
+    let mut h = mix64((((o[0] as u64) << 32) | o[1] as u64) ^ 0x243f_6a88_85a3_08d3);
+    h = mix64(h ^ (((o[2] as u64) << 32) | d[0] as u64));
+    h = mix64(h ^ (((d[1] as u64) << 32) | d[2] as u64));
     h = mix64(h ^ prim as u64);
     (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
 }

@@ -158,8 +158,9 @@ impl MetalRough {
             return p_trans * self.ggx.reflection_pdf(wo, h);
         }
         let h = (wo + wi).normalize();
+        // max: with full transmission the two probabilities can sum to one ulp over 1.
         p_spec * self.ggx.reflection_pdf(wo, h)
-            + (1.0 - p_spec - p_trans) * cosine_hemisphere_pdf(wi.z)
+            + (1.0 - p_spec - p_trans).max(0.0) * cosine_hemisphere_pdf(wi.z)
     }
 
     /// Samples a lobe by `u_lobe`, then a direction from it.
