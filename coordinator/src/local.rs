@@ -1,6 +1,7 @@
 //! The embedded default, `coordinator render`: one process runs the farm service on a loopback
-//! port (its state in a temporary folder), uploads the scene to it as a bundle and submits the
-//! job over its REST API, and runs N local workers: the worker loop of `worker --join`, linked to
+//! port (its state in a temporary folder), stores the scene in it as a bundle and creates the job
+//! with the checks of the REST API's upload and job calls (`Running::create_job`, without HTTP),
+//! and runs N local workers: the worker loop of `worker --join`, linked to
 //! the farm in-process (`service::LocalLink`: the same leases, checks and merging as a cluster's,
 //! without sockets or result encoding). The finished frames are written as EXR and PNG.
 
@@ -149,9 +150,9 @@ pub fn render_file(
     // The data folder is deleted when the render ends: nothing to keep across a crash.
     config.farm.durable = false;
     let service = crate::service::spawn("127.0.0.1:0", config)?;
-    let url = service.url();
-    let remote = crate::client::Remote { url: url.clone(), api_token: None };
-    let (scene_hash, id) = remote.create_job(&bundle, &job_settings, 0)?;
+    let (scene_hash, id) = service
+        .create_job(&bundle, job_settings, 0)
+        .map_err(|e| anyhow::anyhow!("{} (HTTP {})", e.message, e.status))?;
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
     let cache = client::SceneCache::default();

@@ -84,8 +84,42 @@ struct AppState {
 
 impl AppState {
     fn lock(&self) -> MutexGuard<'_, Farm> {
-        self.farm.lock().unwrap_or_else(|p| p.into_inner())
+        lock_farm(&self.farm)
     }
+}
+
+fn lock_farm(farm: &Mutex<Farm>) -> MutexGuard<'_, Farm> {
+    farm.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// `POST /scenes` after the body is read: checks the upload and stores it. Slow (it loads the
+/// scene): call it off the async threads.
+fn store_upload(
+    farm: &Mutex<Farm>,
+    bytes: &[u8],
+    declared: Option<Format>,
+) -> ApiResult<crate::farm::SceneInfo> {
+    let mut info = validate_upload(bytes, declared)?;
+    lock_farm(farm).put_scene(bytes, &mut info)?;
+    Ok(info)
+}
+
+/// `POST /jobs` after the body is parsed: checks the settings against the farm and the stored
+/// scene, and creates the job. Slow (it may load the scene): call it off the async threads.
+fn create_checked_job(
+    farm: &Mutex<Farm>,
+    scene: &str,
+    settings: RenderSettings,
+    priority: i32,
+) -> ApiResult<crate::farm::job::JobStatus> {
+    lock_farm(farm).check_settings(&settings)?;
+    let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.status {
+        404 => FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message)),
+        _ => e,
+    })?;
+    let bytes = std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene: {e}")))?;
+    validate_job_scene(&bytes, &settings)?;
+    lock_farm(farm).create_job(scene, settings, priority)
 }
 
 impl IntoResponse for FarmError {
@@ -234,6 +268,20 @@ impl Running {
             max_lease_wait: self.max_lease_wait,
             handins: self.handins.clone(),
         }
+    }
+
+    /// Stores `bundle` and creates a job on it, with the checks and refusals of `POST /scenes`
+    /// and `POST /jobs` but no HTTP (the embedded render). Returns the scene hash and the job id.
+    pub fn create_job(
+        &self,
+        bundle: &[u8],
+        settings: RenderSettings,
+        priority: i32,
+    ) -> Result<(String, String), FarmError> {
+        let info = store_upload(&self.farm, bundle, None)?;
+        let status = create_checked_job(&self.farm, &info.scene, settings, priority)?;
+        self.work.notify_waiters();
+        Ok((info.scene, status.id))
     }
 
     /// Waits until the local workers have handed in more than `seen` results, failures or
@@ -390,13 +438,8 @@ async fn upload_scene(
             ))
         }
     };
-    let st = state.clone();
-    let info = blocking(move || {
-        let mut info = validate_upload(&bytes, declared)?;
-        st.lock().put_scene(&bytes, &mut info)?;
-        Ok(info)
-    })
-    .await?;
+    let farm = state.farm.clone();
+    let info = blocking(move || store_upload(&farm, &bytes, declared)).await?;
     let status = if info.created { StatusCode::CREATED } else { StatusCode::OK };
     Ok((status, Json(info)).into_response())
 }
@@ -437,18 +480,9 @@ async fn create_job(
             let at = if path == "." { String::new() } else { format!(".{path}") };
             FarmError::new(422, format!("settings{at}: {}", e.into_inner()))
         })?;
-    let st = state.clone();
-    let status = blocking(move || {
-        st.lock().check_settings(&settings)?;
-        let path = st.lock().scene_file(&req.scene).map_err(|e| match e.status {
-            404 => FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message)),
-            _ => e,
-        })?;
-        let bytes = std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene: {e}")))?;
-        validate_job_scene(&bytes, &settings)?;
-        st.lock().create_job(&req.scene, settings, req.priority)
-    })
-    .await?;
+    let farm = state.farm.clone();
+    let status =
+        blocking(move || create_checked_job(&farm, &req.scene, settings, req.priority)).await?;
     state.work.notify_waiters();
     Ok((StatusCode::CREATED, Json(status)).into_response())
 }
