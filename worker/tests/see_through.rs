@@ -142,9 +142,9 @@ fn a_thin_sheet_passes_the_light_behind_it_tinted_by_its_base_colour() {
             eprintln!(
                 "transmission {transmission} channel {c}: {mean:.5} +- {error:.5}, want {want:.5}"
             );
-            // Near-specular (alpha 0.01): the lobe's single-scattering loss is well under 0.5%.
+            // Near-specular (alpha 0.01): the lobe's single-scattering loss is under 0.1%.
             assert!(
-                (mean - want).abs() <= 4.0 * error + 5e-3 * want,
+                (mean - want).abs() <= 4.0 * error + 1e-3 * want,
                 "transmission {transmission} channel {c}: {mean} +- {error}, want {want}"
             );
         }
@@ -188,8 +188,9 @@ fn a_rough_sheet_passes_what_its_bsdf_says() {
         let (want, want_error) = (albedo * RADIANCE, albedo_error * RADIANCE);
         eprintln!("rough channel {c}: {mean:.5} +- {error:.5}, want {want:.5} +- {want_error:.5}");
         let sigma = (error * error + want_error * want_error).sqrt();
-        // 0.3%: the part of the lobe that passes beside the emitter, near the horizon.
-        assert!((mean - want).abs() <= 4.0 * sigma + 3e-3 * want, "channel {c}: {mean} vs {want}");
+        // 0.1%: the part of the lobe that passes beside the emitter, near the horizon (0.06%
+        // measured, the same in every channel).
+        assert!((mean - want).abs() <= 4.0 * sigma + 1e-3 * want, "channel {c}: {mean} vs {want}");
     }
 }
 

@@ -184,7 +184,7 @@ fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
 }
 
 #[inline]
-fn to_unit(x: u32) -> f32 {
+pub(crate) fn to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
 }
 

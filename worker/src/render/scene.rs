@@ -24,7 +24,7 @@ use super::{
     },
     material::{self, SurfacePoint},
     motion::{Motion, MotionInstance, Pose},
-    sampler::mix64,
+    sampler::{mix64, to_unit},
 };
 
 /// Marks "no such index" in the compact per-triangle tables.
@@ -505,12 +505,7 @@ impl PreparedScene {
     /// number of a sample, depends only on the sample.
     #[inline]
     pub fn is_cut_out(&self, hit: &super::accel::Hit, ray: &Ray) -> bool {
-        let m = &self.materials[self.shading[hit.prim as usize].material as usize];
-        if m.alpha_mode == AlphaMode::Opaque {
-            return false;
-        }
-        let sp = self.surface_point(hit.prim, [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2]);
-        let coverage = material::coverage(&self.textures, m, &sp);
+        let coverage = self.coverage(hit.prim, [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2]);
         coverage < 1.0 && coverage <= coverage_number(ray, hit.prim)
     }
 
@@ -533,8 +528,7 @@ fn coverage_number(ray: &Ray, prim: u32) -> f32 {
     let mut h = mix64((((o[0] as u64) << 32) | o[1] as u64) ^ 0x243f_6a88_85a3_08d3);
     h = mix64(h ^ (((o[2] as u64) << 32) | d[0] as u64));
     h = mix64(h ^ (((d[1] as u64) << 32) | d[2] as u64));
-    h = mix64(h ^ prim as u64);
-    (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+    to_unit((mix64(h ^ prim as u64) >> 32) as u32)
 }
 
 fn scene_radius(accel: &Accel) -> f32 {

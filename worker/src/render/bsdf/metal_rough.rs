@@ -99,11 +99,8 @@ impl MetalRough {
         let spec = self.metallic * luminance(f_m) + (1.0 - self.metallic) * self.specular * f_d_max;
         let entering =
             (1.0 - self.metallic) * (1.0 - self.specular * f_d_max) * luminance(self.base);
-        let (diff, trans) = if self.transmission > 0.0 {
-            (entering * (1.0 - self.transmission), entering * self.transmission)
-        } else {
-            (entering, 0.0)
-        };
+        // Exact for no transmission: x * 1 is x and x * 0 is 0.
+        let (diff, trans) = (entering * (1.0 - self.transmission), entering * self.transmission);
         let total = spec + diff + trans;
         if total <= 0.0 {
             return (0.0, 0.0);
@@ -135,10 +132,10 @@ impl MetalRough {
         let spec = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
         let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
         let f_m = self.base + (Vec3::ONE - self.base) * w;
-        let mut diffuse = (1.0 - self.specular * f_d.max_element()) * self.base * FRAC_1_PI;
-        if self.transmission > 0.0 {
-            diffuse *= 1.0 - self.transmission;
-        }
+        let diffuse = (1.0 - self.specular * f_d.max_element())
+            * self.base
+            * FRAC_1_PI
+            * (1.0 - self.transmission);
         let dielectric = diffuse + self.specular * f_d * spec;
         (1.0 - self.metallic) * dielectric + self.metallic * f_m * spec
     }
