@@ -52,10 +52,6 @@ fn planes_scene(tag: &str, planes: &[Plane], camera_y: f32) -> std::path::PathBu
         );
         meshes.push(json!({"primitives": [{"attributes": {"POSITION": 2 * i}, "indices": 2 * i + 1, "material": i}]}));
         nodes.push(json!({"mesh": i}));
-        // Keep every buffer view 4-byte aligned.
-        while bytes.len() % 4 != 0 {
-            bytes.push(0);
-        }
     }
     nodes.push(json!({"name": "camera", "camera": 0, "translation": [0.0, camera_y, 0.0],
         "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}));
