@@ -15,6 +15,7 @@
 
 use std::time::Duration;
 
+use arrayvec::ArrayVec;
 use glam::{Vec3, Vec4};
 use obvhs::{
     bvh2::{builder::build_bvh2_from_tris, Bvh2},
@@ -94,12 +95,9 @@ struct Entry {
     t_enter: f32,
 }
 
-/// Stack entries kept on the call stack for tiny trees (a few dozen triangles), small and
-/// mid-sized ones and deeper ones; deeper still use a heap stack. The smallest array that fits
-/// is used: it is initialised for every ray.
-const TINY_STACK: usize = 16;
-const SHALLOW_STACK: usize = 32;
-const DEEP_STACK: usize = 128;
+/// Stack entries kept on the call stack (never initialised, so its size costs nothing per ray);
+/// deeper trees use a heap stack.
+const INLINE_STACK: usize = 128;
 
 /// Per-ray constants of the box test.
 struct BoxRay {
@@ -150,6 +148,9 @@ struct Shear {
     /// The origin's coordinates along `axes`.
     origin: [f32; 3],
     s: Vec3,
+    /// `origin` and `s`, each coordinate in all four lanes (for the four-triangle test).
+    origin4: [Vec4; 3],
+    s4: [Vec4; 3],
 }
 
 impl Shear {
@@ -171,10 +172,14 @@ impl Shear {
         let axes = [(kz + 1) % 3, (kz + 2) % 3, kz];
         let (dx, dy, dz) = (d[axes[0]], d[axes[1]], d[axes[2]]);
         let o = ray.origin;
+        let origin = [o[axes[0]], o[axes[1]], o[axes[2]]];
+        let s = Vec3::new(-dx / dz, -dy / dz, 1.0 / dz);
         Shear {
             axes,
-            origin: [o[axes[0]], o[axes[1]], o[axes[2]]],
-            s: Vec3::new(-dx / dz, -dy / dz, 1.0 / dz),
+            origin,
+            s,
+            origin4: origin.map(Vec4::splat),
+            s4: s.to_array().map(Vec4::splat),
         }
     }
 
@@ -247,8 +252,8 @@ impl Shear {
     #[inline(always)]
     fn intersect4(&self, block: &Tri4, t_max: f32, accept: &impl Fn(&Hit) -> bool) -> Option<Hit> {
         let [kx, ky, kz] = self.axes;
-        let [ox, oy, oz] = self.origin.map(Vec4::splat);
-        let (sx, sy, sz) = (Vec4::splat(self.s.x), Vec4::splat(self.s.y), Vec4::splat(self.s.z));
+        let [ox, oy, oz] = self.origin4;
+        let [sx, sy, sz] = self.s4;
         let rel = |v: &[Vec4; 3]| {
             let z = v[kz] - oz;
             (v[kx] - ox + sx * z, v[ky] - oy + sy * z, z)
@@ -265,6 +270,9 @@ impl Shear {
         let inside = ((e0.cmpge(zero) & e1.cmpge(zero) & e2.cmpge(zero))
             | (e0.cmple(zero) & e1.cmple(zero) & e2.cmple(zero)))
         .bitmask();
+        if inside & lanes & !edge_zero == 0 && edge_zero == 0 {
+            return None; // The usual miss, settled before the distance tests.
+        }
         let det = e0 + e1 + e2;
         let t_scaled = e0 * (p0z * sz) + e1 * (p1z * sz) + e2 * (p2z * sz);
         let t_max4 = Vec4::splat(t_max);
@@ -451,7 +459,13 @@ impl Accel {
         if self.is_empty() {
             return None;
         }
-        self.with_stack(|stack| self.closest(ray, t_max, &accept, stack))
+        // The stack: inline and never initialised (only pushed entries are written) unless the
+        // tree is very deep.
+        if self.stack_len <= INLINE_STACK {
+            self.closest(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+        } else {
+            self.closest(ray, t_max, &accept, &mut Vec::with_capacity(self.stack_len))
+        }
     }
 
     /// Whether anything blocks the ray for `t` in (0, t_max). Stops at the first blocker.
@@ -466,25 +480,15 @@ impl Accel {
         if self.is_empty() {
             return false;
         }
-        self.with_stack(|stack| self.any(ray, t_max, &accept, stack))
-    }
-
-    /// Runs `f` with a traversal stack deep enough for this tree: on the call stack unless the
-    /// tree is very deep.
-    #[inline(always)]
-    fn with_stack<R>(&self, f: impl FnOnce(&mut [Entry]) -> R) -> R {
-        if self.stack_len <= TINY_STACK {
-            f(&mut [Entry::default(); TINY_STACK])
-        } else if self.stack_len <= SHALLOW_STACK {
-            f(&mut [Entry::default(); SHALLOW_STACK])
-        } else if self.stack_len <= DEEP_STACK {
-            f(&mut [Entry::default(); DEEP_STACK])
+        if self.stack_len <= INLINE_STACK {
+            self.any(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new())
         } else {
-            f(&mut vec![Entry::default(); self.stack_len])
+            self.any(ray, t_max, &accept, &mut Vec::with_capacity(self.stack_len))
         }
     }
 
-    /// Closest-hit traversal: children nearest first; popped entries that start beyond the
+    /// Closest-hit traversal: the nearest child entered is visited next without a trip through
+    /// the stack, the others wait on it nearest on top; popped entries that start beyond the
     /// closest hit so far are skipped.
     #[inline(always)]
     fn closest(
@@ -492,20 +496,14 @@ impl Accel {
         ray: &Ray,
         t_max: f32,
         accept: &impl Fn(&Hit) -> bool,
-        stack: &mut [Entry],
+        stack: &mut impl TraversalStack,
     ) -> Option<Hit> {
         let shear = Shear::new(ray);
         let box_ray = BoxRay::new(ray);
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
-        stack[0] = Entry { child: self.root, t_enter: 0.0 };
-        let mut len = 1;
-        while len > 0 {
-            len -= 1;
-            let Entry { child, t_enter } = stack[len];
-            if t_enter > t_best {
-                continue;
-            }
+        let mut child = self.root;
+        loop {
             if child.count > 0 {
                 for block in self.leaf(child) {
                     if let Some(hit) = shear.intersect4(block, t_best, accept) {
@@ -513,63 +511,85 @@ impl Accel {
                         best = Some(hit);
                     }
                 }
-                continue;
-            }
-            let node = &self.nodes[child.index as usize];
-            let (t_enter, mut mask) = box_ray.test(node, t_best);
-            let t_enter = t_enter.to_array();
-            // Push far to near: the nearest child ends on top.
-            let first = len;
-            while mask != 0 {
-                let slot = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let entry = Entry { child: node.children[slot], t_enter: t_enter[slot] };
-                let mut i = len;
-                while i > first && stack[i - 1].t_enter < entry.t_enter {
-                    stack[i] = stack[i - 1];
-                    i -= 1;
+            } else {
+                let node = &self.nodes[child.index as usize];
+                let (t_enter, mask) = box_ray.test(node, t_best);
+                let t_enter = t_enter.to_array();
+                if mask != 0 {
+                    // The child that would come out on top of the stack is the one visited next:
+                    // the nearest, the later slot on ties.
+                    let first = mask.trailing_zeros() as usize;
+                    let rest = mask & (mask - 1);
+                    let next = if rest == 0 {
+                        first
+                    } else if rest & (rest - 1) == 0 {
+                        let second = rest.trailing_zeros() as usize;
+                        let (near, far) = if t_enter[second] <= t_enter[first] {
+                            (second, first)
+                        } else {
+                            (first, second)
+                        };
+                        stack.push(Entry { child: node.children[far], t_enter: t_enter[far] });
+                        near
+                    } else {
+                        push_sorted(stack, node, &t_enter, mask)
+                    };
+                    if t_enter[next] <= t_best {
+                        child = node.children[next];
+                        continue;
+                    }
                 }
-                stack[i] = entry;
-                len += 1;
+            }
+            loop {
+                let Some(entry) = stack.pop() else { return best };
+                if entry.t_enter <= t_best {
+                    child = entry.child;
+                    break;
+                }
             }
         }
-        best
     }
 
-    /// Any-hit traversal for shadow rays.
+    /// Any-hit traversal for shadow rays: the first child entered is visited next, the others
+    /// wait on the stack.
     #[inline(always)]
     fn any(
         &self,
         ray: &Ray,
         t_max: f32,
         accept: &impl Fn(&Hit) -> bool,
-        stack: &mut [Entry],
+        stack: &mut impl TraversalStack,
     ) -> bool {
         let shear = Shear::new(ray);
         let box_ray = BoxRay::new(ray);
-        stack[0] = Entry { child: self.root, t_enter: 0.0 };
-        let mut len = 1;
-        while len > 0 {
-            len -= 1;
-            let child = stack[len].child;
+        let mut child = self.root;
+        loop {
             if child.count > 0 {
                 for block in self.leaf(child) {
                     if shear.intersect4(block, t_max, accept).is_some() {
                         return true;
                     }
                 }
-                continue;
+            } else {
+                let node = &self.nodes[child.index as usize];
+                let (_, mut mask) = box_ray.test(node, t_max);
+                if mask != 0 {
+                    let first = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    while mask != 0 {
+                        let slot = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        stack.push(Entry { child: node.children[slot], t_enter: 0.0 });
+                    }
+                    child = node.children[first];
+                    continue;
+                }
             }
-            let node = &self.nodes[child.index as usize];
-            let (_, mut mask) = box_ray.test(node, t_max);
-            while mask != 0 {
-                let slot = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                stack[len] = Entry { child: node.children[slot], t_enter: 0.0 };
-                len += 1;
+            match stack.pop() {
+                Some(entry) => child = entry.child,
+                None => return false,
             }
         }
-        false
     }
 
     /// Brute-force closest hit over every triangle (reference for tests and tiny scenes).
@@ -616,6 +636,63 @@ fn stack_need(nodes: &[Node4]) -> usize {
         need[n] = k.max(k.saturating_sub(1) + below);
     }
     need.first().copied().unwrap_or(0).max(1)
+}
+
+/// Pushes the children of `node` in `mask` (three or four) except the nearest, far to near, and
+/// returns the nearest's slot: the order a stack sorted by insertion in slot order gives (the
+/// later slot nearer on ties).
+#[inline(always)]
+fn push_sorted(
+    stack: &mut impl TraversalStack,
+    node: &Node4,
+    t_enter: &[f32; 4],
+    mut mask: u32,
+) -> usize {
+    let mut order = [0usize; 4];
+    let mut len = 0;
+    while mask != 0 {
+        let slot = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let mut i = len;
+        while i > 0 && t_enter[order[i - 1]] < t_enter[slot] {
+            order[i] = order[i - 1];
+            i -= 1;
+        }
+        order[i] = slot;
+        len += 1;
+    }
+    for &slot in &order[..len - 1] {
+        stack.push(Entry { child: node.children[slot], t_enter: t_enter[slot] });
+    }
+    order[len - 1]
+}
+
+/// The traversal stack's two operations, for the inline and the heap stack alike.
+trait TraversalStack {
+    fn push(&mut self, entry: Entry);
+    fn pop(&mut self) -> Option<Entry>;
+}
+
+impl<const N: usize> TraversalStack for ArrayVec<Entry, N> {
+    #[inline(always)]
+    fn push(&mut self, entry: Entry) {
+        ArrayVec::push(self, entry);
+    }
+    #[inline(always)]
+    fn pop(&mut self) -> Option<Entry> {
+        ArrayVec::pop(self)
+    }
+}
+
+impl TraversalStack for Vec<Entry> {
+    #[inline(always)]
+    fn push(&mut self, entry: Entry) {
+        Vec::push(self, entry);
+    }
+    #[inline(always)]
+    fn pop(&mut self) -> Option<Entry> {
+        Vec::pop(self)
+    }
 }
 
 /// Collapses a binary BVH into four-wide nodes. Returns the nodes, the root and the leaf
@@ -799,7 +876,7 @@ mod tests {
             })
             .collect();
         let (accel, _) = Accel::build(&tris);
-        assert!(accel.stack_len > DEEP_STACK, "tree too shallow: {} entries", accel.stack_len);
+        assert!(accel.stack_len > INLINE_STACK, "tree too shallow: {} entries", accel.stack_len);
         let mut rng = Rng(9);
         for _ in 0..2000 {
             let o = Vec3::new(rng.f(), rng.f(), 1.0 + rng.f());
