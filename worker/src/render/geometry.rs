@@ -176,4 +176,27 @@ mod tests {
             assert!(below.z < p.z - err.z);
         }
     }
+
+    #[test]
+    fn a_step_away_moves_one_float_toward_the_offset() {
+        let tiny = f32::from_bits(1);
+        let cases = [
+            (1.0, 1.0, next_float_up(1.0)),
+            (1.0, -1.0, next_float_down(1.0)),
+            (-1.0, 1.0, next_float_up(-1.0)),
+            (-1.0, -1.0, next_float_down(-1.0)),
+            (0.0, 2.0, tiny),
+            (-0.0, 2.0, tiny),
+            (0.0, -2.0, -tiny),
+            (-0.0, -2.0, -tiny),
+            (3.5, 0.0, 3.5),
+            (3.5, -0.0, 3.5),
+            (f32::INFINITY, 1.0, f32::INFINITY),
+            (f32::MAX, 1.0, f32::INFINITY),
+        ];
+        for (v, o, want) in cases {
+            assert_eq!(step_away(v, o).to_bits(), want.to_bits(), "step_away({v}, {o})");
+        }
+        assert!(step_away(f32::NAN, 1.0).is_nan());
+    }
 }
