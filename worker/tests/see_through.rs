@@ -9,6 +9,9 @@
 //! `alphaMode` BLEND: alpha is coverage (the surface is there with probability alpha), so a
 //! blended sheet passes 1 - alpha of what lies behind it, and a blended emitter lights a surface
 //! as an opaque one of alpha times its radiance would.
+//!
+//! `alphaMode` MASK: a surface is there or not, point by point; an emitter that is there over half
+//! its area (vertex alpha against the cutoff) lights a floor half as much as the whole one.
 
 mod support;
 
@@ -28,6 +31,8 @@ struct Plane {
     y: f32,
     up: bool,
     material: Value,
+    /// COLOR_0 (RGBA) at the corners (-x -z, +x -z, +x +z, -x +z), if any.
+    colors: Option<[[f32; 4]; 4]>,
 }
 
 /// A glTF of `planes` and an orthographic camera at height `camera_y` looking down. Returns the
@@ -46,11 +51,22 @@ fn planes_scene(tag: &str, planes: &[Plane], camera_y: f32) -> std::path::PathBu
         bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
         views.push(json!({"buffer": 0, "byteOffset": start, "byteLength": 48}));
         views.push(json!({"buffer": 0, "byteOffset": start + 48, "byteLength": 12}));
-        accessors.push(json!({"bufferView": 2 * i, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-h, y, -h], "max": [h, y, h]}));
+        accessors.push(json!({"bufferView": views.len() - 2, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-h, y, -h], "max": [h, y, h]}));
         accessors.push(
-            json!({"bufferView": 2 * i + 1, "componentType": 5123, "count": 6, "type": "SCALAR"}),
+            json!({"bufferView": views.len() - 1, "componentType": 5123, "count": 6, "type": "SCALAR"}),
         );
-        meshes.push(json!({"primitives": [{"attributes": {"POSITION": 2 * i}, "indices": 2 * i + 1, "material": i}]}));
+        let mut attributes = json!({"POSITION": accessors.len() - 2});
+        let indices = accessors.len() - 1;
+        if let Some(colors) = &plane.colors {
+            let at = bytes.len();
+            bytes.extend(colors.iter().flatten().flat_map(|v: &f32| v.to_le_bytes()));
+            views.push(json!({"buffer": 0, "byteOffset": at, "byteLength": 64}));
+            accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126, "count": 4, "type": "VEC4"}));
+            attributes["COLOR_0"] = json!(accessors.len() - 1);
+        }
+        meshes.push(
+            json!({"primitives": [{"attributes": attributes, "indices": indices, "material": i}]}),
+        );
         nodes.push(json!({"mesh": i}));
     }
     nodes.push(json!({"name": "camera", "camera": 0, "translation": [0.0, camera_y, 0.0],
@@ -103,8 +119,8 @@ fn sheet_scene(tag: &str, transmission: f64, roughness: f64) -> std::path::PathB
         "extensions": {"KHR_materials_transmission": {"transmissionFactor": transmission}}
     });
     let planes = [
-        Plane { y: 0.0, up: true, material: emitter(RADIANCE, 1.0) },
-        Plane { y: 1.0, up: true, material: sheet },
+        Plane { y: 0.0, up: true, material: emitter(RADIANCE, 1.0), colors: None },
+        Plane { y: 1.0, up: true, material: sheet, colors: None },
     ];
     planes_scene(tag, &planes, 2.0)
 }
@@ -209,8 +225,8 @@ fn a_blended_sheet_passes_one_minus_its_alpha() {
         "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
     });
     let planes = [
-        Plane { y: 0.0, up: true, material: emitter(RADIANCE, 1.0) },
-        Plane { y: 1.0, up: true, material: sheet },
+        Plane { y: 0.0, up: true, material: emitter(RADIANCE, 1.0), colors: None },
+        Plane { y: 1.0, up: true, material: sheet, colors: None },
     ];
     let path = planes_scene("blend-sheet", &planes, 2.0);
     for (c, (mean, error)) in render_mean(&path).into_iter().enumerate() {
@@ -232,8 +248,8 @@ fn a_blended_emitter_lights_as_an_opaque_one_of_alpha_times_its_radiance() {
     });
     let lit_by = |tag: &str, light: Value| {
         let planes = [
-            Plane { y: 0.0, up: true, material: floor.clone() },
-            Plane { y: 1.0, up: false, material: light },
+            Plane { y: 0.0, up: true, material: floor.clone(), colors: None },
+            Plane { y: 1.0, up: false, material: light, colors: None },
         ];
         render_mean(&planes_scene(tag, &planes, 0.5))
     };
@@ -244,5 +260,53 @@ fn a_blended_emitter_lights_as_an_opaque_one_of_alpha_times_its_radiance() {
         eprintln!("floor channel {c}: blended light {a:.5} +- {ea:.5}, dimmer opaque light {b:.5} +- {eb:.5}");
         assert!(b > 0.3, "the floor is lit");
         assert!((a - b).abs() <= 4.0 * (ea * ea + eb * eb).sqrt(), "channel {c}: {a} vs {b}");
+    }
+}
+
+#[test]
+fn a_masked_emitter_lights_only_where_its_alpha_passes_the_cutoff() {
+    // MASK makes a surface there or not there. An emitter whose alpha is below the cutoff is cut
+    // out everywhere and lights nothing; one whose alpha passes is exactly the opaque emitter
+    // (coverage 1: the same numbers). An emitter whose vertex alpha runs from 0 at -x to 1 at +x
+    // is there only over x > 0: the floor's mean, over a square centred below it, is half of
+    // what the whole emitter gives (by symmetry, E(x) + E(-x) is the whole emitter's E). Light
+    // sampling must skip the cut-out half as the sampled paths that pass through it do.
+    let floor = json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1.0], "metallicFactor": 0.0},
+        "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
+    });
+    let lit_by = |tag: &str, light: Value, colors: Option<[[f32; 4]; 4]>| {
+        let planes = [
+            Plane { y: 0.0, up: true, material: floor.clone(), colors: None },
+            Plane { y: 1.0, up: false, material: light, colors },
+        ];
+        render_mean(&planes_scene(tag, &planes, 0.5))
+    };
+    let masked = |alpha: f64| {
+        let mut m = emitter(RADIANCE, 1.0);
+        m["pbrMetallicRoughness"]["baseColorFactor"][3] = json!(alpha);
+        m["alphaMode"] = json!("MASK");
+        m["alphaCutoff"] = json!(0.5);
+        m
+    };
+    let (clear, solid) = ([1.0, 1.0, 1.0, 0.0], [1.0, 1.0, 1.0, 1.0]);
+    let cut_out = lit_by("mask-out-light", masked(0.3), None);
+    let kept = lit_by("mask-in-light", masked(0.7), None);
+    let half = lit_by("mask-half-light", masked(1.0), Some([clear, solid, solid, clear]));
+    let opaque = lit_by("opaque-light", emitter(RADIANCE, 1.0), None);
+    for c in 0..3 {
+        let ((h, eh), (o, eo)) = (half[c], opaque[c]);
+        eprintln!(
+            "floor channel {c}: cut-out light {:.5}, kept {:.5}, opaque {o:.5} +- {eo:.5}, \
+             half-masked {h:.5} +- {eh:.5} (expected {:.5})",
+            cut_out[c].0,
+            kept[c].0,
+            0.5 * o
+        );
+        assert!(o > 0.5, "the opaque light lights the floor");
+        assert_eq!(cut_out[c].0, 0.0, "channel {c}: a cut-out emitter lit the floor");
+        assert_eq!(kept[c].0, o, "channel {c}: a kept emitter differs from an opaque one");
+        let sigma = (eh * eh + 0.25 * eo * eo).sqrt();
+        assert!((h - 0.5 * o).abs() <= 4.0 * sigma, "channel {c}: half-masked {h} vs {}", 0.5 * o);
     }
 }
