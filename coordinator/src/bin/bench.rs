@@ -3,8 +3,14 @@
 //! a log-log SVG plot of error against time, and measures the large-geometry scene (load, BVH
 //! build, render times, bytes per triangle).
 //!
+//! With `--peer-csv FILE` (the CSV of `../shared/bench/peers/run.py --csv`, any number of times)
+//! it also prints, for each of our sample counts, every peer's relative MSE at our time (its runs
+//! interpolated log-log) and our error over it: the README's equal-time ratios. The peers' curves
+//! go on the same plot.
+//!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
-//! [--plot bench.svg] [--large] [--time-scenes]`; figures in the README come from this command.
+//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes]`; figures in the README
+//! come from this command.
 
 use std::{
     fmt::Write as _,
@@ -37,6 +43,9 @@ struct Args {
     /// `scenes/cornell-dof.settings.json`), scored against 4096-spp renders of their own.
     #[arg(long)]
     time_scenes: bool,
+    /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
+    #[arg(long = "peer-csv")]
+    peer_csv: Vec<PathBuf>,
     /// The shared folder with scenes and references.
     #[arg(long, default_value = "../shared")]
     shared: PathBuf,
@@ -71,6 +80,14 @@ fn main() -> Result<()> {
         scenes.join("cornell-box.settings.json"),
     )?)
     .map_err(anyhow::Error::msg)?;
+    // Read the peers first: a bad file fails before minutes of rendering.
+    let mut peers = Vec::new();
+    for path in &args.peer_csv {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        peers
+            .extend(peer_curves(&text, "cornell-box").with_context(|| path.display().to_string())?);
+    }
     let out_dir = std::env::temp_dir().join(format!("renderfarm-bench-{}", std::process::id()));
     std::fs::create_dir_all(&out_dir)?;
     println!(
@@ -99,7 +116,29 @@ fn main() -> Result<()> {
         );
         rows.push(Row { spp, seconds, rel_mse });
     }
-    write_plot(&args.plot, &rows)?;
+    if !peers.is_empty() {
+        println!("scene,spp,seconds,relmse,peer,peer_relmse_at_our_seconds,ratio");
+        for peer in &peers {
+            for row in &rows {
+                let theirs = peer.rel_mse_at(row.seconds);
+                println!(
+                    "cornell-box,{},{:.4},{:.6e},{},{:.6e},{:.3}",
+                    row.spp,
+                    row.seconds,
+                    row.rel_mse,
+                    peer.name,
+                    theirs,
+                    row.rel_mse / theirs
+                );
+            }
+        }
+    }
+    let mut series = vec![Series {
+        name: "renderfarm".into(),
+        points: rows.iter().map(|r| (r.seconds, r.rel_mse, r.spp)).collect(),
+    }];
+    series.extend(peers.into_iter().map(|p| Series { name: p.name, points: p.points }));
+    write_plot(&args.plot, &series)?;
     eprintln!("plot: {}", args.plot.display());
     if args.large {
         large_scene(&scenes, args.threads, &out_dir)?;
@@ -182,24 +221,120 @@ fn large_scene(scenes: &Path, threads: usize, out_dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// A log-log plot of relative MSE against seconds, one point per sample count.
-fn write_plot(path: &Path, rows: &[Row]) -> Result<()> {
+/// One renderer's error against time: (seconds, relative MSE, spp), by increasing seconds.
+#[derive(Debug)]
+struct Series {
+    name: String,
+    points: Vec<(f64, f64, u32)>,
+}
+
+impl Series {
+    /// Relative MSE at `seconds`, interpolated log-log between the two runs around it, or
+    /// extrapolated along the nearest two; a single run is extrapolated as 1 / time (Monte Carlo).
+    fn rel_mse_at(&self, seconds: f64) -> f64 {
+        let p = &self.points;
+        if p.len() == 1 {
+            return p[0].1 * p[0].0 / seconds;
+        }
+        let i = p.iter().position(|q| q.0 >= seconds).unwrap_or(p.len()).clamp(1, p.len() - 1);
+        let ((t0, e0, _), (t1, e1, _)) = (p[i - 1], p[i]);
+        let slope = (e1 / e0).ln() / (t1 / t0).ln();
+        e0 * (slope * (seconds / t0).ln()).exp()
+    }
+}
+
+/// The curves of a peer harness CSV for `scene`, one per `peer` (or `renderer` and `variant`),
+/// keeping runs with positive seconds and error.
+fn peer_curves(text: &str, scene: &str) -> Result<Vec<Series>> {
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    let header = split_csv(lines.next().context("empty CSV")?);
+    let column = |name: &str| header.iter().position(|h| h == name);
+    let need = |name: &str| column(name).with_context(|| format!("no `{name}` column"));
+    let (c_scene, c_spp, c_seconds, c_rel) =
+        (need("scene")?, need("spp")?, need("seconds")?, need("relmse")?);
+    let (c_peer, c_renderer, c_variant) = (column("peer"), column("renderer"), column("variant"));
+    let mut curves: Vec<Series> = Vec::new();
+    for (n, line) in lines.enumerate() {
+        let f = split_csv(line);
+        let field = |c: usize| f.get(c).map(String::as_str).unwrap_or("");
+        if field(c_scene) != scene {
+            continue;
+        }
+        let number = |c: usize| -> Result<f64> {
+            field(c)
+                .parse()
+                .with_context(|| format!("row {}: `{}` is not a number", n + 2, field(c)))
+        };
+        let (seconds, rel) = (number(c_seconds)?, number(c_rel)?);
+        let spp = number(c_spp)? as u32;
+        let name = match c_peer.map(field).filter(|p| !p.is_empty()) {
+            Some(peer) => peer.to_string(),
+            None => format!(
+                "{}:{}",
+                c_renderer.map(field).unwrap_or("peer"),
+                c_variant.map(field).unwrap_or("")
+            ),
+        };
+        if !(seconds > 0.0 && rel > 0.0) {
+            continue;
+        }
+        match curves.iter_mut().find(|c| c.name == name) {
+            Some(c) => c.points.push((seconds, rel, spp)),
+            None => curves.push(Series { name, points: vec![(seconds, rel, spp)] }),
+        }
+    }
+    anyhow::ensure!(!curves.is_empty(), "no runs of scene `{scene}`");
+    for c in &mut curves {
+        c.points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    Ok(curves)
+}
+
+/// The fields of one CSV line (double-quoted fields may hold commas and doubled quotes).
+fn split_csv(line: &str) -> Vec<String> {
+    let (mut fields, mut field, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.trim_end_matches('\r').chars().peekable();
+    while let Some(ch) = chars.next() {
+        match (ch, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                field.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => fields.push(std::mem::take(&mut field)),
+            _ => field.push(ch),
+        }
+    }
+    fields.push(field);
+    fields
+}
+
+/// A log-log plot of relative MSE against seconds, one point per sample count and one line per
+/// renderer (ours first).
+fn write_plot(path: &Path, series: &[Series]) -> Result<()> {
+    const COLORS: [&str; 5] = ["#c33", "#36c", "#393", "#c93", "#939"];
     let (w, h, m) = (640.0, 420.0, 60.0);
-    let pts: Vec<(f64, f64, u32)> = rows
+    let logs: Vec<Vec<(f64, f64, u32)>> = series
         .iter()
-        .filter(|r| r.seconds > 0.0 && r.rel_mse > 0.0)
-        .map(|r| (r.seconds.log10(), r.rel_mse.log10(), r.spp))
+        .map(|s| {
+            s.points
+                .iter()
+                .filter(|p| p.0 > 0.0 && p.1 > 0.0)
+                .map(|p| (p.0.log10(), p.1.log10(), p.2))
+                .collect()
+        })
         .collect();
-    if pts.is_empty() {
+    let all = || logs.iter().flatten();
+    if all().next().is_none() {
         return Ok(());
     }
     let (x0, x1) = (
-        pts.iter().map(|p| p.0).fold(f64::MAX, f64::min).floor(),
-        pts.iter().map(|p| p.0).fold(f64::MIN, f64::max).ceil(),
+        all().map(|p| p.0).fold(f64::MAX, f64::min).floor(),
+        all().map(|p| p.0).fold(f64::MIN, f64::max).ceil(),
     );
     let (y0, y1) = (
-        pts.iter().map(|p| p.1).fold(f64::MAX, f64::min).floor(),
-        pts.iter().map(|p| p.1).fold(f64::MIN, f64::max).ceil(),
+        all().map(|p| p.1).fold(f64::MAX, f64::min).floor(),
+        all().map(|p| p.1).fold(f64::MIN, f64::max).ceil(),
     );
     let sx = |x: f64| m + (x - x0) / (x1 - x0).max(1e-9) * (w - 2.0 * m);
     let sy = |y: f64| h - m - (y - y0) / (y1 - y0).max(1e-9) * (h - 2.0 * m);
@@ -225,21 +360,38 @@ fn write_plot(path: &Path, rows: &[Row]) -> Result<()> {
             m - 6.0
         )?;
     }
-    let line: Vec<String> = pts.iter().map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1))).collect();
-    write!(
-        svg,
-        r##"<polyline points="{}" fill="none" stroke="#c33" stroke-width="2"/>"##,
-        line.join(" ")
-    )?;
-    for p in &pts {
+    for (k, (pts, s)) in logs.iter().zip(series).enumerate() {
+        let color = COLORS[k % COLORS.len()];
+        let line: Vec<String> =
+            pts.iter().map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1))).collect();
         write!(
             svg,
-            r##"<circle cx="{:.1}" cy="{:.1}" r="3" fill="#c33"/><text x="{:.1}" y="{:.1}">{} spp</text>"##,
-            sx(p.0),
-            sy(p.1),
-            sx(p.0) + 5.0,
-            sy(p.1) - 5.0,
-            p.2
+            r##"<polyline points="{}" fill="none" stroke="{color}" stroke-width="2"/>"##,
+            line.join(" ")
+        )?;
+        for p in pts {
+            write!(
+                svg,
+                r##"<circle cx="{:.1}" cy="{:.1}" r="3" fill="{color}"/>"##,
+                sx(p.0),
+                sy(p.1)
+            )?;
+            if k == 0 {
+                write!(
+                    svg,
+                    r##"<text x="{:.1}" y="{:.1}">{} spp</text>"##,
+                    sx(p.0) + 5.0,
+                    sy(p.1) - 5.0,
+                    p.2
+                )?;
+            }
+        }
+        let name = s.name.replace('&', "&amp;").replace('<', "&lt;");
+        write!(
+            svg,
+            r##"<text x="{}" y="{}" fill="{color}" text-anchor="end">{name}</text>"##,
+            w - m,
+            m + 16.0 * k as f64
         )?;
     }
     write!(
@@ -249,4 +401,45 @@ fn write_plot(path: &Path, rows: &[Row]) -> Result<()> {
     )?;
     std::fs::write(path, svg)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn equal_time_error_follows_the_peer_curve_log_log() {
+        // Runs on the power law e = 0.3 / t^1.2 give the law back between, before and after them.
+        let law = |t: f64| 0.3 * t.powf(-1.2);
+        let points = [0.05, 0.2, 0.9, 4.0].map(|t| (t, law(t), 1)).to_vec();
+        let curve = Series { name: "peer".into(), points };
+        for t in [0.01, 0.05, 0.1, 0.5, 2.0, 4.0, 30.0] {
+            let got = curve.rel_mse_at(t);
+            assert!((got / law(t) - 1.0).abs() < 1e-9, "t {t}: {got} against {}", law(t));
+        }
+        let single = Series { name: "one".into(), points: vec![(2.0, 0.01, 16)] };
+        assert!((single.rel_mse_at(4.0) - 0.005).abs() < 1e-15);
+    }
+
+    #[test]
+    fn peer_curves_come_from_the_harness_csv() {
+        let csv = "renderer,version,variant,scene,spp,seconds,rmse,relmse,peer\n\
+            mitsuba,3.9.1,llvm_ad_rgb,cornell-box,4,0.2,0.1,0.0758,mitsuba:llvm_ad_rgb\n\
+            mitsuba,3.9.1,llvm_ad_rgb,cornell-box,1,0.05,0.2,0.298,mitsuba:llvm_ad_rgb\n\
+            cycles,\"5.0.1, build x\",,cornell-box,1,0.5,0.2,0.3,\n\
+            cycles,5.0.1,,other-scene,1,0.5,0.2,0.3,cycles\n";
+        let curves = peer_curves(csv, "cornell-box").unwrap();
+        assert_eq!(curves.len(), 2);
+        assert_eq!(curves[0].name, "mitsuba:llvm_ad_rgb");
+        assert_eq!(curves[0].points, vec![(0.05, 0.298, 1), (0.2, 0.0758, 4)]);
+        assert_eq!(curves[1].name, "cycles:");
+        assert_eq!(curves[1].points, vec![(0.5, 0.3, 1)]);
+        let err = peer_curves("renderer,scene,spp,seconds\n", "cornell-box").unwrap_err();
+        assert!(format!("{err:#}").contains("no `relmse` column"), "{err:#}");
+        let err = peer_curves(csv, "kitchen").unwrap_err();
+        assert!(format!("{err:#}").contains("no runs of scene `kitchen`"), "{err:#}");
+        let bad = "scene,spp,seconds,relmse\ncornell-box,1,fast,0.3\n";
+        let err = peer_curves(bad, "cornell-box").unwrap_err();
+        assert!(format!("{err:#}").contains("row 2: `fast` is not a number"), "{err:#}");
+    }
 }
