@@ -243,30 +243,32 @@ impl Series {
     }
 }
 
-/// The curves of a peer harness CSV for `scene`, one per `peer` (or `renderer` and `variant`),
-/// keeping runs with positive seconds and error.
+/// The curves of a peer harness CSV for `scene`, one per `peer` (or `renderer` and `variant`;
+/// runs of one peer from several rounds make one curve). Rows without seconds or error (the
+/// harness's `--eval` rows) and runs with none are skipped; runs of equal seconds are averaged,
+/// so that the curve's seconds strictly increase.
 fn peer_curves(text: &str, scene: &str) -> Result<Vec<Series>> {
-    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-    let header = split_csv(lines.next().context("empty CSV")?);
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let header = split_csv(lines.next().context("empty CSV")?.1);
     let column = |name: &str| header.iter().position(|h| h == name);
     let need = |name: &str| column(name).with_context(|| format!("no `{name}` column"));
     let (c_scene, c_spp, c_seconds, c_rel) =
         (need("scene")?, need("spp")?, need("seconds")?, need("relmse")?);
     let (c_peer, c_renderer, c_variant) = (column("peer"), column("renderer"), column("variant"));
     let mut curves: Vec<Series> = Vec::new();
-    for (n, line) in lines.enumerate() {
+    for (n, line) in lines {
         let f = split_csv(line);
-        let field = |c: usize| f.get(c).map(String::as_str).unwrap_or("");
-        if field(c_scene) != scene {
+        let field = |c: usize| f.get(c).map(|v| v.trim()).unwrap_or("");
+        if field(c_scene) != scene || field(c_seconds).is_empty() || field(c_rel).is_empty() {
             continue;
         }
         let number = |c: usize| -> Result<f64> {
             field(c)
                 .parse()
-                .with_context(|| format!("row {}: `{}` is not a number", n + 2, field(c)))
+                .with_context(|| format!("line {}: `{}` is not a number", n + 1, field(c)))
         };
         let (seconds, rel) = (number(c_seconds)?, number(c_rel)?);
-        let spp = number(c_spp)? as u32;
+        let spp = if field(c_spp).is_empty() { 0 } else { number(c_spp)? as u32 };
         let name = match c_peer.map(field).filter(|p| !p.is_empty()) {
             Some(peer) => peer.to_string(),
             None => format!(
@@ -275,7 +277,7 @@ fn peer_curves(text: &str, scene: &str) -> Result<Vec<Series>> {
                 c_variant.map(field).unwrap_or("")
             ),
         };
-        if !(seconds > 0.0 && rel > 0.0) {
+        if !(seconds > 0.0 && rel > 0.0 && seconds.is_finite() && rel.is_finite()) {
             continue;
         }
         match curves.iter_mut().find(|c| c.name == name) {
@@ -286,6 +288,17 @@ fn peer_curves(text: &str, scene: &str) -> Result<Vec<Series>> {
     anyhow::ensure!(!curves.is_empty(), "no runs of scene `{scene}`");
     for c in &mut curves {
         c.points.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut merged: Vec<(f64, f64, u32, u32)> = Vec::new();
+        for &(t, e, spp) in &c.points {
+            match merged.last_mut() {
+                Some(m) if m.0 == t => {
+                    m.1 += e;
+                    m.3 += 1;
+                }
+                _ => merged.push((t, e, spp, 1)),
+            }
+        }
+        c.points = merged.into_iter().map(|(t, e, spp, k)| (t, e / k as f64, spp)).collect();
     }
     Ok(curves)
 }
@@ -438,8 +451,19 @@ mod tests {
         assert!(format!("{err:#}").contains("no `relmse` column"), "{err:#}");
         let err = peer_curves(csv, "kitchen").unwrap_err();
         assert!(format!("{err:#}").contains("no runs of scene `kitchen`"), "{err:#}");
-        let bad = "scene,spp,seconds,relmse\ncornell-box,1,fast,0.3\n";
+        let bad = "scene,spp,seconds,relmse\n\ncornell-box,1,fast,0.3\n";
         let err = peer_curves(bad, "cornell-box").unwrap_err();
-        assert!(format!("{err:#}").contains("row 2: `fast` is not a number"), "{err:#}");
+        assert!(format!("{err:#}").contains("line 3: `fast` is not a number"), "{err:#}");
+        // Scored-only rows (no seconds) are skipped; runs of equal seconds are averaged, so the
+        // curve never divides by a zero time span.
+        let rounds = "scene,spp,seconds,relmse,peer\n\
+            cornell-box,,,0.2,p\n\
+            cornell-box,4,0.2,0.06,p\n\
+            cornell-box,4,0.2,0.08,p\n\
+            cornell-box,1,0.05,0.3,p\n";
+        let curves = peer_curves(rounds, "cornell-box").unwrap();
+        assert_eq!(curves[0].points.len(), 2);
+        assert!((curves[0].points[1].1 - 0.07).abs() < 1e-12);
+        assert!(curves[0].rel_mse_at(0.1).is_finite());
     }
 }
