@@ -137,7 +137,7 @@ fn main() -> Result<()> {
         name: "renderfarm".into(),
         points: rows.iter().map(|r| (r.seconds, r.rel_mse, r.spp)).collect(),
     }];
-    series.extend(peers.into_iter().map(|p| Series { name: p.name, points: p.points }));
+    series.extend(peers);
     write_plot(&args.plot, &series)?;
     eprintln!("plot: {}", args.plot.display());
     if args.large {

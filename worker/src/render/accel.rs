@@ -270,7 +270,7 @@ impl Shear {
         let inside = ((e0.cmpge(zero) & e1.cmpge(zero) & e2.cmpge(zero))
             | (e0.cmple(zero) & e1.cmple(zero) & e2.cmple(zero)))
         .bitmask();
-        if inside & lanes & !edge_zero == 0 && edge_zero == 0 {
+        if inside & lanes == 0 && edge_zero == 0 {
             return None; // The usual miss, settled before the distance tests.
         }
         let det = e0 + e1 + e2;
