@@ -4,7 +4,8 @@
 //! render size comes from `SCENE.settings.json` beside the scene when there is one, else 256x256).
 //! `HOTPATH_REPEAT=1` runs each measurement once (for instruction counts under
 //! `valgrind --tool=callgrind`, which are steadier than times on a shared machine);
-//! `HOTPATH_ALL=1` prints every repetition's time.
+//! `HOTPATH_ALL=1` prints every repetition's time; `HOTPATH_SAMPLES_ONLY=1` stops after the first
+//! measurement (whole samples), for quick alternating runs of two builds.
 use std::time::Instant;
 
 use common::settings::RenderSettings;
@@ -80,6 +81,9 @@ fn main() -> anyhow::Result<()> {
         stats.rays
     });
     println!("samples: {:.3} us/sample, {:.2} rays/sample", secs / n * 1e6, rays as f64 / n);
+    if std::env::var_os("HOTPATH_SAMPLES_ONLY").is_some() {
+        return Ok(());
+    }
     let (secs, _) = fastest(|| {
         let mut sampler = Sampler::new(1, 0);
         let mut stats = Stats::default();

@@ -8,9 +8,12 @@
 //! interpolated log-log) and our error over it: the README's equal-time ratios. The peers' curves
 //! go on the same plot.
 //!
+//! Like the peers harness, which renders each peer once untimed before its timed runs, the timed
+//! renders follow an untimed 1-spp one (`--no-warmup` leaves it out).
+//!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
-//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes]`; figures in the README
-//! come from this command.
+//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--no-warmup]`; figures
+//! in the README come from this command.
 
 use std::{
     fmt::Write as _,
@@ -49,6 +52,11 @@ struct Args {
     /// The shared folder with scenes and references.
     #[arg(long, default_value = "../shared")]
     shared: PathBuf,
+    /// Skip the untimed 1-spp warm-up render (the peers harness gives each peer one too, for
+    /// the page cache and its kernel cache; ours loads the scene, the program's code and the
+    /// allocator's memory once before timing).
+    #[arg(long)]
+    no_warmup: bool,
 }
 
 struct Row {
@@ -93,6 +101,10 @@ fn main() -> Result<()> {
     println!(
         "scene,spp,threads,seconds,write_seconds,samples_per_s,rays_per_s,rmse,relmse,est_relmse"
     );
+    if !args.no_warmup {
+        let settings = RenderSettings { spp: 1, ..base.clone() };
+        render_file(&cornell, &settings, args.threads, &out_dir.join("warmup.exr"), &|_, _| {})?;
+    }
     let mut rows = Vec::new();
     for &spp in &args.spp {
         let settings = RenderSettings { spp, ..base.clone() };
