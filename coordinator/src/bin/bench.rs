@@ -243,6 +243,9 @@ struct Series {
 impl Series {
     /// Relative MSE at `seconds`, interpolated log-log between the two runs around it, or
     /// extrapolated along the nearest two; a single run is extrapolated as 1 / time (Monte Carlo).
+    /// Before the first run the error grows no faster than 1 / time: a peer's first runs often
+    /// fall faster than that (its fixed costs shrink in share), and extrapolating that slope to
+    /// times it never rendered at would flatter us.
     fn rel_mse_at(&self, seconds: f64) -> f64 {
         let p = &self.points;
         if p.len() == 1 {
@@ -250,7 +253,10 @@ impl Series {
         }
         let i = p.iter().position(|q| q.0 >= seconds).unwrap_or(p.len()).clamp(1, p.len() - 1);
         let ((t0, e0, _), (t1, e1, _)) = (p[i - 1], p[i]);
-        let slope = (e1 / e0).ln() / (t1 / t0).ln();
+        let mut slope = (e1 / e0).ln() / (t1 / t0).ln();
+        if seconds < t0 {
+            slope = slope.max(-1.0);
+        }
         e0 * (slope * (seconds / t0).ln()).exp()
     }
 }
@@ -434,14 +440,22 @@ mod tests {
 
     #[test]
     fn equal_time_error_follows_the_peer_curve_log_log() {
-        // Runs on the power law e = 0.3 / t^1.2 give the law back between, before and after them.
+        // Runs on the power law e = 0.3 / t^1.2 give the law back between and after them;
+        // before the first run the error grows only as 1 / time.
         let law = |t: f64| 0.3 * t.powf(-1.2);
         let points = [0.05, 0.2, 0.9, 4.0].map(|t| (t, law(t), 1)).to_vec();
         let curve = Series { name: "peer".into(), points };
-        for t in [0.01, 0.05, 0.1, 0.5, 2.0, 4.0, 30.0] {
+        for t in [0.05, 0.1, 0.5, 2.0, 4.0, 30.0] {
             let got = curve.rel_mse_at(t);
             assert!((got / law(t) - 1.0).abs() < 1e-9, "t {t}: {got} against {}", law(t));
         }
+        let before = curve.rel_mse_at(0.01);
+        assert!((before / (law(0.05) * 5.0) - 1.0).abs() < 1e-9, "{before}");
+        // A law that falls slower than 1 / time is followed before the first run too.
+        let slow = |t: f64| 0.3 * t.powf(-0.8);
+        let points = [0.05, 0.2, 0.9].map(|t| (t, slow(t), 1)).to_vec();
+        let curve = Series { name: "slow".into(), points };
+        assert!((curve.rel_mse_at(0.01) / slow(0.01) - 1.0).abs() < 1e-9);
         let single = Series { name: "one".into(), points: vec![(2.0, 0.01, 16)] };
         assert!((single.rel_mse_at(4.0) - 0.005).abs() < 1e-15);
     }
