@@ -140,6 +140,9 @@ impl BoxRay {
     }
 }
 
+/// The sheared frame's axes (x, y, z) for each choice of z: x and y follow z cyclically.
+const AXES_FOR_Z: [[usize; 3]; 3] = [[1, 2, 0], [2, 0, 1], [0, 1, 2]];
+
 /// Per-ray constants of the watertight test.
 struct Shear {
     /// Coordinate axes in the sheared frame: the direction's largest axis becomes z, and x and y
@@ -169,9 +172,10 @@ impl Shear {
         } else {
             2
         };
-        let axes = [(kz + 1) % 3, (kz + 2) % 3, kz];
+        let axes = AXES_FOR_Z[kz];
+        // Arrays, not `Vec3` indexing (a `match` per access).
+        let (d, o) = (d.to_array(), ray.origin.to_array());
         let (dx, dy, dz) = (d[axes[0]], d[axes[1]], d[axes[2]]);
-        let o = ray.origin;
         let origin = [o[axes[0]], o[axes[1]], o[axes[2]]];
         let s = Vec3::new(-dx / dz, -dy / dz, 1.0 / dz);
         Shear {
