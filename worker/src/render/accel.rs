@@ -628,8 +628,8 @@ const LEAF_PRIMS: u32 = 4;
 const LARGE_LEAF_PRIMS: u32 = 4;
 
 /// Scenes up to this many triangles get every node reinserted where it lowers the tree's SAH
-/// cost (Meister and Bittner 2018); larger ones a share that keeps the work about the same, down
-/// to `obvhs`'s medium build (5%).
+/// cost (Meister and Bittner 2018); larger ones a falling share, down to `obvhs`'s medium build
+/// (5%).
 const FULL_REINSERTION_TRIS: usize = 4096;
 
 /// The share of nodes the builder's reinsertion pass takes for a scene of `n` triangles.
@@ -638,10 +638,11 @@ const FULL_REINSERTION_TRIS: usize = 4096;
 /// triangles; 8% less time, median of 20 alternated runs), 4.3% fewer on Suzanne (3,936) and the
 /// punctual-lights lamp (6,000), 1.1% on WaterBottle (4,510), and on DamagedHelmet (15,452) 2.5%
 /// at 100% and 1.9% at 27%. Its cost: 2.6-4.3 µs per triangle at 100% (DamagedHelmet 67 ms
-/// against 10 ms), so the share falls as scenes grow (27% for DamagedHelmet): the extra work
-/// stays about that of one full pass over 4,096 triangles (10 ms on Suzanne).
+/// against 10 ms), so the share falls as scenes grow: DamagedHelmet at its 27% builds in 16-23
+/// ms, Suzanne at 100% in 10-15 ms.
 fn reinsertion_ratio(n: usize) -> f32 {
-    (FULL_REINSERTION_TRIS as f32 / n.max(1) as f32).clamp(0.05, 1.0)
+    let floor = BvhBuildParams::medium_build().reinsertion_batch_ratio;
+    (FULL_REINSERTION_TRIS as f32 / n.max(1) as f32).clamp(floor, 1.0)
 }
 
 /// The most entries a traversal of `nodes` (children after their parents, the root first) can
