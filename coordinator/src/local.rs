@@ -26,7 +26,7 @@ use worker::client::{self, WorkerOptions};
 
 use crate::{
     farm::job::{JobState, JobStatus},
-    output::{write_exr, write_png, FrameInfo},
+    output::{write_frame, FrameInfo},
     service::ServiceConfig,
 };
 
@@ -221,9 +221,8 @@ pub fn render_file(
             render_seconds: status.elapsed_s,
             frame,
         };
-        write_exr(&exr_path, &frame_film, &info)?;
         let png_path = exr_path.with_extension("png");
-        write_png(&png_path, &frame_film, 0.0)?;
+        write_frame(&exr_path, &png_path, &frame_film, &info)?;
         outputs.push(exr_path);
         outputs.push(png_path);
         film = frame_film;

@@ -45,6 +45,20 @@ fn image_is_identical_with_one_or_two_workers() {
     let samples = &a.iter().find(|(n, _)| n == "samples").unwrap().1;
     assert!(samples.iter().all(|&s| s == 24), "every pixel gets exactly spp samples");
     assert!(one.with_extension("png").exists());
+    // Two parts: the image with the header attributes, then the variance.
+    let attributes =
+        coordinator::output::read_text_attributes(&std::fs::read(&one).unwrap()).unwrap();
+    let get = |name: &str| {
+        attributes.iter().find(|(part, n, _)| part == "rgba" && n == name).map(|a| a.2.clone())
+    };
+    assert_eq!(get("renderfarm.samples").as_deref(), Some(&*(64 * 48 * 24).to_string()));
+    assert_eq!(get("renderfarm.frame").as_deref(), Some("0"));
+    assert_eq!(get("renderfarm.rejected_samples").as_deref(), Some("0"));
+    assert_eq!(get("renderfarm.scene_sha256").map(|h| h.len()), Some(64));
+    let settings: serde_json::Value =
+        serde_json::from_str(&get("renderfarm.settings").unwrap()).unwrap();
+    assert_eq!(settings["spp"], 24);
+    assert!(get("renderfarm.est_rel_mse").unwrap().parse::<f64>().unwrap() > 0.0);
 }
 
 #[test]
