@@ -205,7 +205,8 @@ pub fn render_file(
     let multi = settings.frames.end > settings.frames.start;
     let write_start = Instant::now();
     let mut outputs = Vec::new();
-    let mut film = Film::new(settings.width, settings.height);
+    // The last frame's film (a job has at least one frame).
+    let mut film = None;
     let farm = service.farm();
     let rays = farm.lock().unwrap_or_else(|p| p.into_inner()).counters.rays;
     for &frame in &status.frames {
@@ -225,7 +226,7 @@ pub fn render_file(
         write_frame(&exr_path, &png_path, &frame_film, &info)?;
         outputs.push(exr_path);
         outputs.push(png_path);
-        film = frame_film;
+        film = Some(frame_film);
     }
     let write_seconds = write_start.elapsed().as_secs_f64();
     drop(farm);
@@ -238,6 +239,6 @@ pub fn render_file(
         write_seconds,
         rays,
         samples: status.samples_done,
-        film,
+        film: film.unwrap_or_else(|| Film::new(settings.width, settings.height)),
     })
 }
