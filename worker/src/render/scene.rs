@@ -155,7 +155,10 @@ fn prepare_inner(
         _ => false,
     };
     let mut moving = Vec::new();
-    for inst in &scene.instances {
+    // Which placement of which mesh each static triangle comes from: an emitter, for the light
+    // choice (`LightSampler`).
+    let mut emitter_of: Vec<u32> = Vec::with_capacity(scene.triangle_count());
+    for (placement, inst) in scene.instances.iter().enumerate() {
         let mesh = &scene.meshes[inst.mesh];
         let material = &scene.materials[mesh.material];
         let invisible = match material.alpha_mode {
@@ -198,6 +201,7 @@ fn prepare_inner(
         for &[a, b, c] in &mesh.indices {
             let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };
             triangles.push([world[a as usize], world[b as usize], world[c as usize]]);
+            emitter_of.push(placement as u32);
             shading.push(TriShading {
                 vertices: [base + a, base + b, base + c],
                 material: mesh.material as u32,
@@ -214,6 +218,8 @@ fn prepare_inner(
     let mut shading: Vec<TriShading> = order.iter().map(|&i| shading[i as usize]).collect();
 
     let mut lights = Vec::new();
+    // The emitter of each light: a placement of a mesh for emissive triangles, then one each.
+    let mut emitters = Vec::new();
     // Mean emission of textured emitters, for choosing lights by power (computed once).
     let mut texture_means: Vec<Option<Vec4>> = vec![None; scene.textures.len()];
     for (prim, tri) in shading.iter_mut().enumerate() {
@@ -234,6 +240,7 @@ fn prepare_inner(
                 light.textured = textured;
                 tri.light = lights.len() as u32;
                 lights.push(Light::Triangle(light));
+                emitters.push(emitter_of[order[prim] as usize]);
             }
         }
     }
@@ -273,6 +280,8 @@ fn prepare_inner(
     if let Some(env) = &environment {
         lights.push(Light::Environment(Arc::clone(env)));
     }
+    let placements = scene.instances.len() as u32;
+    emitters.extend((placements..).take(lights.len() - emitters.len()));
     let motion = match (shutter, &scene.animation) {
         (Some(shutter), Some(anim)) => {
             let anim = Arc::new(anim.clone());
@@ -379,7 +388,7 @@ fn prepare_inner(
         materials: scene.materials.clone(),
         textures: scene.textures.clone(),
         alpha_tested,
-        lights: LightSampler::new(lights, scene_radius),
+        lights: LightSampler::new(lights, &emitters, scene_radius),
         environment,
         environment_visible,
         max_depth: settings.max_depth,

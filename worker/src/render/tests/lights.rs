@@ -224,7 +224,8 @@ fn light_sampler_choose_matches_probability() {
         Light::Directional(DirectionalLight { to_light: Vec3::Y, irradiance: Vec3::splat(0.1) }),
         Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(0.05)))),
     ];
-    let sampler = LightSampler::new(lights, 5.0);
+    // The first two triangles are one emitter.
+    let sampler = LightSampler::new(lights, &[0, 0, 1, 2, 3, 4, 5, 6], 5.0);
     let k = sampler.lights.len();
     let total: f64 = (0..k as u32).map(|i| sampler.probability(i) as f64).sum();
     assert!((total - 1.0).abs() < 1e-6, "probabilities sum to {total}");
@@ -250,6 +251,46 @@ fn light_sampler_choose_matches_probability() {
     // The edges of [0, 1) pick the first and the last light with power.
     assert_eq!(sampler.choose(0.0).map(|c| c.0), Some(0));
     assert_eq!(sampler.choose(1.0 - f32::EPSILON / 2.0).map(|c| c.0), Some(k as u32 - 1));
+}
+
+#[test]
+fn light_choice_mixes_power_with_a_uniform_choice_of_emitter() {
+    let quad = |x: f32, size: f32, emission: f32| {
+        let [a, b, c, d] = [[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]]
+            .map(|[u, v]| Vec3::new(x + u, v, 0.0));
+        [[a, b, c], [a, c, d]]
+            .map(|p| Light::Triangle(TriangleLight::new(p, Vec3::splat(emission), false).unwrap()))
+    };
+    // A bright emitter (two triangles, 98% of the power), a dim one (two triangles), a dark one
+    // (never chosen) and a point light.
+    let [b0, b1] = quad(0.0, 1.0, 1000.0);
+    let [d0, d1] = quad(5.0, 0.5, 80.0);
+    let [z0, z1] = quad(9.0, 1.0, 0.0);
+    let point = Light::Point(PointLight { position: Vec3::ONE, intensity: Vec3::splat(0.5) });
+    let lights = vec![b0, b1, d0, z0, d1, z1, point];
+    let powers: Vec<f64> = lights.iter().map(|l| l.power(5.0) as f64).collect();
+    let sampler = LightSampler::new(lights, &[7, 7, 3, 9, 3, 9, 1], 5.0);
+    let total: f64 = powers.iter().sum();
+    let emitter = |i: &[usize]| i.iter().map(|&i| powers[i]).sum::<f64>();
+    let (bright, dim) = (emitter(&[0, 1]), emitter(&[2, 4]));
+    let share =
+        |i: usize, of_emitter: f64| 0.5 * powers[i] / total + 0.5 * powers[i] / of_emitter / 3.0;
+    let expected = [
+        share(0, bright),
+        share(1, bright),
+        share(2, dim),
+        0.0,
+        share(4, dim),
+        0.0,
+        share(6, powers[6]),
+    ];
+    for (i, &want) in expected.iter().enumerate() {
+        let got = sampler.probability(i as u32) as f64;
+        assert!((got - want).abs() <= 1e-6 * want.max(1e-3), "light {i}: {got} against {want}");
+    }
+    // By power alone each dim triangle would get 1% and the point light 0.2%; each lit
+    // emitter now gets at least a sixth of the choice.
+    assert!(expected[2] > 0.08 && expected[6] > 0.16);
 }
 
 /// A 64x32 map with a smooth gradient, a bright 3x3-texel "sun" and a black band, so that the
