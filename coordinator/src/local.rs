@@ -18,7 +18,6 @@ use anyhow::{bail, Context, Result};
 use common::{
     bundle::Bundle,
     envmap::EnvMap,
-    film::Film,
     gltf::{DirResolver, Resolver},
     settings::{Environment, RenderSettings},
 };
@@ -47,8 +46,12 @@ pub struct RenderReport {
     pub rays: u64,
     /// Samples taken.
     pub samples: u64,
-    /// The last frame's film.
-    pub film: Film,
+    /// The last frame's mean radiance, row-major RGB.
+    pub mean_rgb: Vec<[f32; 3]>,
+    /// The last frame's estimated relative MSE (infinite below 2 spp; `FrameImage::est_rel_mse`).
+    pub est_rel_mse: f64,
+    /// Samples refused (NaN, infinite or absurd) over all frames.
+    pub rejected: u64,
 }
 
 /// Progress callback: (work done, work total).
@@ -205,16 +208,21 @@ pub fn render_file(
     let multi = settings.frames.end > settings.frames.start;
     let write_start = Instant::now();
     let mut outputs = Vec::new();
-    // The last frame's film (a job has at least one frame).
-    let mut film = None;
+    let (mut mean_rgb, mut est_rel_mse, mut rejected) = (Vec::new(), f64::INFINITY, 0);
     let farm = service.farm();
     let rays = farm.lock().unwrap_or_else(|p| p.into_inner()).counters.rays;
     for &frame in &status.frames {
-        let (frame_film, _) = farm
+        let (image, _) = farm
             .lock()
             .unwrap_or_else(|p| p.into_inner())
-            .film(&id, frame)
+            .image(&id, frame)
             .map_err(|e| anyhow::anyhow!(e.message))?;
+        rejected += image.rejected;
+        if Some(&frame) == status.frames.last() {
+            est_rel_mse = image.est_rel_mse();
+            let [r, g, b] = &image.mean;
+            mean_rgb = (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect();
+        }
         let exr_path = if multi { numbered(out, frame) } else { out.to_path_buf() };
         let info = FrameInfo {
             settings_json: serde_json::to_string(&status.settings)?,
@@ -223,10 +231,9 @@ pub fn render_file(
             frame,
         };
         let png_path = exr_path.with_extension("png");
-        write_frame(&exr_path, &png_path, &frame_film, &info)?;
+        write_frame(&exr_path, &png_path, image, &info)?;
         outputs.push(exr_path);
         outputs.push(png_path);
-        film = Some(frame_film);
     }
     let write_seconds = write_start.elapsed().as_secs_f64();
     drop(farm);
@@ -239,6 +246,8 @@ pub fn render_file(
         write_seconds,
         rays,
         samples: status.samples_done,
-        film: film.unwrap_or_else(|| Film::new(settings.width, settings.height)),
+        mean_rgb,
+        est_rel_mse,
+        rejected,
     })
 }

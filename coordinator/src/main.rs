@@ -286,15 +286,14 @@ fn main() -> Result<()> {
             if let Some(bar) = bar {
                 bar.finish_and_clear();
             }
-            let est = report.film.error_estimate();
-            if report.film.rejected > 0 {
+            if report.rejected > 0 {
                 tracing::warn!(
-                    rejected = report.film.rejected,
+                    rejected = report.rejected,
                     "samples were NaN, infinite or absurdly large and were counted as zero; reproduce one with `worker debug-sample`"
                 );
             }
-            let est_text = if est.rel_mse.is_finite() {
-                format!("{:.3e}", est.rel_mse)
+            let est_text = if report.est_rel_mse.is_finite() {
+                format!("{:.3e}", report.est_rel_mse)
             } else {
                 "unknown (needs 2 spp)".to_string()
             };

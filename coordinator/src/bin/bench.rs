@@ -113,7 +113,7 @@ fn main() -> Result<()> {
         let report = render_file(&cornell, &settings, args.threads, &out, &|_, _| {})?;
         // Like the peers' figures: loading and rendering, not writing the image files.
         let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
-        let image = report.film.mean_rgb();
+        let image = report.mean_rgb;
         let (rmse, rel_mse) = metrics(&image, &reference);
         println!(
             "cornell-box,{spp},{},{:.4},{:.4},{:.0},{:.0},{:.6},{:.6e},{:.6e}",
@@ -124,7 +124,7 @@ fn main() -> Result<()> {
             report.rays as f64 / report.render_seconds,
             rmse,
             rel_mse,
-            report.film.error_estimate().rel_mse
+            report.est_rel_mse
         );
         rows.push(Row { spp, seconds, rel_mse });
     }
@@ -181,7 +181,7 @@ fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
                 &out_dir.join(format!("{name}-ref.exr")),
                 &|_, _| {},
             )?;
-            report.film.mean_rgb()
+            report.mean_rgb
         };
         for spp in [16, 64, 256] {
             let settings = RenderSettings { spp, ..base.clone() };
@@ -194,13 +194,13 @@ fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
                 &|_, _| {},
             )?;
             let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
-            let (rmse, rel_mse) = metrics(&report.film.mean_rgb(), &reference);
+            let (rmse, rel_mse) = metrics(&report.mean_rgb, &reference);
             println!(
                 "{name},{spp},{threads},{seconds:.4},{:.4},{:.0},{:.0},{rmse:.6},{rel_mse:.6e},{:.6e}",
                 report.write_seconds,
                 report.samples as f64 / report.render_seconds,
                 report.rays as f64 / report.render_seconds,
-                report.film.error_estimate().rel_mse
+                report.est_rel_mse
             );
         }
     }

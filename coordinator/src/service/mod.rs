@@ -523,7 +523,7 @@ async fn frame_image(
                 render_seconds: status.elapsed_s,
                 frame: number,
             };
-            let bytes = exr_bytes(&image, &info)?;
+            let bytes = exr_bytes(image, &info)?;
             Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"))], bytes)
                 .into_response())
         } else {
