@@ -104,8 +104,9 @@ enum Command {
         output: PathBuf,
         #[command(flatten)]
         settings: SettingsArgs,
-        /// Local workers (default: one per core).
-        #[arg(long)]
+        /// Local workers, one render thread each (default: one per core). `--threads` is the
+        /// same (the peers benchmark harness passes it).
+        #[arg(long, visible_alias = "threads")]
         workers: Option<usize>,
     },
     /// Run the farm service: REST API, worker protocol, metrics and dashboard.

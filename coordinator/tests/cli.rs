@@ -23,10 +23,14 @@ fn channels(path: &PathBuf) -> Vec<(String, Vec<u32>)> {
 }
 
 fn render(workers: &str, out: &PathBuf) {
+    render_with("--workers", workers, out)
+}
+
+fn render_with(flag: &str, workers: &str, out: &PathBuf) {
     let status = coordinator()
         .args(["render", "scenes/cornell-box.gltf", "-o"])
         .arg(out)
-        .args(["--width", "64", "--height", "48", "--spp", "24", "--workers", workers])
+        .args(["--width", "64", "--height", "48", "--spp", "24", flag, workers])
         .current_dir(repo())
         .status()
         .unwrap();
@@ -42,6 +46,10 @@ fn image_is_identical_with_one_or_two_workers() {
     let names: Vec<&str> = a.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, ["B", "G", "R", "samples", "variance.B", "variance.G", "variance.R"]);
     assert_eq!(a, b, "channels differ between 1 and 2 workers");
+    // `--threads` (what the peers harness passes) is `--workers`.
+    let threads = temp("threads.exr");
+    render_with("--threads", "2", &threads);
+    assert_eq!(channels(&threads), b, "--threads 2 differs from --workers 2");
     let samples = &a.iter().find(|(n, _)| n == "samples").unwrap().1;
     assert!(samples.iter().all(|&s| s == 24), "every pixel gets exactly spp samples");
     assert!(one.with_extension("png").exists());
