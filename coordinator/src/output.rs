@@ -203,7 +203,8 @@ fn png_of_mean(width: u32, height: u32, mean: &[Vec<f32>; 3], exposure: f32) -> 
     let mut encoder = png::Encoder::new(&mut out, width, height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
-    // A preview: the fastest deflate (a 256x256 image in about a millisecond, not fifteen).
+    // A preview: the fastest deflate. A 256x256 preview, sRGB conversion included, took
+    // 1.9-3.7 ms (three runs) against about 15 ms at the default level.
     encoder.set_compression(png::Compression::Fast);
     let mut writer = encoder.write_header().context("writing PNG header")?;
     writer.write_image_data(&bytes).context("writing PNG data")?;

@@ -23,7 +23,7 @@ use std::{
 };
 
 use common::{
-    film::{ErrorEstimate, Film, TileAccum},
+    film::{ErrorEstimate, TileAccum},
     protocol::{SampleRange, TaskSpec},
     settings::RenderSettings,
 };
@@ -624,8 +624,10 @@ impl Job {
     }
 
     /// The merged film of frame index `f`.
-    pub fn film(&self, f: usize) -> Film {
-        let mut film = Film::new(self.settings.width, self.settings.height);
+    /// (Tests compare whole statistics with it; files are written from `image`.)
+    #[cfg(test)]
+    pub fn film(&self, f: usize) -> common::film::Film {
+        let mut film = common::film::Film::new(self.settings.width, self.settings.height);
         for tile in self.frames[f].tiles.iter().filter(|t| !t.sums.pixels.is_empty()) {
             film.merge_tile(&tile.sums);
         }

@@ -18,7 +18,6 @@ use std::{
 use anyhow::Result;
 use common::{
     bundle::{Bundle, Format, Limits},
-    film::Film,
     protocol::{JoinRequest, JoinResponse, LeaseGrant, TaskResult},
     settings::{Environment, RenderSettings},
 };
@@ -361,13 +360,15 @@ impl Farm {
 
     /// The merged film of frame `number` of job `id` (also while it runs), with its job's
     /// settings and scene hash.
-    pub fn film(&self, id: &str, number: i64) -> FarmResult<(Film, JobStatus)> {
+    /// (Tests compare whole statistics with it; files are written from `image`.)
+    #[cfg(test)]
+    pub fn film(&self, id: &str, number: i64) -> FarmResult<(common::film::Film, JobStatus)> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
         if !job.frames[f].evicted {
             return Ok((job.film(f), job.status()));
         }
-        let mut film = Film::new(job.settings.width, job.settings.height);
+        let mut film = common::film::Film::new(job.settings.width, job.settings.height);
         for tile in self.stored_tiles(job, f)? {
             film.merge_tile(&tile);
         }
