@@ -5,7 +5,8 @@
 //! `HOTPATH_REPEAT=1` runs each measurement once (for instruction counts under
 //! `valgrind --tool=callgrind`, which are steadier than times on a shared machine);
 //! `HOTPATH_ALL=1` prints every repetition's time; `HOTPATH_SAMPLES_ONLY=1` stops after the first
-//! measurement (whole samples), for quick alternating runs of two builds.
+//! measurement (whole samples), for quick alternating runs of two builds; `HOTPATH_SPP=N` renders
+//! N samples per pixel instead of 4 (a pixel's samples one after another, as a task does).
 use std::time::Instant;
 
 use common::settings::RenderSettings;
@@ -18,7 +19,10 @@ use worker::render::{
 };
 
 const REPEAT: usize = 7;
-const SPP: u32 = 4;
+/// Samples per pixel (`HOTPATH_SPP`, default 4).
+fn spp() -> u32 {
+    std::env::var("HOTPATH_SPP").ok().and_then(|s| s.parse().ok()).filter(|&s| s > 0).unwrap_or(4)
+}
 
 /// Fastest of `REPEAT` runs of `f`, in seconds.
 fn fastest(mut f: impl FnMut() -> u64) -> (f64, u64) {
@@ -37,11 +41,11 @@ fn fastest(mut f: impl FnMut() -> u64) -> (f64, u64) {
     (best, out)
 }
 
-fn camera_rays(scene: &PreparedScene, w: u32, h: u32, mut f: impl FnMut(Ray)) {
+fn camera_rays(scene: &PreparedScene, w: u32, h: u32, spp: u32, mut f: impl FnMut(Ray)) {
     let mut sampler = Sampler::new(1, 0);
     for y in 0..h {
         for x in 0..w {
-            for s in 0..SPP {
+            for s in 0..spp {
                 sampler.start_pixel_sample(UVec2::new(x, y), s);
                 let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 f(scene.camera.generate_ray(film, Vec2::ZERO));
@@ -61,7 +65,8 @@ fn main() -> anyhow::Result<()> {
     };
     let prepared = prepare(&scene, &settings)?;
     let (w, h) = (settings.width, settings.height);
-    let n = (w * h * SPP) as f64;
+    let spp = spp();
+    let n = (w * h * spp) as f64;
 
     let (secs, rays) = fastest(|| {
         let mut sampler = Sampler::new(1, 0);
@@ -69,7 +74,7 @@ fn main() -> anyhow::Result<()> {
         let mut acc = Vec3::ZERO;
         for y in 0..h {
             for x in 0..w {
-                for s in 0..SPP {
+                for s in 0..spp {
                     sampler.start_pixel_sample(UVec2::new(x, y), s);
                     let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                     let ray = prepared.camera.generate_ray(film, Vec2::ZERO);
@@ -91,7 +96,7 @@ fn main() -> anyhow::Result<()> {
             common::film::TileAccum::new(common::film::Rect { x0: 0, y0: 0, width: w, height: h });
         for y in 0..h {
             for x in 0..w {
-                for s in 0..SPP {
+                for s in 0..spp {
                     sampler.start_pixel_sample(UVec2::new(x, y), s);
                     let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                     let ray = prepared.camera.generate_ray(film, Vec2::ZERO);
@@ -108,7 +113,7 @@ fn main() -> anyhow::Result<()> {
         let task = common::protocol::TaskSpec {
             frame: 0,
             rect: common::film::Rect { x0: 0, y0: 0, width: w, height: h },
-            samples: common::protocol::SampleRange { start: 0, end: SPP },
+            samples: common::protocol::SampleRange { start: 0, end: spp },
         };
         let (secs, _) =
             fastest(|| worker::render::render_task_threads(&prepared, 1, &task, threads).rays);
@@ -116,14 +121,14 @@ fn main() -> anyhow::Result<()> {
     }
     let (secs, found) = fastest(|| {
         let mut k = 0;
-        camera_rays(&prepared, w, h, |r| {
+        camera_rays(&prepared, w, h, spp, |r| {
             k += prepared.intersect(&r, f32::INFINITY, None).is_some() as u64
         });
         k
     });
     println!("camera closest hit: {:.1} ns/ray ({found} hits)", secs / n * 1e9);
     let mut hits = Vec::new();
-    camera_rays(&prepared, w, h, |r| {
+    camera_rays(&prepared, w, h, spp, |r| {
         if let Some(hit) = prepared.intersect(&r, f32::INFINITY, None) {
             hits.push(r.origin + r.dir * hit.t * 0.999);
         }
