@@ -16,13 +16,18 @@ pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
     }
     // The angle is pi/4 times a ratio in [-1, 1] (plus pi/2 on the other two quadrants, which
     // swaps sine and cosine), so a polynomial on [-pi/4, pi/4] serves and no library call is made.
-    if o.x.abs() > o.y.abs() {
-        let (sin, cos) = sin_cos_quarter(FRAC_PI_4 * (o.y / o.x));
-        o.x * Vec2::new(cos, sin)
-    } else {
-        let (sin, cos) = sin_cos_quarter(FRAC_PI_4 * (o.x / o.y));
-        o.y * Vec2::new(sin, cos)
-    }
+    // The quadrant pair is chosen with bit masks, not a branch (it is a coin flip per sample).
+    let x_major = o.x.abs() > o.y.abs();
+    let (num, den) = (select(x_major, o.y, o.x), select(x_major, o.x, o.y));
+    let (sin, cos) = sin_cos_quarter(FRAC_PI_4 * (num / den));
+    den * Vec2::new(select(x_major, cos, sin), select(x_major, sin, cos))
+}
+
+/// `a` if `c`, else `b`, by bit masks: the compiler keeps it free of branches.
+#[inline(always)]
+fn select(c: bool, a: f32, b: f32) -> f32 {
+    let mask = (c as u32).wrapping_neg();
+    f32::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask))
 }
 
 /// sin x and cos x for |x| <= pi/4: Taylor polynomials through x^9 and x^10, whose truncation
@@ -95,14 +100,12 @@ pub fn uniform_cone_pdf(cos_max: f32) -> f32 {
 /// Uniform barycentrics (b0, b1) over a triangle (Heitz 2019, low distortion, keeps strata).
 #[inline]
 pub fn sample_uniform_triangle(u: Vec2) -> (f32, f32) {
-    let (b0, b1) = if u.x < u.y {
-        let b0 = u.x / 2.0;
-        (b0, u.y - b0)
-    } else {
-        let b1 = u.y / 2.0;
-        (u.x - b1, b1)
-    };
-    (b0, b1)
+    // Of (u.x / 2, u.y - u.x / 2) when u.x < u.y and (u.x - u.y / 2, u.y / 2) otherwise, with
+    // no branch (the half is a coin flip): for every normal x (the sampler's numbers are
+    // multiples of 2^-32), x - x / 2 is exactly x / 2, so subtracting half the smaller number
+    // from both gives the same bits.
+    let m = u.x.min(u.y) / 2.0;
+    (u.x - m, u.y - m)
 }
 
 /// GGX (Trowbridge-Reitz) isotropic microfacet distribution in the local frame (+z = normal).
