@@ -101,9 +101,10 @@ pub fn uniform_cone_pdf(cos_max: f32) -> f32 {
 #[inline]
 pub fn sample_uniform_triangle(u: Vec2) -> (f32, f32) {
     // Of (u.x / 2, u.y - u.x / 2) when u.x < u.y and (u.x - u.y / 2, u.y / 2) otherwise, with
-    // no branch (the half is a coin flip): for every normal x (the sampler's numbers are
-    // multiples of 2^-32), x - x / 2 is exactly x / 2, so subtracting half the smaller number
-    // from both gives the same bits.
+    // no branch (the half is a coin flip): x - x / 2 is exactly x / 2 for zero and every normal
+    // x (the inputs are the sampler's multiples of 2^-24 or those stretched by
+    // `choose_remapped`, never subnormal), so subtracting half the smaller number from both
+    // gives the same bits.
     let m = u.x.min(u.y) / 2.0;
     (u.x - m, u.y - m)
 }

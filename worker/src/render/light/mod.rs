@@ -119,11 +119,9 @@ pub const EMITTER_SHARE: f64 = 0.5;
 pub struct LightSampler {
     /// All lights.
     pub lights: Vec<Light>,
-    /// Cumulative probability, `lights.len()` entries ending at 1.
+    /// Cumulative probability, `lights.len() + 1` entries: 0, then the running sums ending at 1.
+    /// Light `i` owns `[cdf[i], cdf[i + 1])`, so its share's start is a lookup, not a branch.
     cdf: Vec<f32>,
-    /// Where each light's share of [0, 1) starts: 0, then `cdf` without its last entry (a table
-    /// lookup instead of a branch on the index in `choose_remapped`).
-    start: Vec<f32>,
     /// Probability of each light.
     prob: Vec<f32>,
     /// Index in `lights` of the environment, if any.
@@ -158,7 +156,8 @@ impl LightSampler {
             })
             .collect();
         let sum: f64 = weights.iter().sum();
-        let mut cdf = Vec::with_capacity(lights.len());
+        let mut cdf = Vec::with_capacity(lights.len() + 1);
+        cdf.push(0.0);
         let mut prob = Vec::with_capacity(lights.len());
         let mut acc = 0.0f64;
         for &w in &weights {
@@ -173,8 +172,7 @@ impl LightSampler {
         }
         let environment =
             lights.iter().position(|l| matches!(l, Light::Environment(_))).map(|i| i as u32);
-        let start = std::iter::once(0.0).chain(cdf.iter().copied()).take(cdf.len()).collect();
-        LightSampler { lights, cdf, start, prob, environment }
+        LightSampler { lights, cdf, prob, environment }
     }
 
     /// True when there is no light with power.
@@ -188,7 +186,7 @@ impl LightSampler {
         if self.is_empty() {
             return None;
         }
-        let i = self.cdf.partition_point(|&c| c <= u).min(self.cdf.len() - 1);
+        let i = self.cdf[1..].partition_point(|&c| c <= u).min(self.prob.len() - 1);
         let p = self.prob[i];
         (p > 0.0).then_some((i as u32, p))
     }
@@ -199,7 +197,7 @@ impl LightSampler {
     #[inline]
     pub fn choose_remapped(&self, u: f32) -> Option<(u32, f32, f32)> {
         let (i, p) = self.choose(u)?;
-        let start = self.start[i as usize];
+        let start = self.cdf[i as usize];
         let remapped = ((u - start) / p).clamp(0.0, 1.0 - f32::EPSILON / 2.0);
         Some((i, p, remapped))
     }
