@@ -6,7 +6,9 @@
 //! `valgrind --tool=callgrind`, which are steadier than times on a shared machine);
 //! `HOTPATH_ALL=1` prints every repetition's time; `HOTPATH_SAMPLES_ONLY=1` stops after the first
 //! measurement (whole samples), for quick alternating runs of two builds; `HOTPATH_SPP=N` renders
-//! N samples per pixel instead of 4 (a pixel's samples one after another, as a task does).
+//! N samples per pixel instead of 4 (a pixel's samples one after another, as a task does);
+//! `HOTPATH_SCALAR=1` makes `render_task_threads` trace one path at a time where it would use
+//! the wavefront renderer (the whole-sample figure is always the scalar `li`).
 use std::time::Instant;
 
 use common::settings::RenderSettings;
@@ -63,7 +65,10 @@ fn main() -> anyhow::Result<()> {
         Ok(text) => RenderSettings::from_json(&text).map_err(anyhow::Error::msg)?,
         Err(_) => RenderSettings { width: 256, height: 256, ..Default::default() },
     };
-    let prepared = prepare(&scene, &settings)?;
+    let mut prepared = prepare(&scene, &settings)?;
+    if std::env::var_os("HOTPATH_SCALAR").is_some() {
+        prepared.wavefront = None;
+    }
     let (w, h) = (settings.width, settings.height);
     let spp = spp();
     let n = (w * h * spp) as f64;

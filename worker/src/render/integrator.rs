@@ -34,11 +34,11 @@ pub struct Stats {
 /// deterministic): the usual scale of 1 (pbrt, Mitsuba) after 4 bounces gave 2.947e-3 x 3.19 G;
 /// a scale of 3 after 2 bounces 2.457e-3 x 3.22 G (16% more efficient, 14-20% from 4 to 256 spp);
 /// scales of 2, 4 and 5 and depths of 1 and 3 did no better.
-const RR_MIN_DEPTH: u32 = 2;
-const RR_SURVIVAL_SCALE: f32 = 3.0;
+pub(crate) const RR_MIN_DEPTH: u32 = 2;
+pub(crate) const RR_SURVIVAL_SCALE: f32 = 3.0;
 
 /// 1 - ShadowEpsilon: shadow rays toward a point stop just short of it.
-const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
+pub(crate) const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
 
 #[inline]
 fn power_heuristic(a: f32, b: f32) -> f32 {

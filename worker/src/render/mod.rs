@@ -8,6 +8,7 @@ pub mod bsdf;
 pub mod camera;
 pub mod geometry;
 pub mod integrator;
+mod lanes;
 pub mod light;
 pub mod material;
 pub mod motion;
@@ -15,6 +16,7 @@ pub mod sampler;
 pub mod sampling;
 pub mod scene;
 pub mod texture;
+pub mod wavefront;
 
 #[cfg(test)]
 mod tests;
@@ -63,6 +65,22 @@ pub fn render_task_threads(
 
 /// Renders rows `first, first + step, ...` of the task's tile.
 fn render_rows(
+    scene: &PreparedScene,
+    seed: u64,
+    task: &TaskSpec,
+    first: u32,
+    step: u32,
+) -> (TileAccum, Stats) {
+    if let Some(tables) = &scene.wavefront {
+        if let Some(done) = wavefront::render_rows(scene, tables, seed, task, first, step) {
+            return done;
+        }
+    }
+    render_rows_scalar(scene, seed, task, first, step)
+}
+
+/// Renders rows `first, first + step, ...` of the task's tile one path at a time.
+pub fn render_rows_scalar(
     scene: &PreparedScene,
     seed: u64,
     task: &TaskSpec,

@@ -82,6 +82,9 @@ pub struct PreparedScene {
     pub max_depth: u32,
     /// Seconds spent building the BVH.
     pub build_seconds: f64,
+    /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
+    /// is traced by `integrator::li`).
+    pub wavefront: Option<super::wavefront::Tables>,
 }
 
 /// Why a scene cannot be prepared for these settings.
@@ -377,7 +380,7 @@ fn prepare_inner(
         AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
         AlphaMode::Opaque => false,
     });
-    Ok(PreparedScene {
+    let mut prepared = PreparedScene {
         origin,
         camera,
         accel,
@@ -394,7 +397,10 @@ fn prepare_inner(
         max_depth: settings.max_depth,
         build_seconds,
         motion,
-    })
+        wavefront: None,
+    };
+    prepared.wavefront = super::wavefront::Tables::new(&prepared);
+    Ok(prepared)
 }
 
 /// Prepares frame `frame` of a scene: a static scene once for all frames; an animated one posed at

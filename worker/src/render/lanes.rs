@@ -1,0 +1,376 @@
+//! Lane-wise f32 arithmetic for the wavefront renderer: thin wrappers over `pulp`'s vectors
+//! (8 lanes under AVX2, 16 under AVX-512) with the operators of scalar code.
+//!
+//! Every operation is the IEEE operation of the scalar code it replaces, lane by lane (no fused
+//! multiply-add, no approximate reciprocal), and `V3`'s methods associate exactly as glam's
+//! `Vec3` does, so a kernel transcribed from scalar code gives the same bits in every lane.
+
+use std::ops::{Add, BitAnd, BitOr, BitXor, Div, Mul, Neg, Not, Sub};
+
+use pulp::Simd;
+
+/// One f32 per lane.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct F<S: Simd> {
+    s: S,
+    v: S::f32s,
+}
+
+/// One condition per lane.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct M<S: Simd> {
+    s: S,
+    m: S::m32s,
+}
+
+/// One u32 per lane (float bit patterns).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct U<S: Simd> {
+    s: S,
+    v: S::u32s,
+}
+
+impl<S: Simd> F<S> {
+    /// Every lane `x`.
+    #[inline(always)]
+    pub(crate) fn splat(s: S, x: f32) -> Self {
+        F { s, v: s.splat_f32s(x) }
+    }
+
+    /// `f32::abs`.
+    #[inline(always)]
+    pub(crate) fn abs(self) -> Self {
+        F { s: self.s, v: self.s.abs_f32s(self.v) }
+    }
+
+    /// `f32::sqrt`.
+    #[inline(always)]
+    pub(crate) fn sqrt(self) -> Self {
+        F { s: self.s, v: self.s.sqrt_f32s(self.v) }
+    }
+
+    /// `f32::max(self, 0.0)` (NaN gives 0).
+    #[inline(always)]
+    pub(crate) fn max0(self) -> Self {
+        let zero = F::splat(self.s, 0.0);
+        self.gt(zero).select(self, zero)
+    }
+
+    /// `f32::min` for operands that are not NaN.
+    #[inline(always)]
+    pub(crate) fn min(self, o: Self) -> Self {
+        self.lt(o).select(self, o)
+    }
+
+    /// glam's `max`: `if a > b { a } else { b }`.
+    #[inline(always)]
+    pub(crate) fn glam_max(self, o: Self) -> Self {
+        self.gt(o).select(self, o)
+    }
+
+    /// The bits.
+    #[inline(always)]
+    pub(crate) fn to_bits(self) -> U<S> {
+        U { s: self.s, v: self.s.transmute_u32s_f32s(self.v) }
+    }
+
+    /// `f32::copysign(self, sign)`.
+    #[inline(always)]
+    pub(crate) fn copysign(self, sign: Self) -> Self {
+        let s = self.s;
+        let magnitude = s.and_u32s(self.to_bits().v, s.splat_u32s(0x7fff_ffff));
+        let sign = s.and_u32s(sign.to_bits().v, s.splat_u32s(0x8000_0000));
+        U { s, v: s.or_u32s(magnitude, sign) }.to_f32()
+    }
+
+    /// `f32::is_finite`.
+    #[inline(always)]
+    pub(crate) fn is_finite(self) -> M<S> {
+        self.abs().lt(F::splat(self.s, f32::INFINITY))
+    }
+
+    /// `self < o`.
+    #[inline(always)]
+    pub(crate) fn lt(self, o: Self) -> M<S> {
+        M { s: self.s, m: self.s.less_than_f32s(self.v, o.v) }
+    }
+
+    /// `self <= o`.
+    #[inline(always)]
+    pub(crate) fn le(self, o: Self) -> M<S> {
+        M { s: self.s, m: self.s.less_than_or_equal_f32s(self.v, o.v) }
+    }
+
+    /// `self > o`.
+    #[inline(always)]
+    pub(crate) fn gt(self, o: Self) -> M<S> {
+        M { s: self.s, m: self.s.greater_than_f32s(self.v, o.v) }
+    }
+
+    /// `self >= o`.
+    #[inline(always)]
+    pub(crate) fn ge(self, o: Self) -> M<S> {
+        M { s: self.s, m: self.s.greater_than_or_equal_f32s(self.v, o.v) }
+    }
+
+    /// `self == o`.
+    #[inline(always)]
+    pub(crate) fn eq(self, o: Self) -> M<S> {
+        M { s: self.s, m: self.s.equal_f32s(self.v, o.v) }
+    }
+
+    /// Lane `i`.
+    #[inline(always)]
+    pub(crate) fn lane(&self, i: usize) -> f32 {
+        bytemuck::cast_slice::<S::f32s, f32>(std::slice::from_ref(&self.v))[i]
+    }
+
+    /// Sets lane `i` to `x`.
+    #[inline(always)]
+    pub(crate) fn set_lane(&mut self, i: usize, x: f32) {
+        bytemuck::cast_slice_mut::<S::f32s, f32>(std::slice::from_mut(&mut self.v))[i] = x;
+    }
+}
+
+impl<S: Simd> U<S> {
+    /// Every lane `x`.
+    #[inline(always)]
+    pub(crate) fn splat(s: S, x: u32) -> Self {
+        U { s, v: s.splat_u32s(x) }
+    }
+
+    /// The lanes as floats.
+    #[inline(always)]
+    pub(crate) fn to_f32(self) -> F<S> {
+        F { s: self.s, v: self.s.transmute_f32s_u32s(self.v) }
+    }
+
+    /// Wrapping `self + o`.
+    #[inline(always)]
+    pub(crate) fn wrapping_add(self, o: Self) -> Self {
+        U { s: self.s, v: self.s.add_u32s(self.v, o.v) }
+    }
+
+    /// Wrapping `self - o`.
+    #[inline(always)]
+    pub(crate) fn wrapping_sub(self, o: Self) -> Self {
+        U { s: self.s, v: self.s.sub_u32s(self.v, o.v) }
+    }
+}
+
+impl<S: Simd> M<S> {
+    /// Conditions from bools, one per lane (`lanes.len()` is at least the lane count).
+    #[inline(always)]
+    pub(crate) fn from_bools(s: S, lanes: &[bool]) -> Self {
+        let mut v = s.splat_u32s(0);
+        let out = bytemuck::cast_slice_mut::<S::u32s, u32>(std::slice::from_mut(&mut v));
+        for (o, &b) in out.iter_mut().zip(lanes) {
+            *o = b as u32;
+        }
+        M { s, m: s.equal_u32s(v, s.splat_u32s(1)) }
+    }
+
+    /// Writes the conditions to `out`, one per lane.
+    #[inline(always)]
+    pub(crate) fn to_bools(self, out: &mut [bool]) {
+        let v = self.s.select_u32s(self.m, self.s.splat_u32s(1), self.s.splat_u32s(0));
+        let lanes = bytemuck::cast_slice::<S::u32s, u32>(std::slice::from_ref(&v));
+        for (o, &l) in out.iter_mut().zip(lanes) {
+            *o = l != 0;
+        }
+    }
+
+    /// Lane by lane `if self { a } else { b }`.
+    #[inline(always)]
+    pub(crate) fn select(self, a: F<S>, b: F<S>) -> F<S> {
+        F { s: self.s, v: self.s.select_f32s(self.m, a.v, b.v) }
+    }
+
+    /// Lane by lane `if self { a } else { b }` on bit patterns.
+    #[inline(always)]
+    pub(crate) fn select_u(self, a: U<S>, b: U<S>) -> U<S> {
+        U { s: self.s, v: self.s.select_u32s(self.m, a.v, b.v) }
+    }
+
+    /// Lane by lane `if self { a } else { b }` on vectors.
+    #[inline(always)]
+    pub(crate) fn select3(self, a: V3<S>, b: V3<S>) -> V3<S> {
+        V3 { x: self.select(a.x, b.x), y: self.select(a.y, b.y), z: self.select(a.z, b.z) }
+    }
+}
+
+macro_rules! binop {
+    ($tr:ident, $f:ident, $op:ident) => {
+        impl<S: Simd> $tr for F<S> {
+            type Output = F<S>;
+            #[inline(always)]
+            fn $f(self, o: Self) -> Self {
+                F { s: self.s, v: self.s.$op(self.v, o.v) }
+            }
+        }
+    };
+}
+binop!(Add, add, add_f32s);
+binop!(Sub, sub, sub_f32s);
+binop!(Mul, mul, mul_f32s);
+binop!(Div, div, div_f32s);
+
+impl<S: Simd> Neg for F<S> {
+    type Output = F<S>;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        let s = self.s;
+        U { s, v: s.xor_u32s(self.to_bits().v, s.splat_u32s(0x8000_0000)) }.to_f32()
+    }
+}
+
+macro_rules! maskop {
+    ($tr:ident, $f:ident, $op:ident) => {
+        impl<S: Simd> $tr for M<S> {
+            type Output = M<S>;
+            #[inline(always)]
+            fn $f(self, o: Self) -> Self {
+                M { s: self.s, m: self.s.$op(self.m, o.m) }
+            }
+        }
+    };
+}
+maskop!(BitAnd, bitand, and_m32s);
+maskop!(BitOr, bitor, or_m32s);
+maskop!(BitXor, bitxor, xor_m32s);
+
+impl<S: Simd> Not for M<S> {
+    type Output = M<S>;
+    #[inline(always)]
+    fn not(self) -> Self {
+        M { s: self.s, m: self.s.not_m32s(self.m) }
+    }
+}
+
+/// Three lanes of f32s: a `Vec3` per lane.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct V3<S: Simd> {
+    /// x of every lane.
+    pub(crate) x: F<S>,
+    /// y of every lane.
+    pub(crate) y: F<S>,
+    /// z of every lane.
+    pub(crate) z: F<S>,
+}
+
+impl<S: Simd> V3<S> {
+    /// A vector from its components.
+    #[inline(always)]
+    pub(crate) fn new(x: F<S>, y: F<S>, z: F<S>) -> Self {
+        V3 { x, y, z }
+    }
+
+    /// Every lane `v`.
+    #[inline(always)]
+    pub(crate) fn splat(s: S, v: glam::Vec3) -> Self {
+        V3 { x: F::splat(s, v.x), y: F::splat(s, v.y), z: F::splat(s, v.z) }
+    }
+
+    /// Lane `i`.
+    #[inline(always)]
+    pub(crate) fn lane(&self, i: usize) -> glam::Vec3 {
+        glam::Vec3::new(self.x.lane(i), self.y.lane(i), self.z.lane(i))
+    }
+
+    /// Sets lane `i` to `v`.
+    #[inline(always)]
+    pub(crate) fn set_lane(&mut self, i: usize, v: glam::Vec3) {
+        self.x.set_lane(i, v.x);
+        self.y.set_lane(i, v.y);
+        self.z.set_lane(i, v.z);
+    }
+
+    /// `Vec3::dot`: `(x * x') + (y * y') + (z * z')`.
+    #[inline(always)]
+    pub(crate) fn dot(self, o: Self) -> F<S> {
+        (self.x * o.x) + (self.y * o.y) + (self.z * o.z)
+    }
+
+    /// `Vec3::cross`.
+    #[inline(always)]
+    pub(crate) fn cross(self, o: Self) -> Self {
+        V3 {
+            x: self.y * o.z - o.y * self.z,
+            y: self.z * o.x - o.z * self.x,
+            z: self.x * o.y - o.x * self.y,
+        }
+    }
+
+    /// `Vec3::length_squared`.
+    #[inline(always)]
+    pub(crate) fn length_squared(self) -> F<S> {
+        self.dot(self)
+    }
+
+    /// `Vec3::abs`.
+    #[inline(always)]
+    pub(crate) fn abs(self) -> Self {
+        V3 { x: self.x.abs(), y: self.y.abs(), z: self.z.abs() }
+    }
+
+    /// `Vec3 * f32`.
+    #[inline(always)]
+    pub(crate) fn scale(self, k: F<S>) -> Self {
+        V3 { x: self.x * k, y: self.y * k, z: self.z * k }
+    }
+
+    /// `Vec3 / f32`.
+    #[inline(always)]
+    pub(crate) fn div(self, k: F<S>) -> Self {
+        V3 { x: self.x / k, y: self.y / k, z: self.z / k }
+    }
+
+    /// `Vec3 * Vec3`, component by component.
+    #[inline(always)]
+    pub(crate) fn mul(self, o: Self) -> Self {
+        V3 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
+    }
+
+    /// glam's `max_element`.
+    #[inline(always)]
+    pub(crate) fn max_element(self) -> F<S> {
+        self.x.glam_max(self.y).glam_max(self.z)
+    }
+
+    /// `v == Vec3::ZERO`.
+    #[inline(always)]
+    pub(crate) fn is_zero(self) -> M<S> {
+        let zero = F::splat(self.x.s, 0.0);
+        self.x.eq(zero) & self.y.eq(zero) & self.z.eq(zero)
+    }
+
+    /// `Vec3::is_finite`.
+    #[inline(always)]
+    pub(crate) fn is_finite(self) -> M<S> {
+        self.x.is_finite() & self.y.is_finite() & self.z.is_finite()
+    }
+}
+
+impl<S: Simd> Add for V3<S> {
+    type Output = V3<S>;
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        V3 { x: self.x + o.x, y: self.y + o.y, z: self.z + o.z }
+    }
+}
+
+impl<S: Simd> Sub for V3<S> {
+    type Output = V3<S>;
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        V3 { x: self.x - o.x, y: self.y - o.y, z: self.z - o.z }
+    }
+}
+
+impl<S: Simd> Neg for V3<S> {
+    type Output = V3<S>;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        V3 { x: -self.x, y: -self.y, z: -self.z }
+    }
+}

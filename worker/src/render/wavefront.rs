@@ -1,0 +1,577 @@
+//! The wavefront renderer: the same path tracer as `integrator::li`, run on 8 (AVX2) or 16
+//! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
+//!
+//! For the scenes the Lambert fast path covers (`Tables::new`: diffuse materials without
+//! textures or vertex colours, flat triangles, emissive triangles as the only lights, nothing
+//! moving, nothing alpha-tested, no environment), which includes the Cornell box. Each lane
+//! holds one path; a lane whose path ends takes the next sample of the task at once, so lanes
+//! stay busy whatever the path lengths. Ray casting, the sampler and the light choice stay
+//! scalar, one lane at a time; shading (hit point, frame, MIS weights, light and BSDF sampling,
+//! ray origins, roulette) is vector code transcribed from the scalar routines with the same
+//! operations in the same order, so every lane computes the scalar path's bits, and samples
+//! reach the film in the scalar order: the images are bit for bit those of `integrator::li`
+//! on every CPU (a test compares them).
+//!
+//! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
+
+use std::f32::consts::{FRAC_1_PI, FRAC_PI_4};
+
+use common::{film::TileAccum, protocol::TaskSpec};
+use glam::{UVec2, Vec2, Vec3};
+use pulp::{Arch, Simd, WithSimd};
+
+use super::{
+    bsdf::Bsdf,
+    geometry::{gamma, Ray},
+    integrator::{Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
+    lanes::{F, M, U, V3},
+    light::Light,
+    material::{self, SurfacePoint},
+    sampler::Sampler,
+    scene::{PreparedScene, NONE},
+};
+
+/// The most lanes a vector has (AVX-512's 16 f32s).
+const MAX_LANES: usize = 16;
+
+/// Samples that may be in flight or finished but not yet added to the film: a lane waits
+/// rather than run further ahead of the oldest unfinished sample.
+const WINDOW: usize = 4096;
+
+/// An emissive triangle as the wavefront reads it.
+#[derive(Clone, Copy, Debug)]
+struct LightRec {
+    p: [Vec3; 3],
+    normal: Vec3,
+    area: f32,
+    emission: Vec3,
+    two_sided: bool,
+    probability: f32,
+}
+
+/// What the wavefront renderer needs of a scene it can render, built once per scene.
+#[derive(Clone, Debug)]
+pub struct Tables {
+    /// Lambert albedo per material.
+    albedo: Vec<Vec3>,
+    /// Emitted radiance per material.
+    emission: Vec<Vec3>,
+    /// Every light, indexed like `LightSampler::lights`.
+    lights: Vec<LightRec>,
+}
+
+impl Tables {
+    /// The tables, or `None` when the scene needs something only the scalar renderer does.
+    pub fn new(scene: &PreparedScene) -> Option<Tables> {
+        if scene.motion.is_some()
+            || scene.alpha_tested
+            || scene.environment.is_some()
+            || !scene.colors.is_empty()
+            || scene.shading.iter().any(|t| t.smooth)
+        {
+            return None;
+        }
+        let mut albedo = Vec::with_capacity(scene.materials.len());
+        let mut emission = Vec::with_capacity(scene.materials.len());
+        for m in &scene.materials {
+            if m.base_color_texture.is_some()
+                || m.metallic_roughness_texture.is_some()
+                || m.normal_texture.is_some()
+                || m.emissive_texture.is_some()
+                || m.transmission_texture.is_some()
+            {
+                return None;
+            }
+            // Without textures or vertex colours every point of the material is this one.
+            match material::bsdf(&scene.textures, m, &SurfacePoint::PLAIN) {
+                Bsdf::Diffuse(d) => albedo.push(d.albedo),
+                Bsdf::MetalRough(_) => return None,
+            }
+            emission.push(material::emission(&scene.textures, m, &SurfacePoint::PLAIN));
+        }
+        let mut lights = Vec::with_capacity(scene.lights.lights.len());
+        for (i, light) in scene.lights.lights.iter().enumerate() {
+            let Light::Triangle(l) = light else { return None };
+            if l.textured {
+                return None;
+            }
+            lights.push(LightRec {
+                p: l.p,
+                normal: l.normal,
+                area: l.area,
+                emission: l.emission,
+                two_sided: l.two_sided,
+                probability: scene.lights.probability(i as u32),
+            });
+        }
+        Some(Tables { albedo, emission, lights })
+    }
+}
+
+/// Paths the wavefront runs at once on this CPU (16 with AVX-512, 8 with AVX2), or 0 when
+/// it has neither and the scalar renderer runs instead.
+pub fn lanes() -> usize {
+    match Arch::new() {
+        Arch::V3(s) => lanes_of(s),
+        Arch::V4(s) => lanes_of(s),
+        _ => 0,
+    }
+}
+
+fn lanes_of<S: Simd>(_: S) -> usize {
+    S::F32_LANES.min(MAX_LANES)
+}
+
+/// Renders rows `first, first + step, ...` of the task's tile with the wavefront, or returns
+/// `None` when this CPU has neither AVX2 nor AVX-512 (the caller then renders them scalar).
+pub fn render_rows(
+    scene: &PreparedScene,
+    tables: &Tables,
+    seed: u64,
+    task: &TaskSpec,
+    first: u32,
+    step: u32,
+) -> Option<(TileAccum, Stats)> {
+    let arch = Arch::new();
+    if matches!(arch, Arch::Scalar) {
+        return None;
+    }
+    Some(arch.dispatch(Job { scene, tables, seed, task, first, step }))
+}
+
+struct Job<'a> {
+    scene: &'a PreparedScene,
+    tables: &'a Tables,
+    seed: u64,
+    task: &'a TaskSpec,
+    first: u32,
+    step: u32,
+}
+
+impl WithSimd for Job<'_> {
+    type Output = (TileAccum, Stats);
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) -> Self::Output {
+        run(simd, self)
+    }
+}
+
+/// The task's samples in the scalar renderer's order (rows, then pixels, then sample indices),
+/// and the finished ones waiting for their turn to reach the film.
+struct Stream {
+    rows: Vec<u32>,
+    width: u32,
+    first_sample: u32,
+    samples: u32,
+    total: u64,
+    issued: u64,
+    flushed: u64,
+    done: Vec<Option<[f32; 3]>>,
+}
+
+impl Stream {
+    fn new(task: &TaskSpec, first: u32, step: u32) -> Self {
+        let rows: Vec<u32> = (first..task.rect.height).step_by(step.max(1) as usize).collect();
+        let samples = task.samples.end.saturating_sub(task.samples.start);
+        let total = rows.len() as u64 * task.rect.width as u64 * samples as u64;
+        Stream {
+            rows,
+            width: task.rect.width,
+            first_sample: task.samples.start,
+            samples,
+            total,
+            issued: 0,
+            flushed: 0,
+            done: vec![None; WINDOW],
+        }
+    }
+
+    /// Tile column, tile row and sample index of item `k`.
+    #[inline]
+    fn locate(&self, k: u64) -> (u32, u32, u32) {
+        let per_row = self.width as u64 * self.samples as u64;
+        let row = self.rows[(k / per_row) as usize];
+        let rest = k % per_row;
+        (
+            (rest / self.samples as u64) as u32,
+            row,
+            self.first_sample + (rest % self.samples as u64) as u32,
+        )
+    }
+
+    /// The next item to start, unless all are started or the window is full.
+    #[inline]
+    fn next(&mut self) -> Option<u64> {
+        if self.issued == self.total || self.issued - self.flushed >= WINDOW as u64 {
+            return None;
+        }
+        self.issued += 1;
+        Some(self.issued - 1)
+    }
+
+    /// Records item `k`'s radiance and adds every finished item that is next in order.
+    #[inline]
+    fn finish(&mut self, k: u64, rgb: [f32; 3], tile: &mut TileAccum) {
+        self.done[(k % WINDOW as u64) as usize] = Some(rgb);
+        while self.flushed < self.issued {
+            let slot = (self.flushed % WINDOW as u64) as usize;
+            let Some(rgb) = self.done[slot].take() else { break };
+            let (col, row, s) = self.locate(self.flushed);
+            tile.add_sample(col, row, s, rgb);
+            self.flushed += 1;
+        }
+    }
+}
+
+/// `integrator::power_heuristic`, lane by lane.
+#[inline(always)]
+fn power_heuristic<S: Simd>(s: S, a: F<S>, b: F<S>) -> F<S> {
+    let (a2, b2) = (a * a, b * b);
+    let sum = a2 + b2;
+    let w = sum.eq(F::splat(s, 0.0)).select(F::splat(s, 0.0), a2 / sum);
+    a2.eq(F::splat(s, f32::INFINITY)).select(F::splat(s, 1.0), w)
+}
+
+/// `geometry::step_away`, lane by lane.
+#[inline(always)]
+fn step_away<S: Simd>(s: S, v: F<S>, o: F<S>) -> F<S> {
+    let zero = F::splat(s, 0.0);
+    let bits = v.to_bits();
+    let one = U::splat(s, 1);
+    let away = !(v.ge(zero) ^ o.gt(zero));
+    let stepped = away.select_u(bits.wrapping_add(one), bits.wrapping_sub(one));
+    let from_zero = o.gt(zero).select_u(one, U::splat(s, 0x8000_0001));
+    let stepped = v.eq(zero).select_u(from_zero, stepped);
+    let keep = o.eq(zero) | !v.is_finite();
+    keep.select_u(bits, stepped).to_f32()
+}
+
+/// `geometry::offset_ray_origin`, lane by lane.
+#[inline(always)]
+fn offset_ray_origin<S: Simd>(s: S, p: V3<S>, p_error: V3<S>, n: V3<S>, w: V3<S>) -> V3<S> {
+    let d = n.abs().dot(p_error);
+    let offset = n.scale(d);
+    let offset = w.dot(n).lt(F::splat(s, 0.0)).select3(-offset, offset);
+    let po = p + offset;
+    V3::new(
+        step_away(s, po.x, offset.x),
+        step_away(s, po.y, offset.y),
+        step_away(s, po.z, offset.z),
+    )
+}
+
+/// `geometry::interpolation_error`, lane by lane.
+#[inline(always)]
+fn interpolation_error<S: Simd>(s: S, p: [V3<S>; 3], b: [F<S>; 3]) -> V3<S> {
+    (p[0].scale(b[0]).abs() + p[1].scale(b[1]).abs() + p[2].scale(b[2]).abs())
+        .scale(F::splat(s, gamma(7)))
+}
+
+/// `Frame::from_z`, lane by lane: tangent and bitangent of unit normal `n`.
+#[inline(always)]
+fn frame_from_z<S: Simd>(s: S, n: V3<S>) -> (V3<S>, V3<S>) {
+    let one = F::splat(s, 1.0);
+    let sign = one.copysign(n.z);
+    let a = F::splat(s, -1.0) / (sign + n.z);
+    let b = n.x * n.y * a;
+    let x = V3::new(one + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let y = V3::new(b, sign + n.y * n.y * a, -n.y);
+    (x, y)
+}
+
+/// `sampling::sin_cos_quarter`, lane by lane.
+#[inline(always)]
+fn sin_cos_quarter<S: Simd>(s: S, x: F<S>) -> (F<S>, F<S>) {
+    let c = |v: f32| F::splat(s, v);
+    let x2 = x * x;
+    let sin = x
+        * (c(1.0)
+            + x2 * (c(-1.0 / 6.0)
+                + x2 * (c(1.0 / 120.0) + x2 * (c(-1.0 / 5040.0) + x2 * c(1.0 / 362_880.0)))));
+    let cos = c(1.0)
+        + x2 * (c(-0.5)
+            + x2 * (c(1.0 / 24.0)
+                + x2 * (c(-1.0 / 720.0) + x2 * (c(1.0 / 40_320.0) + x2 * c(-1.0 / 3_628_800.0)))));
+    (sin, cos)
+}
+
+/// `sampling::sample_cosine_hemisphere`, lane by lane.
+#[inline(always)]
+fn sample_cosine_hemisphere<S: Simd>(s: S, ux: F<S>, uy: F<S>) -> V3<S> {
+    let zero = F::splat(s, 0.0);
+    let one = F::splat(s, 1.0);
+    let two = F::splat(s, 2.0);
+    let (ox, oy) = (two * ux - one, two * uy - one);
+    let at_centre = ox.eq(zero) & oy.eq(zero);
+    let x_major = ox.abs().gt(oy.abs());
+    let (num, den) = (x_major.select(oy, ox), x_major.select(ox, oy));
+    let (sin, cos) = sin_cos_quarter(s, F::splat(s, FRAC_PI_4) * (num / den));
+    let dx = at_centre.select(zero, den * x_major.select(cos, sin));
+    let dy = at_centre.select(zero, den * x_major.select(sin, cos));
+    let z = (one - (dx * dx + dy * dy)).max0().sqrt();
+    V3::new(dx, dy, z)
+}
+
+/// The per-lane state of the paths in flight.
+struct Paths<S: Simd> {
+    origin: V3<S>,
+    dir: V3<S>,
+    beta: V3<S>,
+    radiance: V3<S>,
+    prev_bsdf_pdf: F<S>,
+    depth: [u32; MAX_LANES],
+    item: [u64; MAX_LANES],
+    alive: [bool; MAX_LANES],
+    sampler: [Sampler; MAX_LANES],
+}
+
+#[inline(always)]
+fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
+    let Job { scene, tables, seed, task, first, step } = job;
+    let lanes = S::F32_LANES.min(MAX_LANES);
+    let mut tile = TileAccum::new(task.rect);
+    let mut stats = Stats::default();
+    let mut stream = Stream::new(task, first, step);
+    let zero = F::splat(s, 0.0);
+    let one = F::splat(s, 1.0);
+    let inv_pi = F::splat(s, FRAC_1_PI);
+    let z3 = V3::splat(s, Vec3::ZERO);
+    let sampler = Sampler::new(seed, task.frame);
+    let mut paths = Paths {
+        origin: z3,
+        dir: z3,
+        beta: z3,
+        radiance: z3,
+        prev_bsdf_pdf: zero,
+        depth: [0; MAX_LANES],
+        item: [0; MAX_LANES],
+        alive: [false; MAX_LANES],
+        sampler: std::array::from_fn(|_| sampler.clone()),
+    };
+    // Per-bounce data gathered lane by lane.
+    let (mut t, mut b1, mut b2) = (zero, zero, zero);
+    let mut tri = [z3; 3];
+    let (mut albedo, mut le) = (z3, z3);
+    let (mut l_normal, mut l_area, mut l_prob) = (z3, zero, zero);
+    let mut hit_light = [false; MAX_LANES];
+    let mut l_two_sided = [false; MAX_LANES];
+    let mut live = [false; MAX_LANES];
+    let mut first_bounce = [false; MAX_LANES];
+    let mut cont = [false; MAX_LANES];
+    let mut has_light = [false; MAX_LANES];
+    let mut nee_two_sided = [false; MAX_LANES];
+    let mut shadow = [false; MAX_LANES];
+    let mut unblocked = [false; MAX_LANES];
+    let mut roulette = [false; MAX_LANES];
+    let mut survive = [false; MAX_LANES];
+    let (mut ul_x, mut ul_y, mut ub_x, mut ub_y, mut u_rr, mut choice_pdf) =
+        (zero, zero, zero, zero, zero, zero);
+    let mut lp = [z3; 3];
+    let (mut ln, mut la, mut lem) = (z3, zero, z3);
+    loop {
+        // Start a new sample in every idle lane (`render::sample`, static scene).
+        for i in 0..lanes {
+            if paths.alive[i] {
+                continue;
+            }
+            let Some(k) = stream.next() else { continue };
+            let (col, row, sample_idx) = stream.locate(k);
+            let pixel = UVec2::new(task.rect.x0 + col, task.rect.y0 + row);
+            let sm = &mut paths.sampler[i];
+            sm.start_pixel_sample(pixel, sample_idx);
+            let film = pixel.as_vec2() + sm.next_2d();
+            let lens = if scene.camera.has_lens() { sm.next_2d() } else { Vec2::ZERO };
+            let ray = scene.camera.generate_ray(film, lens);
+            paths.origin.set_lane(i, ray.origin);
+            paths.dir.set_lane(i, ray.dir);
+            paths.beta.set_lane(i, Vec3::ONE);
+            paths.radiance.set_lane(i, Vec3::ZERO);
+            paths.prev_bsdf_pdf.set_lane(i, 0.0);
+            paths.depth[i] = 0;
+            paths.item[i] = k;
+            paths.alive[i] = true;
+        }
+        if !paths.alive[..lanes].iter().any(|&a| a) {
+            break;
+        }
+
+        // Closest hits, and what shading needs of the triangles hit.
+        for i in 0..lanes {
+            live[i] = false;
+            if !paths.alive[i] {
+                continue;
+            }
+            stats.rays += 1;
+            let ray = Ray::new(paths.origin.lane(i), paths.dir.lane(i));
+            let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else {
+                // Nothing is seen beyond the scene (no environment).
+                paths.alive[i] = false;
+                stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
+                continue;
+            };
+            live[i] = true;
+            first_bounce[i] = paths.depth[i] == 0;
+            t.set_lane(i, hit.t);
+            b1.set_lane(i, hit.b1);
+            b2.set_lane(i, hit.b2);
+            let shading = scene.shading[hit.prim as usize];
+            let (p, _) = scene.triangle(hit.prim, None);
+            for (v, q) in tri.iter_mut().zip(p) {
+                v.set_lane(i, q);
+            }
+            albedo.set_lane(i, tables.albedo[shading.material as usize]);
+            le.set_lane(i, tables.emission[shading.material as usize]);
+            hit_light[i] = shading.light != NONE;
+            if shading.light != NONE {
+                let l = &tables.lights[shading.light as usize];
+                l_normal.set_lane(i, l.normal);
+                l_area.set_lane(i, l.area);
+                l_prob.set_lane(i, l.probability);
+                l_two_sided[i] = l.two_sided;
+            }
+        }
+
+        // The hit point, its emission, its frame.
+        let livem = M::from_bools(s, &live);
+        let b0 = (one - b1) - b2;
+        let p = tri[0].scale(b0) + tri[1].scale(b1) + tri[2].scale(b2);
+        let p_error = interpolation_error(s, tri, [b0, b1, b2]);
+        let c = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+        let rcp = one / c.length_squared().sqrt();
+        let ng_ok = rcp.is_finite() & rcp.gt(zero);
+        let ng = c.scale(rcp);
+        let dir = paths.dir;
+        let wo = -dir;
+        let emits = M::from_bools(s, &l_two_sided) | l_normal.dot(wo).gt(zero);
+        let dist2 = (t * t) * dir.length_squared();
+        let cos_light = l_normal.dot(dir).abs();
+        let pdf_li = cos_light.eq(zero).select(zero, dist2 / (cos_light * l_area));
+        let weight = M::from_bools(s, &first_bounce)
+            .select(one, power_heuristic(s, paths.prev_bsdf_pdf, l_prob * pdf_li));
+        let add = livem & ng_ok & M::from_bools(s, &hit_light) & emits;
+        paths.radiance =
+            add.select3(paths.radiance + paths.beta.mul(le).scale(weight), paths.radiance);
+        let ng = ng.dot(wo).lt(zero).select3(-ng, ng);
+        let (fx, fy) = frame_from_z(s, ng);
+        let wo_z = wo.dot(ng);
+        let going = livem & ng_ok & !wo_z.le(zero);
+        going.to_bools(&mut cont);
+
+        // The bounce's numbers (light, lobe, direction, roulette) and the light choice.
+        for i in 0..lanes {
+            if !live[i] {
+                continue;
+            }
+            if paths.depth[i] >= scene.max_depth {
+                cont[i] = false;
+            }
+            if !cont[i] {
+                paths.alive[i] = false;
+                stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
+                continue;
+            }
+            let sm = &mut paths.sampler[i];
+            let u_light = sm.next_2d();
+            sm.skip(1); // A diffuse BSDF has one lobe: no lobe choice.
+            let u_bsdf = sm.next_2d();
+            ub_x.set_lane(i, u_bsdf.x);
+            ub_y.set_lane(i, u_bsdf.y);
+            roulette[i] = paths.depth[i] + 1 > RR_MIN_DEPTH;
+            if roulette[i] {
+                u_rr.set_lane(i, sm.next_1d());
+            } else {
+                sm.skip(1);
+            }
+            has_light[i] = false;
+            if let Some((light, pdf, u_x)) = scene.lights.choose_remapped(u_light.x) {
+                has_light[i] = true;
+                choice_pdf.set_lane(i, pdf);
+                ul_x.set_lane(i, u_x);
+                ul_y.set_lane(i, u_light.y);
+                let l = &tables.lights[light as usize];
+                for (v, q) in lp.iter_mut().zip(l.p) {
+                    v.set_lane(i, q);
+                }
+                ln.set_lane(i, l.normal);
+                la.set_lane(i, l.area);
+                lem.set_lane(i, l.emission);
+                nee_two_sided[i] = l.two_sided;
+            }
+        }
+        let contm = M::from_bools(s, &cont);
+
+        // Next-event estimation: `TriangleLight::sample_li`, then the shadow ray.
+        let m = ul_x.min(ul_y) / F::splat(s, 2.0);
+        let (sb0, sb1) = (ul_x - m, ul_y - m);
+        let sb2 = (one - sb0) - sb1;
+        let point = lp[0].scale(sb0) + lp[1].scale(sb1) + lp[2].scale(sb2);
+        let to_light = point - p;
+        let d2 = to_light.length_squared();
+        let wi = to_light.div(d2.sqrt());
+        let cos_l = ln.dot(-wi);
+        let li = (M::from_bools(s, &nee_two_sided) | ln.dot(-wi).gt(zero)).select3(lem, z3);
+        let light_pdf = d2 / (cos_l.abs() * la);
+        let sampled = d2.gt(zero) & !(li.is_zero() | cos_l.eq(zero)) & light_pdf.is_finite();
+        let point_error = interpolation_error(s, lp, [sb0, sb1, sb2]);
+        let wi_z = wi.dot(ng);
+        let f = albedo.scale(inv_pi).scale(wi_z.abs());
+        let shadowm = contm
+            & M::from_bools(s, &has_light)
+            & sampled
+            & wi_z.gt(zero)
+            & wi.dot(ng).gt(zero)
+            & !f.is_zero();
+        shadowm.to_bools(&mut shadow);
+        let s_origin = offset_ray_origin(s, p, p_error, ng, wi);
+        let s_target = offset_ray_origin(s, point, point_error, ln, -wi);
+        let s_dir = s_target - s_origin;
+        for i in 0..lanes {
+            unblocked[i] = false;
+            if shadow[i] {
+                stats.rays += 1;
+                let ray = Ray::new(s_origin.lane(i), s_dir.lane(i));
+                unblocked[i] = !scene.occluded(&ray, SHADOW_T_MAX, None);
+            }
+        }
+        let nee_pdf = light_pdf * choice_pdf;
+        let w = power_heuristic(s, nee_pdf, wi_z.max0() * inv_pi);
+        let nee = paths.radiance + paths.beta.mul(f).mul(li).scale(w / nee_pdf);
+        paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
+
+        // BSDF sampling, the next ray, Russian roulette.
+        let local = sample_cosine_hemisphere(s, ub_x, ub_y);
+        let pdf = local.z.max0() * inv_pi;
+        let wi = fx.scale(local.x) + fy.scale(local.y) + ng.scale(local.z);
+        let beta = paths.beta.mul(albedo.scale(inv_pi).scale(local.z.abs() / pdf));
+        let ok = contm
+            & !pdf.le(zero)
+            & local.z.gt(zero)
+            & wi.dot(ng).gt(zero)
+            & beta.is_finite()
+            & !beta.is_zero();
+        let origin = offset_ray_origin(s, p, p_error, ng, wi);
+        let q = (one - beta.max_element() * F::splat(s, RR_SURVIVAL_SCALE)).max0();
+        let rr = M::from_bools(s, &roulette);
+        let ended = rr & u_rr.lt(q);
+        let beta = rr.select3(beta.div(one - q), beta);
+        let go_on = ok & !ended;
+        paths.beta = go_on.select3(beta, paths.beta);
+        paths.origin = go_on.select3(origin, paths.origin);
+        paths.dir = go_on.select3(wi, paths.dir);
+        paths.prev_bsdf_pdf = go_on.select(pdf, paths.prev_bsdf_pdf);
+        go_on.to_bools(&mut survive);
+        for i in 0..lanes {
+            if !cont[i] {
+                continue;
+            }
+            if survive[i] {
+                paths.depth[i] += 1;
+            } else {
+                paths.alive[i] = false;
+                stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
+            }
+        }
+    }
+    (tile, stats)
+}
