@@ -9,9 +9,13 @@ use common::{
     protocol::{SampleRange, TaskSpec},
     settings::RenderSettings,
 };
+use glam::Vec3;
 use serde_json::json;
 use support::*;
-use worker::render::{render_task, scene::prepare};
+use worker::render::{
+    render_task,
+    scene::{prepare, PreparedScene},
+};
 
 /// Reference noise of `ref/cornell-box.exr` per value (its `noise_rmse_est`, squared).
 const CORNELL_REF_VAR: f64 = 0.001_251_854 * 0.001_251_854;
@@ -333,8 +337,8 @@ fn every_real_asset_renders_without_nan() {
 
 /// The wavefront renderer (8 or 16 paths at once, shading in SIMD) traces exactly the paths of
 /// the scalar one: the same sums bit for bit and the same ray count, with a lens, with short
-/// bounce limits, on an offset tile with an offset sample range, and with an emitter that
-/// shines from both faces.
+/// bounce limits, on an offset tile with an offset sample range, with an emitter that shines
+/// from both faces, and with vertex normals.
 #[test]
 fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let two_sided = edited_scene("cornell-box", "two-sided-light", |json| {
@@ -352,13 +356,37 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             "lens": {"aperture_radius": 0.03, "focus_distance": 1.15}}"#,
     ];
     eprintln!("wavefront lanes on this CPU: {}", worker::render::wavefront::lanes());
-    for (name, scene) in &scenes {
+    // Vertex normals bent away from the faces (some past the horizon, some flipped, some zero,
+    // which falls back to the face normal), set on both preparations alike.
+    let bend = |p: &mut PreparedScene| {
+        let count = p.shading.iter().flat_map(|t| t.vertices).max().map_or(0, |v| v + 1);
+        p.normals = (0..count)
+            .map(|v| {
+                let k = v as f32;
+                match v % 7 {
+                    0 => Vec3::ZERO,
+                    1 => Vec3::new(0.3, -1.0, 0.2),
+                    _ => Vec3::new((k * 0.77).sin(), (k * 1.31).cos(), (k * 0.53).sin() + 0.2),
+                }
+            })
+            .collect();
+        for t in &mut p.shading {
+            t.smooth = true;
+        }
+        p.wavefront = worker::render::wavefront::Tables::new(p);
+    };
+    for ((name, scene), smooth) in scenes.iter().flat_map(|s| [(s, false), (s, true)]) {
         for json in variants {
             let settings = RenderSettings::from_json(json).unwrap();
-            let wavefront = prepare(scene, &settings).expect("prepare");
-            assert!(wavefront.wavefront.is_some(), "{name}: the wavefront applies");
+            let mut wavefront = prepare(scene, &settings).expect("prepare");
             let mut scalar = prepare(scene, &settings).expect("prepare");
+            if smooth {
+                bend(&mut wavefront);
+                bend(&mut scalar);
+            }
+            assert!(wavefront.wavefront.is_some(), "{name}: the wavefront applies");
             scalar.wavefront = None;
+            let name = format!("{name}{}", if smooth { ", vertex normals" } else { "" });
             for (rect, samples) in [
                 (Rect { x0: 0, y0: 0, width: 48, height: 40 }, SampleRange { start: 0, end: 6 }),
                 (Rect { x0: 13, y0: 7, width: 21, height: 17 }, SampleRange { start: 5, end: 11 }),

@@ -2,7 +2,7 @@
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
 //! For the scenes the Lambert fast path covers (`Tables::new`: diffuse materials without
-//! textures or vertex colours, flat triangles, emissive triangles as the only lights, nothing
+//! textures or vertex colours, emissive triangles as the only lights, nothing
 //! moving, nothing alpha-tested, no environment), which includes the Cornell box. Each lane
 //! holds one path; a lane whose path ends takes the next sample of the task at once, so lanes
 //! stay busy whatever the path lengths. Ray casting, the sampler and the light choice stay
@@ -67,7 +67,6 @@ impl Tables {
             || scene.alpha_tested
             || scene.environment.is_some()
             || !scene.colors.is_empty()
-            || scene.shading.iter().any(|t| t.smooth)
         {
             return None;
         }
@@ -352,6 +351,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     // Per-bounce data gathered lane by lane.
     let (mut t, mut b1, mut b2) = (zero, zero, zero);
     let mut tri = [z3; 3];
+    let mut normals = [z3; 3];
+    let mut smooth = [false; MAX_LANES];
     let (mut albedo, mut le) = (z3, z3);
     let (mut l_normal, mut l_area, mut l_prob) = (z3, zero, zero);
     let mut hit_light = [false; MAX_LANES];
@@ -420,6 +421,12 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             for (v, q) in tri.iter_mut().zip(p) {
                 v.set_lane(i, q);
             }
+            smooth[i] = shading.smooth;
+            if shading.smooth {
+                for (v, &k) in normals.iter_mut().zip(&shading.vertices) {
+                    v.set_lane(i, scene.normals[k as usize]);
+                }
+            }
             albedo.set_lane(i, tables.albedo[shading.material as usize]);
             le.set_lane(i, tables.emission[shading.material as usize]);
             hit_light[i] = shading.light != NONE;
@@ -453,8 +460,16 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.radiance =
             add.select3(paths.radiance + paths.beta.mul(le).scale(weight), paths.radiance);
         let ng = ng.dot(wo).lt(zero).select3(-ng, ng);
-        let (fx, fy) = frame_from_z(s, ng);
-        let wo_z = wo.dot(ng);
+        // The shading normal: interpolated vertex normals turned to ng's side, else ng.
+        let n = normals[0].scale(b0) + normals[1].scale(b1) + normals[2].scale(b2);
+        let n_rcp = one / n.length_squared().sqrt();
+        let n = n.scale(n_rcp);
+        let n_dot = n.dot(ng);
+        let use_n = M::from_bools(s, &smooth) & n_rcp.is_finite() & n_rcp.gt(zero);
+        let ns = (use_n & n_dot.gt(zero)).select3(n, ng);
+        let ns = (use_n & n_dot.lt(zero)).select3(-n, ns);
+        let (fx, fy) = frame_from_z(s, ns);
+        let wo_z = wo.dot(ns);
         let going = livem & ng_ok & !wo_z.le(zero);
         going.to_bools(&mut cont);
 
@@ -514,7 +529,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let light_pdf = d2 / (cos_l.abs() * la);
         let sampled = d2.gt(zero) & !(li.is_zero() | cos_l.eq(zero)) & light_pdf.is_finite();
         let point_error = interpolation_error(s, lp, [sb0, sb1, sb2]);
-        let wi_z = wi.dot(ng);
+        let wi_z = wi.dot(ns);
         let f = albedo.scale(inv_pi).scale(wi_z.abs());
         let shadowm = contm
             & M::from_bools(s, &has_light)
@@ -542,7 +557,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // BSDF sampling, the next ray, Russian roulette.
         let local = sample_cosine_hemisphere(s, ub_x, ub_y);
         let pdf = local.z.max0() * inv_pi;
-        let wi = fx.scale(local.x) + fy.scale(local.y) + ng.scale(local.z);
+        let wi = fx.scale(local.x) + fy.scale(local.y) + ns.scale(local.z);
         let beta = paths.beta.mul(albedo.scale(inv_pi).scale(local.z.abs() / pdf));
         let ok = contm
             & !pdf.le(zero)
