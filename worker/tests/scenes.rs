@@ -13,8 +13,9 @@ use glam::Vec3;
 use serde_json::json;
 use support::*;
 use worker::render::{
-    render_task,
+    render_rows_scalar, render_task,
     scene::{prepare, PreparedScene},
+    wavefront,
 };
 
 /// Reference noise of `ref/cornell-box.exr` per value (its `noise_rmse_est`, squared).
@@ -355,7 +356,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         r#"{"width": 48, "height": 40, "spp": 6, "seed": 9,
             "lens": {"aperture_radius": 0.03, "focus_distance": 1.15}}"#,
     ];
-    eprintln!("wavefront lanes on this CPU: {}", worker::render::wavefront::lanes());
+    eprintln!("wavefront lanes on this CPU: {}", wavefront::lanes());
     // Vertex normals bent away from the faces (some past the horizon, some flipped, some zero,
     // which falls back to the face normal), set on both preparations alike.
     let bend = |p: &mut PreparedScene| {
@@ -373,7 +374,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         for t in &mut p.shading {
             t.smooth = true;
         }
-        p.wavefront = worker::render::wavefront::Tables::new(p);
+        p.wavefront = wavefront::Tables::new(p);
     };
     for ((name, scene), smooth) in scenes.iter().flat_map(|s| [(s, false), (s, true)]) {
         for json in variants {
@@ -397,6 +398,23 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 assert_eq!(a.rays, b.rays, "{name} {json} {rect:?}: rays");
                 for (i, (pa, pb)) in a.tile.pixels.iter().zip(&b.tile.pixels).enumerate() {
                     assert_eq!(pa, pb, "{name} {json} {rect:?}: pixel {i}");
+                }
+                // Every lane count, emulated (so that 16 lanes are checked on any CPU), and on
+                // every other row as the second of two threads renders them.
+                let tables = wavefront.wavefront.as_ref().expect("tables");
+                let (want, want_stats) = render_rows_scalar(&scalar, 11, &task, 1, 2);
+                for lanes in [4, 8, 16] {
+                    let (got, stats) = wavefront::render_rows_portable(
+                        &wavefront,
+                        tables,
+                        11,
+                        &task,
+                        (1, 2),
+                        lanes,
+                    )
+                    .expect("a lane count it has");
+                    assert_eq!(stats.rays, want_stats.rays, "{name} {json} {lanes} lanes: rays");
+                    assert!(got == want, "{name} {json} {rect:?}: {lanes} lanes differ");
                 }
             }
         }

@@ -138,6 +138,27 @@ pub fn render_rows(
     Some(arch.dispatch(Job { scene, tables, seed, task, first, step }))
 }
 
+/// Renders rows `first, first + step, ...` with the wavefront on `lanes` emulated lanes (4, 8
+/// or 16: `pulp`'s portable 128-, 256- and 512-bit vectors, plain per-lane code), whatever the
+/// CPU: what tests use to check the 16-lane logic on a CPU without AVX-512. `None` for another
+/// lane count.
+pub fn render_rows_portable(
+    scene: &PreparedScene,
+    tables: &Tables,
+    seed: u64,
+    task: &TaskSpec,
+    (first, step): (u32, u32),
+    lanes: usize,
+) -> Option<(TileAccum, Stats)> {
+    let job = Job { scene, tables, seed, task, first, step };
+    match lanes {
+        4 => Some(job.with_simd(pulp::Scalar128b)),
+        8 => Some(job.with_simd(pulp::Scalar256b)),
+        16 => Some(job.with_simd(pulp::Scalar512b)),
+        _ => None,
+    }
+}
+
 struct Job<'a> {
     scene: &'a PreparedScene,
     tables: &'a Tables,
