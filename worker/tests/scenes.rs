@@ -13,6 +13,7 @@ use glam::Vec3;
 use serde_json::json;
 use support::*;
 use worker::render::{
+    light::Light,
     render_rows_scalar, render_task,
     scene::{prepare, PreparedScene},
     wavefront,
@@ -339,15 +340,37 @@ fn every_real_asset_renders_without_nan() {
 /// The wavefront renderer (8 or 16 paths at once, shading in SIMD) traces exactly the paths of
 /// the scalar one: the same sums bit for bit and the same ray count, with a lens, with short
 /// bounce limits, on an offset tile with an offset sample range, with an emitter that shines
-/// from both faces, and with vertex normals.
+/// from both faces, with vertex normals, with point, spot and directional lights, and in
+/// uniform environments, the furnaces included.
 #[test]
 fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let two_sided = edited_scene("cornell-box", "two-sided-light", |json| {
         json["materials"][3]["doubleSided"] = json!(true);
     });
+    let punctual = edited_scene("cornell-box", "punctual-lights", |json| {
+        let lights = json!([
+            {"type": "point", "intensity": 0.8, "color": [1.0, 0.9, 0.8]},
+            {"type": "spot", "intensity": 3.0, "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.6}},
+            {"type": "directional", "intensity": 2.0, "color": [0.6, 0.7, 1.0]}
+        ]);
+        json["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_lights_punctual"));
+        json["extensions"] = json!({"KHR_lights_punctual": {"lights": lights}});
+        let nodes = json["nodes"].as_array_mut().unwrap();
+        let first = nodes.len();
+        for (k, t) in [[0.2, 0.3, 0.1], [-0.3, 0.6, 0.2], [0.0, 0.0, 3.0]].iter().enumerate() {
+            nodes.push(
+                json!({"translation": t, "extensions": {"KHR_lights_punctual": {"light": k}}}),
+            );
+        }
+        let roots = json["scenes"][0]["nodes"].as_array_mut().unwrap();
+        roots.extend((first..first + 3).map(|n| json!(n)));
+    });
     let scenes = [
         ("cornell-box", load("cornell-box.gltf")),
         ("two-sided light", common::gltf::load_path(&two_sided).expect("edited scene")),
+        ("punctual lights", common::gltf::load_path(&punctual).expect("edited scene")),
+        ("furnace", load("furnace.gltf")),
+        ("furnace-closed", load("furnace-closed.gltf")),
     ];
     let variants = [
         r#"{"width": 48, "height": 40, "spp": 6, "seed": 3}"#,
@@ -355,6 +378,10 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         r#"{"width": 48, "height": 40, "spp": 6, "seed": 7, "max_depth": 3}"#,
         r#"{"width": 48, "height": 40, "spp": 6, "seed": 9,
             "lens": {"aperture_radius": 0.03, "focus_distance": 1.15}}"#,
+        r#"{"width": 48, "height": 40, "spp": 6, "seed": 13,
+            "environment": {"color": [0.3, 0.4, 0.5]}}"#,
+        r#"{"width": 48, "height": 40, "spp": 6, "seed": 15, "max_depth": 2,
+            "environment": {"color": [0.3, 0.4, 0.5]}}"#,
     ];
     eprintln!("wavefront lanes on this CPU: {}", wavefront::lanes());
     // Vertex normals bent away from the faces (some past the horizon, some flipped, some zero,
@@ -386,6 +413,15 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 bend(&mut scalar);
             }
             assert!(wavefront.wavefront.is_some(), "{name}: the wavefront applies");
+            if *name == "punctual lights" {
+                let punctual = wavefront
+                    .lights
+                    .lights
+                    .iter()
+                    .filter(|l| !matches!(l, Light::Triangle(_) | Light::Environment(_)));
+                assert_eq!(punctual.count(), 3, "point, spot and directional lights");
+            }
+            assert_eq!(wavefront.environment.is_some(), json.contains("environment"));
             scalar.wavefront = None;
             let name = format!("{name}{}", if smooth { ", vertex normals" } else { "" });
             for (rect, samples) in [

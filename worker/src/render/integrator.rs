@@ -41,7 +41,7 @@ pub(crate) const RR_SURVIVAL_SCALE: f32 = 3.0;
 pub(crate) const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
 
 #[inline]
-fn power_heuristic(a: f32, b: f32) -> f32 {
+pub(crate) fn power_heuristic(a: f32, b: f32) -> f32 {
     let (a2, b2) = (a * a, b * b);
     if a2.is_infinite() {
         return 1.0;

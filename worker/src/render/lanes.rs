@@ -186,6 +186,12 @@ impl<S: Simd> M<S> {
         F { s: self.s, v: self.s.select_f32s(self.m, a.v, b.v) }
     }
 
+    /// Lane by lane `if self { a } else { b }` on conditions.
+    #[inline(always)]
+    pub(crate) fn select_m(self, a: M<S>, b: M<S>) -> M<S> {
+        (self & a) | (!self & b)
+    }
+
     /// Lane by lane `if self { a } else { b }` on bit patterns.
     #[inline(always)]
     pub(crate) fn select_u(self, a: U<S>, b: U<S>) -> U<S> {

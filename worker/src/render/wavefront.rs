@@ -2,11 +2,12 @@
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
 //! For the scenes the Lambert fast path covers (`Tables::new`: diffuse materials without
-//! textures or vertex colours, emissive triangles as the only lights, nothing
-//! moving, nothing alpha-tested, no environment), which includes the Cornell box. Each lane
+//! textures or vertex colours, untextured emitters, nothing moving, nothing alpha-tested),
+//! which includes the Cornell box and the furnaces. Each lane
 //! holds one path; a lane whose path ends takes the next sample of the task at once, so lanes
-//! stay busy whatever the path lengths. Ray casting, the sampler and the light choice stay
-//! scalar, one lane at a time; shading (hit point, frame, MIS weights, light and BSDF sampling,
+//! stay busy whatever the path lengths. Ray casting, the sampler, the light choice, sampling
+//! the lights other than triangles and what escaping rays see stay scalar, one lane at a time
+//! (the same calls as the scalar renderer's); shading (hit point, frame, MIS weights, light and BSDF sampling,
 //! ray origins, roulette) is vector code transcribed from the scalar routines with the same
 //! operations in the same order, so every lane computes the scalar path's bits, and samples
 //! reach the film in the scalar order: the images are bit for bit those of `integrator::li`
@@ -23,7 +24,7 @@ use pulp::{Arch, Simd, WithSimd};
 use super::{
     bsdf::Bsdf,
     geometry::{gamma, Ray},
-    integrator::{Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
+    integrator::{power_heuristic, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
     lanes::{F, M, U, V3},
     light::Light,
     material::{self, SurfacePoint},
@@ -56,18 +57,15 @@ pub struct Tables {
     albedo: Vec<Vec3>,
     /// Emitted radiance per material.
     emission: Vec<Vec3>,
-    /// Every light, indexed like `LightSampler::lights`.
-    lights: Vec<LightRec>,
+    /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
+    /// are sampled by `Light::sample_li`, one lane at a time).
+    lights: Vec<Option<LightRec>>,
 }
 
 impl Tables {
     /// The tables, or `None` when the scene needs something only the scalar renderer does.
     pub fn new(scene: &PreparedScene) -> Option<Tables> {
-        if scene.motion.is_some()
-            || scene.alpha_tested
-            || scene.environment.is_some()
-            || !scene.colors.is_empty()
-        {
+        if scene.motion.is_some() || scene.alpha_tested || !scene.colors.is_empty() {
             return None;
         }
         let mut albedo = Vec::with_capacity(scene.materials.len());
@@ -90,18 +88,21 @@ impl Tables {
         }
         let mut lights = Vec::with_capacity(scene.lights.lights.len());
         for (i, light) in scene.lights.lights.iter().enumerate() {
-            let Light::Triangle(l) = light else { return None };
+            let Light::Triangle(l) = light else {
+                lights.push(None);
+                continue;
+            };
             if l.textured {
                 return None;
             }
-            lights.push(LightRec {
+            lights.push(Some(LightRec {
                 p: l.p,
                 normal: l.normal,
                 area: l.area,
                 emission: l.emission,
                 two_sided: l.two_sided,
                 probability: scene.lights.probability(i as u32),
-            });
+            }));
         }
         Some(Tables { albedo, emission, lights })
     }
@@ -246,7 +247,7 @@ impl Stream {
 
 /// `integrator::power_heuristic`, lane by lane.
 #[inline(always)]
-fn power_heuristic<S: Simd>(s: S, a: F<S>, b: F<S>) -> F<S> {
+fn power_heuristic_lanes<S: Simd>(s: S, a: F<S>, b: F<S>) -> F<S> {
     let (a2, b2) = (a * a, b * b);
     let sum = a2 + b2;
     let w = sum.eq(F::splat(s, 0.0)).select(F::splat(s, 0.0), a2 / sum);
@@ -382,6 +383,12 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let mut first_bounce = [false; MAX_LANES];
     let mut cont = [false; MAX_LANES];
     let mut has_light = [false; MAX_LANES];
+    let mut other_light = [false; MAX_LANES];
+    let mut other_ok = [false; MAX_LANES];
+    let mut at_infinity = [false; MAX_LANES];
+    let mut delta = [false; MAX_LANES];
+    let (mut o_wi, mut o_li, mut o_pdf) = (z3, z3, zero);
+    let (mut o_point, mut o_normal, mut o_point_error) = (z3, z3, z3);
     let mut nee_two_sided = [false; MAX_LANES];
     let mut shadow = [false; MAX_LANES];
     let mut unblocked = [false; MAX_LANES];
@@ -427,7 +434,24 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             stats.rays += 1;
             let ray = Ray::new(paths.origin.lane(i), paths.dir.lane(i));
             let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else {
-                // Nothing is seen beyond the scene (no environment).
+                // What the escaping ray sees (`integrator::li`'s miss, one lane).
+                if let (Some(env), Some(env_idx)) = (&scene.environment, scene.lights.environment) {
+                    let weight = if paths.depth[i] == 0 {
+                        if scene.environment_visible {
+                            1.0
+                        } else {
+                            0.0
+                        }
+                    } else {
+                        let light_pdf = scene.lights.probability(env_idx) * env.pdf(ray.dir);
+                        power_heuristic(paths.prev_bsdf_pdf.lane(i), light_pdf)
+                    };
+                    if weight > 0.0 {
+                        let radiance = paths.radiance.lane(i)
+                            + paths.beta.lane(i) * env.radiance(ray.dir) * weight;
+                        paths.radiance.set_lane(i, radiance);
+                    }
+                }
                 paths.alive[i] = false;
                 stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
                 continue;
@@ -451,8 +475,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             albedo.set_lane(i, tables.albedo[shading.material as usize]);
             le.set_lane(i, tables.emission[shading.material as usize]);
             hit_light[i] = shading.light != NONE;
-            if shading.light != NONE {
-                let l = &tables.lights[shading.light as usize];
+            if let Some(l) = tables.lights.get(shading.light as usize).and_then(Option::as_ref) {
                 l_normal.set_lane(i, l.normal);
                 l_area.set_lane(i, l.area);
                 l_prob.set_lane(i, l.probability);
@@ -476,7 +499,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let cos_light = l_normal.dot(dir).abs();
         let pdf_li = cos_light.eq(zero).select(zero, dist2 / (cos_light * l_area));
         let weight = M::from_bools(s, &first_bounce)
-            .select(one, power_heuristic(s, paths.prev_bsdf_pdf, l_prob * pdf_li));
+            .select(one, power_heuristic_lanes(s, paths.prev_bsdf_pdf, l_prob * pdf_li));
         let add = livem & ng_ok & M::from_bools(s, &hit_light) & emits;
         paths.radiance =
             add.select3(paths.radiance + paths.beta.mul(le).scale(weight), paths.radiance);
@@ -520,12 +543,30 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 sm.skip(1);
             }
             has_light[i] = false;
+            other_light[i] = false;
             if let Some((light, pdf, u_x)) = scene.lights.choose_remapped(u_light.x) {
                 has_light[i] = true;
                 choice_pdf.set_lane(i, pdf);
                 ul_x.set_lane(i, u_x);
                 ul_y.set_lane(i, u_light.y);
-                let l = &tables.lights[light as usize];
+                let Some(l) = &tables.lights[light as usize] else {
+                    // A punctual light or the environment: its own sampling routine.
+                    other_light[i] = true;
+                    let ls = scene.lights.lights[light as usize]
+                        .sample_li(p.lane(i), Vec2::new(u_x, u_light.y));
+                    other_ok[i] = ls.is_some();
+                    if let Some(ls) = ls {
+                        o_wi.set_lane(i, ls.wi);
+                        o_li.set_lane(i, ls.li);
+                        o_pdf.set_lane(i, ls.pdf);
+                        o_point.set_lane(i, ls.point.unwrap_or(Vec3::ZERO));
+                        o_normal.set_lane(i, ls.normal);
+                        o_point_error.set_lane(i, ls.point_error);
+                        at_infinity[i] = ls.point.is_none();
+                        delta[i] = ls.is_delta;
+                    }
+                    continue;
+                };
                 for (v, q) in lp.iter_mut().zip(l.p) {
                     v.set_lane(i, q);
                 }
@@ -550,6 +591,17 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let light_pdf = d2 / (cos_l.abs() * la);
         let sampled = d2.gt(zero) & !(li.is_zero() | cos_l.eq(zero)) & light_pdf.is_finite();
         let point_error = interpolation_error(s, lp, [sb0, sb1, sb2]);
+        // The lanes that sampled another kind of light take its sample.
+        let other = M::from_bools(s, &other_light);
+        let sampled = other.select_m(M::from_bools(s, &other_ok), sampled);
+        let wi = other.select3(o_wi, wi);
+        let li = other.select3(o_li, li);
+        let light_pdf = other.select(o_pdf, light_pdf);
+        let point = other.select3(o_point, point);
+        let point_error = other.select3(o_point_error, point_error);
+        let ln = other.select3(o_normal, ln);
+        let infinite = other & M::from_bools(s, &at_infinity);
+        let is_delta = other & M::from_bools(s, &delta);
         let wi_z = wi.dot(ns);
         let f = albedo.scale(inv_pi).scale(wi_z.abs());
         let shadowm = contm
@@ -561,17 +613,21 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         shadowm.to_bools(&mut shadow);
         let s_origin = offset_ray_origin(s, p, p_error, ng, wi);
         let s_target = offset_ray_origin(s, point, point_error, ln, -wi);
-        let s_dir = s_target - s_origin;
+        // Toward a point, a segment stopping short of it; toward infinity, a ray along wi.
+        let s_dir = infinite.select3(wi, s_target - s_origin);
+        let mut far = [false; MAX_LANES];
+        infinite.to_bools(&mut far);
         for i in 0..lanes {
             unblocked[i] = false;
             if shadow[i] {
                 stats.rays += 1;
                 let ray = Ray::new(s_origin.lane(i), s_dir.lane(i));
-                unblocked[i] = !scene.occluded(&ray, SHADOW_T_MAX, None);
+                let t_max = if far[i] { f32::INFINITY } else { SHADOW_T_MAX };
+                unblocked[i] = !scene.occluded(&ray, t_max, None);
             }
         }
         let nee_pdf = light_pdf * choice_pdf;
-        let w = power_heuristic(s, nee_pdf, wi_z.max0() * inv_pi);
+        let w = is_delta.select(one, power_heuristic_lanes(s, nee_pdf, wi_z.max0() * inv_pi));
         let nee = paths.radiance + paths.beta.mul(f).mul(li).scale(w / nee_pdf);
         paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
 
