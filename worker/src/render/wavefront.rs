@@ -399,88 +399,99 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let mut lp = [z3; 3];
     let (mut ln, mut la, mut lem) = (z3, zero, z3);
     loop {
-        // Start a new sample in every idle lane (`render::sample`, static scene).
-        for i in 0..lanes {
-            if paths.alive[i] {
-                continue;
+        // Every lane gets a path with a hit to shade: idle lanes start the next sample
+        // (`render::sample`, static scene) and cast, and a lane whose ray escapes takes the next
+        // one at once, so that shading runs on full vectors however short the paths.
+        live[..lanes].fill(false);
+        loop {
+            for i in 0..lanes {
+                if paths.alive[i] {
+                    continue;
+                }
+                let Some(k) = stream.next() else { continue };
+                let (col, row, sample_idx) = stream.locate(k);
+                let pixel = UVec2::new(task.rect.x0 + col, task.rect.y0 + row);
+                let sm = &mut paths.sampler[i];
+                sm.start_pixel_sample(pixel, sample_idx);
+                let film = pixel.as_vec2() + sm.next_2d();
+                let lens = if scene.camera.has_lens() { sm.next_2d() } else { Vec2::ZERO };
+                let ray = scene.camera.generate_ray(film, lens);
+                paths.origin.set_lane(i, ray.origin);
+                paths.dir.set_lane(i, ray.dir);
+                paths.beta.set_lane(i, Vec3::ONE);
+                paths.radiance.set_lane(i, Vec3::ZERO);
+                paths.prev_bsdf_pdf.set_lane(i, 0.0);
+                paths.depth[i] = 0;
+                paths.item[i] = k;
+                paths.alive[i] = true;
             }
-            let Some(k) = stream.next() else { continue };
-            let (col, row, sample_idx) = stream.locate(k);
-            let pixel = UVec2::new(task.rect.x0 + col, task.rect.y0 + row);
-            let sm = &mut paths.sampler[i];
-            sm.start_pixel_sample(pixel, sample_idx);
-            let film = pixel.as_vec2() + sm.next_2d();
-            let lens = if scene.camera.has_lens() { sm.next_2d() } else { Vec2::ZERO };
-            let ray = scene.camera.generate_ray(film, lens);
-            paths.origin.set_lane(i, ray.origin);
-            paths.dir.set_lane(i, ray.dir);
-            paths.beta.set_lane(i, Vec3::ONE);
-            paths.radiance.set_lane(i, Vec3::ZERO);
-            paths.prev_bsdf_pdf.set_lane(i, 0.0);
-            paths.depth[i] = 0;
-            paths.item[i] = k;
-            paths.alive[i] = true;
-        }
-        if !paths.alive[..lanes].iter().any(|&a| a) {
-            break;
-        }
-
-        // Closest hits, and what shading needs of the triangles hit.
-        for i in 0..lanes {
-            live[i] = false;
-            if !paths.alive[i] {
-                continue;
-            }
-            stats.rays += 1;
-            let ray = Ray::new(paths.origin.lane(i), paths.dir.lane(i));
-            let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else {
-                // What the escaping ray sees (`integrator::li`'s miss, one lane).
-                if let (Some(env), Some(env_idx)) = (&scene.environment, scene.lights.environment) {
-                    let weight = if paths.depth[i] == 0 {
-                        if scene.environment_visible {
-                            1.0
+            // Closest hits, and what shading needs of the triangles hit.
+            let mut cast = false;
+            for i in 0..lanes {
+                if !paths.alive[i] || live[i] {
+                    continue;
+                }
+                cast = true;
+                stats.rays += 1;
+                let ray = Ray::new(paths.origin.lane(i), paths.dir.lane(i));
+                let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else {
+                    // What the escaping ray sees (`integrator::li`'s miss, one lane).
+                    if let (Some(env), Some(env_idx)) =
+                        (&scene.environment, scene.lights.environment)
+                    {
+                        let weight = if paths.depth[i] == 0 {
+                            if scene.environment_visible {
+                                1.0
+                            } else {
+                                0.0
+                            }
                         } else {
-                            0.0
+                            let light_pdf = scene.lights.probability(env_idx) * env.pdf(ray.dir);
+                            power_heuristic(paths.prev_bsdf_pdf.lane(i), light_pdf)
+                        };
+                        if weight > 0.0 {
+                            let radiance = paths.radiance.lane(i)
+                                + paths.beta.lane(i) * env.radiance(ray.dir) * weight;
+                            paths.radiance.set_lane(i, radiance);
                         }
-                    } else {
-                        let light_pdf = scene.lights.probability(env_idx) * env.pdf(ray.dir);
-                        power_heuristic(paths.prev_bsdf_pdf.lane(i), light_pdf)
-                    };
-                    if weight > 0.0 {
-                        let radiance = paths.radiance.lane(i)
-                            + paths.beta.lane(i) * env.radiance(ray.dir) * weight;
-                        paths.radiance.set_lane(i, radiance);
+                    }
+                    paths.alive[i] = false;
+                    stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
+                    continue;
+                };
+                live[i] = true;
+                first_bounce[i] = paths.depth[i] == 0;
+                t.set_lane(i, hit.t);
+                b1.set_lane(i, hit.b1);
+                b2.set_lane(i, hit.b2);
+                let shading = scene.shading[hit.prim as usize];
+                let (p, _) = scene.triangle(hit.prim, None);
+                for (v, q) in tri.iter_mut().zip(p) {
+                    v.set_lane(i, q);
+                }
+                smooth[i] = shading.smooth;
+                if shading.smooth {
+                    for (v, &k) in normals.iter_mut().zip(&shading.vertices) {
+                        v.set_lane(i, scene.normals[k as usize]);
                     }
                 }
-                paths.alive[i] = false;
-                stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
-                continue;
-            };
-            live[i] = true;
-            first_bounce[i] = paths.depth[i] == 0;
-            t.set_lane(i, hit.t);
-            b1.set_lane(i, hit.b1);
-            b2.set_lane(i, hit.b2);
-            let shading = scene.shading[hit.prim as usize];
-            let (p, _) = scene.triangle(hit.prim, None);
-            for (v, q) in tri.iter_mut().zip(p) {
-                v.set_lane(i, q);
-            }
-            smooth[i] = shading.smooth;
-            if shading.smooth {
-                for (v, &k) in normals.iter_mut().zip(&shading.vertices) {
-                    v.set_lane(i, scene.normals[k as usize]);
+                albedo.set_lane(i, tables.albedo[shading.material as usize]);
+                le.set_lane(i, tables.emission[shading.material as usize]);
+                hit_light[i] = shading.light != NONE;
+                if let Some(l) = tables.lights.get(shading.light as usize).and_then(Option::as_ref)
+                {
+                    l_normal.set_lane(i, l.normal);
+                    l_area.set_lane(i, l.area);
+                    l_prob.set_lane(i, l.probability);
+                    l_two_sided[i] = l.two_sided;
                 }
             }
-            albedo.set_lane(i, tables.albedo[shading.material as usize]);
-            le.set_lane(i, tables.emission[shading.material as usize]);
-            hit_light[i] = shading.light != NONE;
-            if let Some(l) = tables.lights.get(shading.light as usize).and_then(Option::as_ref) {
-                l_normal.set_lane(i, l.normal);
-                l_area.set_lane(i, l.area);
-                l_prob.set_lane(i, l.probability);
-                l_two_sided[i] = l.two_sided;
+            if !cast {
+                break;
             }
+        }
+        if !live[..lanes].iter().any(|&l| l) {
+            break; // Every sample of the task is done.
         }
 
         // The hit point, its emission, its frame.
