@@ -1,17 +1,18 @@
 //! The wavefront renderer: the same path tracer as `integrator::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
-//! For the scenes the Lambert fast path covers (`Tables::new`: diffuse materials without
-//! textures or vertex colours, untextured emitters, nothing moving, nothing alpha-tested),
-//! which includes the Cornell box and the furnaces. Each lane
-//! holds one path; a lane whose path ends takes the next sample of the task at once, so lanes
-//! stay busy whatever the path lengths. Ray casting, the sampler, the light choice, sampling
-//! the lights other than triangles and what escaping rays see stay scalar, one lane at a time
-//! (the same calls as the scalar renderer's); shading (hit point, frame, MIS weights, light and BSDF sampling,
-//! ray origins, roulette) is vector code transcribed from the scalar routines with the same
-//! operations in the same order, so every lane computes the scalar path's bits, and samples
-//! reach the film in the scalar order: the images are bit for bit those of `integrator::li`
-//! on every CPU (a test compares them).
+//! For the scenes `Tables::new` accepts: diffuse materials without textures or vertex colours,
+//! untextured emitters, any lights and environment, nothing moving, nothing alpha-tested (the
+//! Cornell box and the furnaces among them). Each lane holds one path; a lane whose path ends
+//! takes the task's next sample at once (one whose ray escapes, before the shading), so that
+//! the vectors stay full whatever the path lengths. Ray casting, the sampler, the light
+//! choice, samples of lights other than emissive triangles and what escaping rays see stay
+//! scalar, one lane at a time, through the scalar renderer's own calls. The shading between
+//! them (hit point, frame, MIS weights, light and BSDF sampling, ray origins, roulette) is
+//! vector code transcribed from the scalar routines with the same operations in the same
+//! order, so every lane computes the scalar path's bits, and samples reach the film in the
+//! scalar order: the images are bit for bit those of `integrator::li` on every CPU (a test
+//! compares them).
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
