@@ -184,62 +184,64 @@ impl WithSimd for Job<'_> {
 struct Stream {
     rows: Vec<u32>,
     width: u32,
-    first_sample: u32,
-    samples: u32,
-    total: u64,
+    samples: std::ops::Range<u32>,
+    /// Where the next item to start lies: index into `rows`, tile column, sample index.
+    cursor: (usize, u32, u32),
     issued: u64,
     flushed: u64,
-    done: Vec<Option<[f32; 3]>>,
+    /// Per slot (item number modulo `WINDOW`): the item's tile column, tile row and sample
+    /// index, and its radiance once finished.
+    slots: Vec<((u32, u32, u32), Option<[f32; 3]>)>,
 }
 
 impl Stream {
     fn new(task: &TaskSpec, first: u32, step: u32) -> Self {
         let rows: Vec<u32> = (first..task.rect.height).step_by(step.max(1) as usize).collect();
-        let samples = task.samples.end.saturating_sub(task.samples.start);
-        let total = rows.len() as u64 * task.rect.width as u64 * samples as u64;
         Stream {
             rows,
             width: task.rect.width,
-            first_sample: task.samples.start,
-            samples,
-            total,
+            samples: task.samples.start..task.samples.end,
+            cursor: (0, 0, task.samples.start),
             issued: 0,
             flushed: 0,
-            done: vec![None; WINDOW],
+            slots: vec![((0, 0, 0), None); WINDOW],
         }
     }
 
-    /// Tile column, tile row and sample index of item `k`.
+    /// The next item to start: its number, tile column, tile row and sample index; `None` when
+    /// all are started or the window is full.
     #[inline]
-    fn locate(&self, k: u64) -> (u32, u32, u32) {
-        let per_row = self.width as u64 * self.samples as u64;
-        let row = self.rows[(k / per_row) as usize];
-        let rest = k % per_row;
-        (
-            (rest / self.samples as u64) as u32,
-            row,
-            self.first_sample + (rest % self.samples as u64) as u32,
-        )
-    }
-
-    /// The next item to start, unless all are started or the window is full.
-    #[inline]
-    fn next(&mut self) -> Option<u64> {
-        if self.issued == self.total || self.issued - self.flushed >= WINDOW as u64 {
+    fn next(&mut self) -> Option<(u64, u32, u32, u32)> {
+        let (r, col, s) = self.cursor;
+        if r == self.rows.len()
+            || self.width == 0
+            || self.samples.is_empty()
+            || self.issued - self.flushed >= WINDOW as u64
+        {
             return None;
         }
+        let k = self.issued;
+        let row = self.rows[r];
+        self.slots[(k % WINDOW as u64) as usize] = ((col, row, s), None);
+        self.cursor = if s + 1 < self.samples.end {
+            (r, col, s + 1)
+        } else if col + 1 < self.width {
+            (r, col + 1, self.samples.start)
+        } else {
+            (r + 1, 0, self.samples.start)
+        };
         self.issued += 1;
-        Some(self.issued - 1)
+        Some((k, col, row, s))
     }
 
     /// Records item `k`'s radiance and adds every finished item that is next in order.
     #[inline]
     fn finish(&mut self, k: u64, rgb: [f32; 3], tile: &mut TileAccum) {
-        self.done[(k % WINDOW as u64) as usize] = Some(rgb);
+        self.slots[(k % WINDOW as u64) as usize].1 = Some(rgb);
         while self.flushed < self.issued {
-            let slot = (self.flushed % WINDOW as u64) as usize;
-            let Some(rgb) = self.done[slot].take() else { break };
-            let (col, row, s) = self.locate(self.flushed);
+            let slot = &mut self.slots[(self.flushed % WINDOW as u64) as usize];
+            let Some(rgb) = slot.1.take() else { break };
+            let (col, row, s) = slot.0;
             tile.add_sample(col, row, s, rgb);
             self.flushed += 1;
         }
@@ -409,8 +411,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 if paths.alive[i] {
                     continue;
                 }
-                let Some(k) = stream.next() else { continue };
-                let (col, row, sample_idx) = stream.locate(k);
+                let Some((k, col, row, sample_idx)) = stream.next() else { continue };
                 let pixel = UVec2::new(task.rect.x0 + col, task.rect.y0 + row);
                 let sm = &mut paths.sampler[i];
                 sm.start_pixel_sample(pixel, sample_idx);
