@@ -189,9 +189,17 @@ struct Stream {
     cursor: (usize, u32, u32),
     issued: u64,
     flushed: u64,
-    /// Per slot (item number modulo `WINDOW`): the item's tile column, tile row and sample
-    /// index, and its radiance once finished.
-    slots: Vec<((u32, u32, u32), Option<[f32; 3]>)>,
+    /// Per item number modulo `WINDOW`.
+    slots: Vec<Slot>,
+}
+
+/// A sample in flight or waiting for the film.
+#[derive(Clone, Copy, Debug, Default)]
+struct Slot {
+    /// Tile column, tile row and sample index.
+    at: (u32, u32, u32),
+    /// The radiance, once the path has ended.
+    rgb: Option<[f32; 3]>,
 }
 
 impl Stream {
@@ -204,7 +212,7 @@ impl Stream {
             cursor: (0, 0, task.samples.start),
             issued: 0,
             flushed: 0,
-            slots: vec![((0, 0, 0), None); WINDOW],
+            slots: vec![Slot::default(); WINDOW],
         }
     }
 
@@ -222,7 +230,7 @@ impl Stream {
         }
         let k = self.issued;
         let row = self.rows[r];
-        self.slots[(k % WINDOW as u64) as usize] = ((col, row, s), None);
+        self.slots[(k % WINDOW as u64) as usize] = Slot { at: (col, row, s), rgb: None };
         self.cursor = if s + 1 < self.samples.end {
             (r, col, s + 1)
         } else if col + 1 < self.width {
@@ -237,11 +245,11 @@ impl Stream {
     /// Records item `k`'s radiance and adds every finished item that is next in order.
     #[inline]
     fn finish(&mut self, k: u64, rgb: [f32; 3], tile: &mut TileAccum) {
-        self.slots[(k % WINDOW as u64) as usize].1 = Some(rgb);
+        self.slots[(k % WINDOW as u64) as usize].rgb = Some(rgb);
         while self.flushed < self.issued {
             let slot = &mut self.slots[(self.flushed % WINDOW as u64) as usize];
-            let Some(rgb) = slot.1.take() else { break };
-            let (col, row, s) = slot.0;
+            let Some(rgb) = slot.rgb.take() else { break };
+            let (col, row, s) = slot.at;
             tile.add_sample(col, row, s, rgb);
             self.flushed += 1;
         }
