@@ -189,8 +189,12 @@ struct Stream {
     cursor: (usize, u32, u32),
     issued: u64,
     flushed: u64,
-    /// Per item number modulo `WINDOW`.
+    /// Per item number modulo their count (`WINDOW`, or the task's items rounded up to a power
+    /// of two when fewer: the window of a small task never fills, so its size changes nothing
+    /// but the memory a task sets up).
     slots: Vec<Slot>,
+    /// `slots.len() - 1`.
+    mask: u64,
 }
 
 /// A sample in flight or waiting for the film.
@@ -205,6 +209,8 @@ struct Slot {
 impl Stream {
     fn new(task: &TaskSpec, first: u32, step: u32) -> Self {
         let rows: Vec<u32> = (first..task.rect.height).step_by(step.max(1) as usize).collect();
+        let items = rows.len() as u64 * task.rect.width as u64 * task.samples.len() as u64;
+        let window = items.clamp(1, WINDOW as u64).next_power_of_two() as usize;
         Stream {
             rows,
             width: task.rect.width,
@@ -212,7 +218,8 @@ impl Stream {
             cursor: (0, 0, task.samples.start),
             issued: 0,
             flushed: 0,
-            slots: vec![Slot::default(); WINDOW],
+            slots: vec![Slot::default(); window],
+            mask: window as u64 - 1,
         }
     }
 
@@ -224,13 +231,13 @@ impl Stream {
         if r == self.rows.len()
             || self.width == 0
             || self.samples.is_empty()
-            || self.issued - self.flushed >= WINDOW as u64
+            || self.issued - self.flushed > self.mask
         {
             return None;
         }
         let k = self.issued;
         let row = self.rows[r];
-        self.slots[(k % WINDOW as u64) as usize] = Slot { at: (col, row, s), rgb: None };
+        self.slots[(k & self.mask) as usize] = Slot { at: (col, row, s), rgb: None };
         self.cursor = if s + 1 < self.samples.end {
             (r, col, s + 1)
         } else if col + 1 < self.width {
@@ -245,9 +252,9 @@ impl Stream {
     /// Records item `k`'s radiance and adds every finished item that is next in order.
     #[inline]
     fn finish(&mut self, k: u64, rgb: [f32; 3], tile: &mut TileAccum) {
-        self.slots[(k % WINDOW as u64) as usize].rgb = Some(rgb);
+        self.slots[(k & self.mask) as usize].rgb = Some(rgb);
         while self.flushed < self.issued {
-            let slot = &mut self.slots[(self.flushed % WINDOW as u64) as usize];
+            let slot = &mut self.slots[(self.flushed & self.mask) as usize];
             let Some(rgb) = slot.rgb.take() else { break };
             let (col, row, s) = slot.at;
             tile.add_sample(col, row, s, rgb);
