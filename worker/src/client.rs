@@ -199,18 +199,16 @@ pub fn run_linked(
     };
     // Four threads: one leases (and keeps the next task ready while this one renders, so the
     // round trip to the coordinator is hidden), one renders, one sends results (at most one
-    // waits while another is being sent), one renews the leases held.
+    // waits while another is being sent), one renews the leases held. Over an in-process link
+    // the renderer hands its results in itself: the call is cheaper than waking a thread.
     let (outbox, inbox) = std::sync::mpsc::sync_channel::<Outgoing>(1);
     let renewer = Renewer::default();
+    let inline = link.hands_in_inline();
     std::thread::scope(|s| -> Result<WorkerStats> {
         let sender = s.spawn(move || {
             let mut stats = WorkerStats::default();
             for out in inbox {
-                match send_result(link, &out.worker, &out.lease, &out.result) {
-                    Ok(true) => stats.merged += 1,
-                    Ok(false) => stats.refused += 1,
-                    Err(e) => tracing::warn!(lease = %out.lease, "{e}"),
-                }
+                hand_in(link, &out, &mut stats);
             }
             stats
         });
@@ -225,6 +223,7 @@ pub fn run_linked(
         let (grants, granted) = std::sync::mpsc::sync_channel::<Granted<'_>>(0);
         let (finished, render_times) = std::sync::mpsc::channel::<Duration>();
         let renderer = s.spawn(move || {
+            let mut stats = WorkerStats::default();
             for g in granted {
                 let start = Instant::now();
                 let rendered =
@@ -233,20 +232,27 @@ pub fn run_linked(
                 match rendered {
                     Ok(Some(result)) => {
                         let out = Outgoing { worker: g.worker, lease: g.grant.lease, result };
-                        if outbox.send(out).is_err() {
-                            return;
+                        if inline {
+                            hand_in(link, &out, &mut stats);
+                        } else if outbox.send(out).is_err() {
+                            break;
                         }
                     }
                     Ok(None) => {}
                     Err(e) => tracing::warn!(lease = %g.grant.lease, "{e}"),
                 }
             }
+            stats
         });
         let me = lease_loop(options, stop, link, &request, grants, render_times, renewer);
-        renderer.join().expect("the renderer panicked");
+        let rendered = renderer.join().expect("the renderer panicked");
         drop(stop_renewing);
         renewing.join().expect("the lease renewer panicked");
-        let stats = sender.join().expect("the result sender panicked");
+        let sent = sender.join().expect("the result sender panicked");
+        let stats = WorkerStats {
+            merged: rendered.merged + sent.merged,
+            refused: rendered.refused + sent.refused,
+        };
         if let Some(j) = me? {
             match link.leave(&j.id) {
                 Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
@@ -370,6 +376,9 @@ struct Renewer {
 struct RenewState {
     held: Vec<Renewal>,
     quit: bool,
+    /// When the renewing thread looks at `held` again by itself: `None` while it waits for a
+    /// change without a timeout (or has not started). A lease due later needs no wake-up.
+    looks_by: Option<Instant>,
 }
 
 struct Renewal {
@@ -397,7 +406,8 @@ impl Renewing<'_> {
 
 impl Drop for Renewing<'_> {
     fn drop(&mut self) {
-        self.renewer.update(|st| st.held.retain(|r| r.lease != self.lease));
+        // No wake-up: the renewing thread finds the lease gone when it next looks.
+        self.renewer.lock().held.retain(|r| r.lease != self.lease);
     }
 }
 
@@ -420,7 +430,15 @@ impl Renewer {
             renewed: Instant::now(),
             lost: lost.clone(),
         };
-        self.update(|st| st.held.push(renewal));
+        let due = renewal.renewed + every;
+        let mut st = self.lock();
+        st.held.push(renewal);
+        // Woken only if it would otherwise look too late: a thread per task's hand-offs cost
+        // a short task more than its render.
+        if st.looks_by.is_none_or(|t| t > due) {
+            self.changed.notify_all();
+        }
+        drop(st);
         Renewing { renewer: self, lease: lease.to_string(), lost }
     }
 
@@ -437,12 +455,16 @@ impl Renewer {
             // A lease the coordinator called lost is not asked about again.
             let live = st.held.iter_mut().filter(|r| !r.lost.load(Ordering::Relaxed));
             let Some(r) = live.min_by_key(|r| r.renewed + r.every) else {
+                st.looks_by = None;
                 st = self.changed.wait(st).unwrap_or_else(|p| p.into_inner());
+                st.looks_by = Some(Instant::now());
                 continue;
             };
             let due = r.renewed + r.every;
             if due > now {
+                st.looks_by = Some(due);
                 st = self.changed.wait_timeout(st, due - now).unwrap_or_else(|p| p.into_inner()).0;
+                st.looks_by = Some(Instant::now());
                 continue;
             }
             r.renewed = now;
@@ -506,6 +528,15 @@ fn render(
         return Ok(None);
     }
     Ok(Some(result))
+}
+
+/// Hands a result in and counts the answer.
+fn hand_in(link: &dyn Link, out: &Outgoing, stats: &mut WorkerStats) {
+    match send_result(link, &out.worker, &out.lease, &out.result) {
+        Ok(true) => stats.merged += 1,
+        Ok(false) => stats.refused += 1,
+        Err(e) => tracing::warn!(lease = %out.lease, "{e}"),
+    }
 }
 
 /// Sends a result, retrying what the network lost. Ok(true): merged; Ok(false): refused as

@@ -45,6 +45,12 @@ pub trait Link: Sync {
     fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError>;
     /// Leaves the farm.
     fn leave(&self, worker: &str) -> Result<(), CallError>;
+    /// Whether the rendering thread should hand its results in itself rather than pass them to
+    /// a sending thread: true for a link whose calls are cheaper than a thread's wake-up (an
+    /// in-process one); a network link keeps the sender, so that rendering overlaps the upload.
+    fn hands_in_inline(&self) -> bool {
+        false
+    }
 }
 
 /// The farm protocol over HTTP (`/api/v1/...`), results as bincode.

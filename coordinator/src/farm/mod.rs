@@ -334,6 +334,16 @@ impl Farm {
         self.jobs.get(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))
     }
 
+    /// The job a live lease belongs to.
+    pub fn lease_job(&self, lease: &str) -> Option<&str> {
+        self.leases.get(lease).map(|l| l.job.as_str())
+    }
+
+    /// Whether job `id` has ended (done, failed or cancelled) or is unknown.
+    pub fn job_ended(&self, id: &str) -> bool {
+        self.jobs.get(id).is_none_or(|j| j.state.is_final())
+    }
+
     /// A job's status.
     pub fn status(&self, id: &str) -> FarmResult<JobStatus> {
         Ok(self.job(id)?.status())

@@ -20,28 +20,47 @@ use crate::farm::{Farm, FarmError};
 /// How often an idle local worker asks again while its lease request waits for work.
 const POLL: Duration = Duration::from_millis(1);
 
+/// A result that ends no job wakes the waiter at most this often: on two cores each wake-up
+/// takes a core from a renderer, and the waiter only redraws a progress bar.
+const WAKE_EVERY: Duration = Duration::from_millis(20);
+
 /// Counts what the local workers hand in (results, failures, departures), so that a thread of
 /// this process can sleep until the next one instead of polling the farm.
 #[derive(Debug, Default)]
 pub(crate) struct Handins {
-    count: Mutex<u64>,
+    count: Mutex<Count>,
     changed: Condvar,
 }
 
+#[derive(Debug, Default)]
+struct Count {
+    handins: u64,
+    /// When the waiter was last woken (`None`: never).
+    woken: Option<Instant>,
+}
+
 impl Handins {
-    fn bump(&self) {
-        *self.count.lock().unwrap_or_else(|p| p.into_inner()) += 1;
-        self.changed.notify_all();
+    /// Counts a hand-in; wakes the waiter if `ends` (it ended a job or changed membership) or
+    /// if it was last woken `WAKE_EVERY` ago.
+    fn bump(&self, ends: bool) {
+        let mut count = self.count.lock().unwrap_or_else(|p| p.into_inner());
+        count.handins += 1;
+        let now = Instant::now();
+        if ends || count.woken.is_none_or(|w| now.duration_since(w) >= WAKE_EVERY) {
+            count.woken = Some(now);
+            self.changed.notify_all();
+        }
     }
 
-    /// Waits until more than `seen` hand-ins were counted, or `timeout` passed; returns the count.
+    /// Waits until more than `seen` hand-ins were counted and one of them woke it, or `timeout`
+    /// passed; returns the count.
     pub(crate) fn wait_past(&self, seen: u64, timeout: Duration) -> u64 {
         let count = self.count.lock().unwrap_or_else(|p| p.into_inner());
         let (count, _) = self
             .changed
-            .wait_timeout_while(count, timeout, |c| *c <= seen)
+            .wait_timeout_while(count, timeout, |c| c.handins <= seen)
             .unwrap_or_else(|p| p.into_inner());
-        *count
+        count.handins
     }
 }
 
@@ -106,31 +125,36 @@ impl Link for LocalLink {
     }
 
     fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError> {
-        let merged = {
+        let (merged, ended) = {
             let mut farm = self.lock();
+            let job = farm.lease_job(lease).map(str::to_string);
             // No bytes crossed a wire: the merged-bytes counter is for results received.
             let merged = farm.submit(lease, worker, result.clone(), 0);
             if merged.is_err() {
                 farm.counters.results_refused += 1;
             }
-            merged
+            (merged, job.is_none_or(|j| farm.job_ended(&j)))
         };
         self.work.notify_waiters();
-        self.handins.bump();
+        self.handins.bump(ended);
         merged.map_err(refused)
     }
 
     fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError> {
         let failed = self.lock().fail(lease, worker, &report.error);
         self.work.notify_waiters();
-        self.handins.bump();
+        self.handins.bump(true);
         failed.map_err(refused)
+    }
+
+    fn hands_in_inline(&self) -> bool {
+        true
     }
 
     fn leave(&self, worker: &str) -> Result<(), CallError> {
         let left = self.lock().leave(worker);
         self.work.notify_waiters();
-        self.handins.bump();
+        self.handins.bump(true);
         left.map_err(refused)
     }
 }
@@ -156,7 +180,7 @@ mod tests {
             let handins = handins.clone();
             std::thread::spawn(move || {
                 std::thread::sleep(Duration::from_millis(50));
-                handins.bump();
+                handins.bump(false);
             })
         };
         let asked = Instant::now();
@@ -168,6 +192,25 @@ mod tests {
         assert_eq!(handins.wait_past(1, Duration::from_millis(20)), 1);
         assert!(asked.elapsed() >= Duration::from_millis(20));
         bumper.join().unwrap();
+    }
+
+    /// A hand-in that ends a job wakes the waiter at once, even right after another woke it
+    /// (other hand-ins may wait up to `WAKE_EVERY`, but never past the waiter's timeout).
+    #[test]
+    fn a_handin_that_ends_a_job_always_wakes_the_waiter() {
+        let handins = Arc::new(Handins::default());
+        handins.bump(false);
+        let bumper = {
+            let handins = handins.clone();
+            std::thread::spawn(move || handins.bump(true))
+        };
+        let asked = Instant::now();
+        assert_eq!(handins.wait_past(1, Duration::from_secs(30)), 2);
+        assert!(asked.elapsed() < Duration::from_secs(10), "woke only at the timeout");
+        bumper.join().unwrap();
+        // A hand-in that does not wake it is still counted when the waiter times out.
+        handins.bump(false);
+        assert_eq!(handins.wait_past(2, Duration::from_millis(50)), 3);
     }
 
     fn status(e: Result<impl std::fmt::Debug, CallError>) -> u16 {
