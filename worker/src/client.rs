@@ -199,19 +199,11 @@ pub fn run_linked(
     };
     // Four threads: one leases (and keeps the next task ready while this one renders, so the
     // round trip to the coordinator is hidden), one renders, one sends results (at most one
-    // waits while another is being sent), one renews the leases held. Over an in-process link
-    // the renderer hands its results in itself: the call is cheaper than waking a thread.
-    let (outbox, inbox) = std::sync::mpsc::sync_channel::<Outgoing>(1);
+    // waits while another is being sent), one renews the leases held. Over an in-process link,
+    // whose calls cost less than waking a thread, the leasing thread renders each task and
+    // hands its result in itself, and only the renewer runs beside it.
     let renewer = Renewer::default();
-    let inline = link.hands_in_inline();
     std::thread::scope(|s| -> Result<WorkerStats> {
-        let sender = s.spawn(move || {
-            let mut stats = WorkerStats::default();
-            for out in inbox {
-                hand_in(link, &out, &mut stats);
-            }
-            stats
-        });
         let renewer = &renewer;
         let renewing = s.spawn(move || renewer.run(link));
         // On every way out of here, a panic of the leasing or rendering thread included, the
@@ -219,40 +211,59 @@ pub fn run_linked(
         // coordinator would never hand those tasks to another worker) and the scope would wait
         // for it forever.
         let stop_renewing = QuitOnDrop(renewer);
-        // A rendezvous: a grant is handed over only when the renderer takes it.
-        let (grants, granted) = std::sync::mpsc::sync_channel::<Granted<'_>>(0);
-        let (finished, render_times) = std::sync::mpsc::channel::<Duration>();
-        let renderer = s.spawn(move || {
+        let (me, stats) = if link.hands_in_inline() {
             let mut stats = WorkerStats::default();
-            for g in granted {
-                let start = Instant::now();
-                let rendered =
-                    render(link, &g.worker, &g.grant, options.threads, cache, g.renewing);
-                let _ = finished.send(start.elapsed());
-                match rendered {
-                    Ok(Some(result)) => {
-                        let out = Outgoing { worker: g.worker, lease: g.grant.lease, result };
-                        if inline {
-                            hand_in(link, &out, &mut stats);
-                        } else if outbox.send(out).is_err() {
-                            break;
-                        }
-                    }
-                    Ok(None) => {}
-                    Err(e) => tracing::warn!(lease = %g.grant.lease, "{e}"),
+            let mut deliver = |g: Granted<'_>| -> Result<()> {
+                if let Some(out) = render_granted(link, options, cache, g) {
+                    hand_in(link, &out, &mut stats);
                 }
-            }
-            stats
-        });
-        let me = lease_loop(options, stop, link, &request, grants, render_times, renewer);
-        let rendered = renderer.join().expect("the renderer panicked");
+                Ok(())
+            };
+            let me = lease_loop(options, stop, link, &request, &mut deliver, renewer);
+            (me, stats)
+        } else {
+            let (outbox, inbox) = std::sync::mpsc::sync_channel::<Outgoing>(1);
+            let sender = s.spawn(move || {
+                let mut stats = WorkerStats::default();
+                for out in inbox {
+                    hand_in(link, &out, &mut stats);
+                }
+                stats
+            });
+            // A rendezvous: a grant is handed over only when the renderer takes it.
+            let (grants, granted) = std::sync::mpsc::sync_channel::<Granted<'_>>(0);
+            let (finished, render_times) = std::sync::mpsc::channel::<Duration>();
+            let renderer = s.spawn(move || {
+                for g in granted {
+                    let start = Instant::now();
+                    let out = render_granted(link, options, cache, g);
+                    let _ = finished.send(start.elapsed());
+                    if out.is_some_and(|out| outbox.send(out).is_err()) {
+                        return;
+                    }
+                }
+            });
+            // Unknown until a task has rendered: no lease ahead of the first one.
+            let mut last_render = Duration::MAX;
+            // Owns the rendezvous: dropping it after the loop ends the renderer's queue.
+            let mut deliver = move |g| -> Result<()> {
+                if grants.send(g).is_err() {
+                    bail!("the renderer stopped");
+                }
+                // The renderer has taken this task, so it has finished every earlier one.
+                last_render = render_times.try_iter().last().unwrap_or(last_render);
+                if last_render >= options.prefetch_below {
+                    last_render = render_times.recv().unwrap_or(last_render);
+                }
+                Ok(())
+            };
+            let me = lease_loop(options, stop, link, &request, &mut deliver, renewer);
+            drop(deliver);
+            renderer.join().expect("the renderer panicked");
+            (me, sender.join().expect("the result sender panicked"))
+        };
         drop(stop_renewing);
         renewing.join().expect("the lease renewer panicked");
-        let sent = sender.join().expect("the result sender panicked");
-        let stats = WorkerStats {
-            merged: rendered.merged + sent.merged,
-            refused: rendered.refused + sent.refused,
-        };
         if let Some(j) = me? {
             match link.leave(&j.id) {
                 Ok(()) => tracing::info!(worker = %j.id, "left the farm"),
@@ -286,21 +297,18 @@ struct Granted<'a> {
     renewing: Renewing<'a>,
 }
 
-/// The leasing loop: joins, leases and hands grants to the renderer until `stop`. Returns the
-/// membership to leave with.
+/// The leasing loop: joins, leases and hands each grant to `deliver` (the renderer's rendezvous,
+/// or rendering it on this thread) until `stop`. Returns the membership to leave with.
 fn lease_loop<'a>(
     options: &WorkerOptions,
     stop: &AtomicBool,
     link: &dyn Link,
     request: &JoinRequest,
-    grants: std::sync::mpsc::SyncSender<Granted<'a>>,
-    render_times: std::sync::mpsc::Receiver<Duration>,
+    deliver: &mut dyn FnMut(Granted<'a>) -> Result<()>,
     renewer: &'a Renewer,
 ) -> Result<Option<JoinResponse>> {
     let mut me: Option<JoinResponse> = None;
     let mut backoff = Duration::from_millis(200);
-    // Unknown until a task has rendered: no lease ahead of the first one.
-    let mut last_render = Duration::MAX;
     while !stop.load(Ordering::Relaxed) {
         let Some(joined) = &me else {
             match link.join(request) {
@@ -331,15 +339,8 @@ fn lease_loop<'a>(
                 // Renewed from the start: the task may wait for the renderer, and fetching
                 // and preparing a scene can take longer than the lease.
                 let renewing = renewer.begin(&worker, &grant.lease, heartbeat);
-                if grants.send(Granted { worker, grant, renewing }).is_err() {
-                    bail!("the renderer stopped");
-                }
-                // The renderer has taken this task, so it has finished every earlier one.
-                last_render = render_times.try_iter().last().unwrap_or(last_render);
                 tracing::trace!(lease_s = leased.as_secs_f64(), "task leased");
-                if last_render >= options.prefetch_below {
-                    last_render = render_times.recv().unwrap_or(last_render);
-                }
+                deliver(Granted { worker, grant, renewing })?;
             }
             Err(CallError::Status(404, msg)) => {
                 tracing::info!("coordinator forgot this worker ({msg}); joining again");
@@ -528,6 +529,24 @@ fn render(
         return Ok(None);
     }
     Ok(Some(result))
+}
+
+/// Renders a granted task; the result to hand in, if there is one (none when the lease was lost
+/// or the task failed, which `render` has reported).
+fn render_granted(
+    link: &dyn Link,
+    options: &WorkerOptions,
+    cache: &SceneCache,
+    g: Granted<'_>,
+) -> Option<Outgoing> {
+    match render(link, &g.worker, &g.grant, options.threads, cache, g.renewing) {
+        Ok(Some(result)) => Some(Outgoing { worker: g.worker, lease: g.grant.lease, result }),
+        Ok(None) => None,
+        Err(e) => {
+            tracing::warn!(lease = %g.grant.lease, "{e}");
+            None
+        }
+    }
 }
 
 /// Hands a result in and counts the answer.
