@@ -45,9 +45,10 @@ pub trait Link: Sync {
     fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError>;
     /// Leaves the farm.
     fn leave(&self, worker: &str) -> Result<(), CallError>;
-    /// Whether the rendering thread should hand its results in itself rather than pass them to
-    /// a sending thread: true for a link whose calls are cheaper than a thread's wake-up (an
-    /// in-process one); a network link keeps the sender, so that rendering overlaps the upload.
+    /// Whether one thread should lease, render and hand in each task in turn rather than pass
+    /// tasks and results between a leasing, a rendering and a sending thread: true for a link
+    /// whose calls are cheaper than a thread's wake-up (an in-process one); a network link keeps
+    /// the three, so that leasing ahead and uploading overlap rendering.
     fn hands_in_inline(&self) -> bool {
         false
     }
