@@ -193,8 +193,6 @@ struct Stream {
     /// of two when fewer: the window of a small task never fills, so its size changes nothing
     /// but the memory a task sets up).
     slots: Vec<Slot>,
-    /// `slots.len() - 1`.
-    mask: u64,
 }
 
 /// A sample in flight or waiting for the film.
@@ -219,8 +217,13 @@ impl Stream {
             issued: 0,
             flushed: 0,
             slots: vec![Slot::default(); window],
-            mask: window as u64 - 1,
         }
+    }
+
+    /// Item `k`'s slot (the slot count is a power of two).
+    #[inline]
+    fn slot(&self, k: u64) -> usize {
+        k as usize & (self.slots.len() - 1)
     }
 
     /// The next item to start: its number, tile column, tile row and sample index; `None` when
@@ -231,13 +234,14 @@ impl Stream {
         if r == self.rows.len()
             || self.width == 0
             || self.samples.is_empty()
-            || self.issued - self.flushed > self.mask
+            || self.issued - self.flushed >= self.slots.len() as u64
         {
             return None;
         }
         let k = self.issued;
         let row = self.rows[r];
-        self.slots[(k & self.mask) as usize] = Slot { at: (col, row, s), rgb: None };
+        let at = self.slot(k);
+        self.slots[at] = Slot { at: (col, row, s), rgb: None };
         self.cursor = if s + 1 < self.samples.end {
             (r, col, s + 1)
         } else if col + 1 < self.width {
@@ -252,9 +256,11 @@ impl Stream {
     /// Records item `k`'s radiance and adds every finished item that is next in order.
     #[inline]
     fn finish(&mut self, k: u64, rgb: [f32; 3], tile: &mut TileAccum) {
-        self.slots[(k & self.mask) as usize].rgb = Some(rgb);
+        let at = self.slot(k);
+        self.slots[at].rgb = Some(rgb);
         while self.flushed < self.issued {
-            let slot = &mut self.slots[(self.flushed & self.mask) as usize];
+            let at = self.slot(self.flushed);
+            let slot = &mut self.slots[at];
             let Some(rgb) = slot.rgb.take() else { break };
             let (col, row, s) = slot.at;
             tile.add_sample(col, row, s, rgb);
