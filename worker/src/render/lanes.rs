@@ -133,6 +133,12 @@ impl<S: Simd> F<S> {
 }
 
 impl<S: Simd> U<S> {
+    /// The instruction set.
+    #[inline(always)]
+    pub(crate) fn s(&self) -> S {
+        self.s
+    }
+
     /// Every lane `x`.
     #[inline(always)]
     pub(crate) fn splat(s: S, x: u32) -> Self {
@@ -156,7 +162,129 @@ impl<S: Simd> U<S> {
     pub(crate) fn wrapping_sub(self, o: Self) -> Self {
         U { s: self.s, v: self.s.sub_u32s(self.v, o.v) }
     }
+
+    /// Wrapping `self * o`.
+    #[inline(always)]
+    pub(crate) fn wrapping_mul(self, o: Self) -> Self {
+        U { s: self.s, v: self.s.mul_u32s(self.v, o.v) }
+    }
+
+    /// The full 64-bit product `self * o`.
+    #[inline(always)]
+    pub(crate) fn widening_mul(self, o: Self) -> U64<S> {
+        let (lo, hi) = self.s.widening_mul_u32s(self.v, o.v);
+        U64 { lo: U { s: self.s, v: lo }, hi: U { s: self.s, v: hi } }
+    }
+
+    /// `self << n` (`n < 32`).
+    #[inline(always)]
+    pub(crate) fn shl(self, n: u32) -> Self {
+        U { s: self.s, v: self.s.wrapping_dyn_shl_u32s(self.v, self.s.splat_u32s(n)) }
+    }
+
+    /// `self >> n` (`n < 32`).
+    #[inline(always)]
+    pub(crate) fn shr(self, n: u32) -> Self {
+        U { s: self.s, v: self.s.wrapping_dyn_shr_u32s(self.v, self.s.splat_u32s(n)) }
+    }
+
+    /// `u32::reverse_bits`: halves, then quarters, ... swapped (five steps).
+    #[inline(always)]
+    pub(crate) fn reverse_bits(self) -> Self {
+        let mut x = self;
+        for (n, mask) in
+            [(1, 0x5555_5555), (2, 0x3333_3333), (4, 0x0f0f_0f0f), (8, 0x00ff_00ff), (16, 0xffff)]
+        {
+            let m = U::splat(self.s, mask);
+            x = (x.shr(n) & m) | (x & m).shl(n);
+        }
+        x
+    }
+
+    /// `x as f32` for lanes below 2^24 (exact: the low 23 bits as the mantissa of 2^23 + x,
+    /// less 2^23, plus bit 23's 2^23).
+    #[inline(always)]
+    pub(crate) fn small_to_f32(self) -> F<S> {
+        let s = self.s;
+        let two23 = 8_388_608.0f32.to_bits();
+        let low = (self & U::splat(s, 0x7f_ffff)) | U::splat(s, two23);
+        let high = self.shr(23).wrapping_mul(U::splat(s, two23));
+        (low.to_f32() - F::splat(s, 8_388_608.0)) + high.to_f32()
+    }
+
+    /// Lane `i`.
+    #[cfg(test)]
+    pub(crate) fn lane(&self, i: usize) -> u32 {
+        bytemuck::cast_slice::<S::u32s, u32>(std::slice::from_ref(&self.v))[i]
+    }
+
+    /// Sets lane `i` to `x`.
+    #[inline(always)]
+    pub(crate) fn set_lane(&mut self, i: usize, x: u32) {
+        bytemuck::cast_slice_mut::<S::u32s, u32>(std::slice::from_mut(&mut self.v))[i] = x;
+    }
 }
+
+/// One u64 per lane, as its low and high halves.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct U64<S: Simd> {
+    pub(crate) lo: U<S>,
+    pub(crate) hi: U<S>,
+}
+
+impl<S: Simd> U64<S> {
+    /// Every lane `x`.
+    #[inline(always)]
+    pub(crate) fn splat(s: S, x: u64) -> Self {
+        U64 { lo: U::splat(s, x as u32), hi: U::splat(s, (x >> 32) as u32) }
+    }
+
+    /// `self ^ (self >> n)` (`0 < n < 32`).
+    #[inline(always)]
+    pub(crate) fn xor_shr(self, n: u32) -> Self {
+        let lo = self.lo ^ (self.lo.shr(n) | self.hi.shl(32 - n));
+        U64 { lo, hi: self.hi ^ self.hi.shr(n) }
+    }
+
+    /// Wrapping `self * k`.
+    #[inline(always)]
+    pub(crate) fn wrapping_mul(self, k: u64) -> Self {
+        let s = self.lo.s;
+        let (k_lo, k_hi) = (U::splat(s, k as u32), U::splat(s, (k >> 32) as u32));
+        let p = self.lo.widening_mul(k_lo);
+        let hi =
+            p.hi.wrapping_add(self.hi.wrapping_mul(k_lo)).wrapping_add(self.lo.wrapping_mul(k_hi));
+        U64 { lo: p.lo, hi }
+    }
+
+    /// `self ^ o`.
+    #[inline(always)]
+    pub(crate) fn xor(self, o: Self) -> Self {
+        U64 { lo: self.lo ^ o.lo, hi: self.hi ^ o.hi }
+    }
+
+    /// Sets lane `i` to `x`.
+    #[inline(always)]
+    pub(crate) fn set_lane(&mut self, i: usize, x: u64) {
+        self.lo.set_lane(i, x as u32);
+        self.hi.set_lane(i, (x >> 32) as u32);
+    }
+}
+
+macro_rules! bitop {
+    ($tr:ident, $f:ident, $op:ident) => {
+        impl<S: Simd> $tr for U<S> {
+            type Output = U<S>;
+            #[inline(always)]
+            fn $f(self, o: Self) -> Self {
+                U { s: self.s, v: self.s.$op(self.v, o.v) }
+            }
+        }
+    };
+}
+bitop!(BitAnd, bitand, and_u32s);
+bitop!(BitOr, bitor, or_u32s);
+bitop!(BitXor, bitxor, xor_u32s);
 
 impl<S: Simd> M<S> {
     /// Conditions from bools, one per lane (`lanes.len()` is at least the lane count).

@@ -12,6 +12,9 @@
 //! film its real error (`common::film::PixelSums::half_difference_variance`).
 
 use glam::{UVec2, Vec2};
+use pulp::Simd;
+
+use super::lanes::{F, M, U, U64};
 
 /// Per-pixel sample generator. Create one per thread and call `start_pixel_sample` for every
 /// sample: it holds no state that outlives a sample.
@@ -48,7 +51,7 @@ impl Sampler {
     fn dimension_hash(&mut self) -> u64 {
         let d = self.dimension;
         self.dimension += 1;
-        mix64(self.pixel_hash ^ (d as u64).wrapping_mul(0xd1b5_4a32_d192_ed03))
+        mix64(self.pixel_hash ^ (d as u64).wrapping_mul(DIMENSION_MULTIPLIER))
     }
 
     /// Passes over `n` dimensions without computing them (a draw this sample does not need,
@@ -74,7 +77,7 @@ impl Sampler {
     pub fn next_2d(&mut self) -> Vec2 {
         let h = self.dimension_hash();
         let index = laine_karras_permutation(self.sample_idx_reversed, h as u32).reverse_bits();
-        let seed_y = (h.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 32) as u32;
+        let seed_y = (h.wrapping_mul(SEED_Y_MULTIPLIER) >> 32) as u32;
         Vec2::new(
             to_unit(laine_karras_permutation(index, (h >> 32) as u32).reverse_bits()),
             to_unit(laine_karras_permutation(sobol_1_reversed(index), seed_y).reverse_bits()),
@@ -82,13 +85,22 @@ impl Sampler {
     }
 }
 
+/// Spreads a dimension's index over the hash (a sample's dimensions differ in many bits).
+const DIMENSION_MULTIPLIER: u64 = 0xd1b5_4a32_d192_ed03;
+/// Derives the second coordinate's scramble seed from a 2D draw's hash.
+const SEED_Y_MULTIPLIER: u64 = 0x9e37_79b9_7f4a_7c15;
+/// The splitmix64 finaliser's multipliers.
+const MIX64_MULTIPLIERS: [u64; 2] = [0xbf58_476d_1ce4_e5b9, 0x94d0_49bb_1331_11eb];
+/// Burley's improved Laine-Karras multipliers.
+const LK_MULTIPLIERS: [u32; 4] = [0x6c50_b47c, 0xb82f_1e52, 0xc7af_e638, 0x8d22_f6e6];
+
 /// A strong 64-bit mixer (the splitmix64 finaliser).
 #[inline]
 pub fn mix64(mut x: u64) -> u64 {
     x ^= x >> 30;
-    x = x.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x = x.wrapping_mul(MIX64_MULTIPLIERS[0]);
     x ^= x >> 27;
-    x = x.wrapping_mul(0x94d0_49bb_1331_11eb);
+    x = x.wrapping_mul(MIX64_MULTIPLIERS[1]);
     x ^ (x >> 31)
 }
 
@@ -100,23 +112,13 @@ fn sobol_0(i: u32) -> u32 {
 }
 
 /// Generator matrix columns of the second Sobol dimension: v_0 = 2^31, v_j = v_{j-1} ^ (v_{j-1} >> 1).
+#[cfg(test)]
 const SOBOL_1_COLUMNS: [u32; 32] = {
     let mut v = [0u32; 32];
     v[0] = 1 << 31;
     let mut j = 1;
     while j < 32 {
         v[j] = v[j - 1] ^ (v[j - 1] >> 1);
-        j += 1;
-    }
-    v
-};
-
-/// The same columns bit-reversed, so that `sobol_1_reversed(i) == sobol_1(i).reverse_bits()`.
-const SOBOL_1_COLUMNS_REVERSED: [u32; 32] = {
-    let mut v = [0u32; 32];
-    let mut j = 0;
-    while j < 32 {
-        v[j] = SOBOL_1_COLUMNS[j].reverse_bits();
         j += 1;
     }
     v
@@ -133,47 +135,29 @@ fn sobol_1(mut i: u32) -> u32 {
     x
 }
 
-/// `SOBOL_1_BYTES[k][b]`: the XOR of the reversed columns selected by byte `b` at byte position
-/// `k` of the index (the scrambled index has random high bits, so a bit loop would run ~16 times).
-const SOBOL_1_BYTES: [[u32; 256]; 4] = {
-    let mut t = [[0u32; 256]; 4];
-    let mut k = 0;
-    while k < 4 {
-        let mut b = 0;
-        while b < 256 {
-            let mut x = 0;
-            let mut j = 0;
-            while j < 8 {
-                if b & (1 << j) != 0 {
-                    x ^= SOBOL_1_COLUMNS_REVERSED[8 * k + j];
-                }
-                j += 1;
-            }
-            t[k][b] = x;
-            b += 1;
-        }
-        k += 1;
-    }
-    t
-};
-
-/// The second Sobol dimension with its bits reversed: four table lookups.
+/// The second Sobol dimension with its bits reversed. Its generator matrix is Pascal's triangle
+/// mod 2: column `j` has bit `k` (counted from the top, so bit `k` of the reversed value) set
+/// where `k` is a submask of `j` (Lucas). Bit `k` of the result is therefore the parity of the
+/// index's set bits `j` that contain `k`: a superset sum over GF(2), five shift-and-xor steps.
 #[inline]
-fn sobol_1_reversed(i: u32) -> u32 {
-    SOBOL_1_BYTES[0][(i & 0xff) as usize]
-        ^ SOBOL_1_BYTES[1][((i >> 8) & 0xff) as usize]
-        ^ SOBOL_1_BYTES[2][((i >> 16) & 0xff) as usize]
-        ^ SOBOL_1_BYTES[3][(i >> 24) as usize]
+fn sobol_1_reversed(mut i: u32) -> u32 {
+    for (n, mask) in SUPERSET_STEPS {
+        i ^= (i >> n) & mask;
+    }
+    i
 }
+
+/// Per index bit `b`: the shift `2^b`, and the positions whose bit `b` is clear.
+const SUPERSET_STEPS: [(u32, u32); 5] =
+    [(1, 0x5555_5555), (2, 0x3333_3333), (4, 0x0f0f_0f0f), (8, 0x00ff_00ff), (16, 0x0000_ffff)];
 
 /// Burley's improved Laine-Karras hash: each bit is flipped by a function of the lower bits.
 #[inline]
 fn laine_karras_permutation(mut x: u32, seed: u32) -> u32 {
     x = x.wrapping_add(seed);
-    x ^= x.wrapping_mul(0x6c50_b47c);
-    x ^= x.wrapping_mul(0xb82f_1e52);
-    x ^= x.wrapping_mul(0xc7af_e638);
-    x ^= x.wrapping_mul(0x8d22_f6e6);
+    for k in LK_MULTIPLIERS {
+        x ^= x.wrapping_mul(k);
+    }
     x
 }
 
@@ -186,6 +170,98 @@ fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
 #[inline]
 pub(crate) fn to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+}
+
+/// The samplers of a vector's lanes, drawing for all of them at once: each lane's numbers are
+/// bit for bit those its `Sampler` would draw (the same integer arithmetic, lane by lane), for the
+/// wavefront renderer. A lane takes its state from a `Sampler` that started its pixel sample.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LaneSampler<S: Simd> {
+    pixel_hash: U64<S>,
+    sample_idx_reversed: U<S>,
+    dimension: U<S>,
+}
+
+impl<S: Simd> LaneSampler<S> {
+    /// Every lane at pixel hash 0, sample 0, dimension 0 (set lanes before drawing).
+    #[inline(always)]
+    pub(crate) fn new(s: S) -> Self {
+        LaneSampler {
+            pixel_hash: U64::splat(s, 0),
+            sample_idx_reversed: U::splat(s, 0),
+            dimension: U::splat(s, 0),
+        }
+    }
+
+    /// Lane `i` continues where `sampler` stands.
+    #[inline(always)]
+    pub(crate) fn set_lane(&mut self, i: usize, sampler: &Sampler) {
+        self.pixel_hash.set_lane(i, sampler.pixel_hash);
+        self.sample_idx_reversed.set_lane(i, sampler.sample_idx_reversed);
+        self.dimension.set_lane(i, sampler.dimension);
+    }
+
+    /// Dimension `dimension + offset`'s hash (`Sampler::dimension_hash`).
+    #[inline(always)]
+    fn hash(&self, offset: u32) -> U64<S> {
+        let s = self.dimension.s();
+        let d = self.dimension.wrapping_add(U::splat(s, offset));
+        let spread = U64 { lo: d, hi: U::splat(s, 0) }.wrapping_mul(DIMENSION_MULTIPLIER);
+        let x = self.pixel_hash.xor(spread).xor_shr(30).wrapping_mul(MIX64_MULTIPLIERS[0]);
+        x.xor_shr(27).wrapping_mul(MIX64_MULTIPLIERS[1]).xor_shr(31)
+    }
+
+    /// `Sampler::next_1d` at `dimension + offset`, every lane (the dimension does not move).
+    #[inline(always)]
+    pub(crate) fn draw_1d(&self, offset: u32) -> F<S> {
+        let h = self.hash(offset);
+        let index = lk_lanes(self.sample_idx_reversed, h.lo).reverse_bits();
+        to_unit_lanes(lk_lanes(index, h.hi).reverse_bits())
+    }
+
+    /// `Sampler::next_2d` at `dimension + offset`, every lane (the dimension does not move).
+    #[inline(always)]
+    pub(crate) fn draw_2d(&self, offset: u32) -> (F<S>, F<S>) {
+        let h = self.hash(offset);
+        let index = lk_lanes(self.sample_idx_reversed, h.lo).reverse_bits();
+        let seed_y = h.wrapping_mul(SEED_Y_MULTIPLIER).hi;
+        (
+            to_unit_lanes(lk_lanes(index, h.hi).reverse_bits()),
+            to_unit_lanes(lk_lanes(sobol_1_reversed_lanes(index), seed_y).reverse_bits()),
+        )
+    }
+
+    /// Moves the lanes in `m` on by `n` dimensions.
+    #[inline(always)]
+    pub(crate) fn advance(&mut self, m: M<S>, n: u32) {
+        let s = self.dimension.s();
+        self.dimension = m.select_u(self.dimension.wrapping_add(U::splat(s, n)), self.dimension);
+    }
+}
+
+/// `laine_karras_permutation`, lane by lane.
+#[inline(always)]
+fn lk_lanes<S: Simd>(x: U<S>, seed: U<S>) -> U<S> {
+    let mut x = x.wrapping_add(seed);
+    for k in LK_MULTIPLIERS {
+        x = x ^ x.wrapping_mul(U::splat(x.s(), k));
+    }
+    x
+}
+
+/// `sobol_1_reversed`, lane by lane.
+#[inline(always)]
+fn sobol_1_reversed_lanes<S: Simd>(mut i: U<S>) -> U<S> {
+    for (n, mask) in SUPERSET_STEPS {
+        i = i ^ (i.shr(n) & U::splat(i.s(), mask));
+    }
+    i
+}
+
+/// `to_unit`, lane by lane.
+#[inline(always)]
+fn to_unit_lanes<S: Simd>(x: U<S>) -> F<S> {
+    x.shr(8).small_to_f32() * F::splat(x.s(), 1.0 / (1u32 << 24) as f32)
 }
 
 #[cfg(test)]
@@ -277,7 +353,12 @@ mod tests {
         }
         assert_eq!(sobol_0(1), 1 << 31);
         assert_eq!(sobol_1(3), (1 << 31) ^ (3 << 30));
-        for i in [0u32, 1, 2, 3, 77, 1023, 65_535, u32::MAX] {
+        let mut i = 0u32;
+        for k in 0..100_000u64 {
+            assert_eq!(sobol_1_reversed(i), sobol_1(i).reverse_bits(), "index {i}");
+            i = mix64(k) as u32;
+        }
+        for i in [1u32, 2, 3, 77, 1023, 65_535, u32::MAX] {
             assert_eq!(sobol_1_reversed(i), sobol_1(i).reverse_bits());
         }
         // The fast draw equals the textbook composition: Owen-scrambled point of the
@@ -306,5 +387,94 @@ mod tests {
         sorted.sort_by(f32::total_cmp);
         sorted.dedup();
         assert_eq!(sorted.len(), 64, "pixels must not share sample values");
+    }
+
+    /// Every lane of a `LaneSampler` draws what its lane's `Sampler` draws, bit for bit, at 4, 8
+    /// and 16 lanes (emulated, so that every width is checked on any CPU) and on this CPU's own.
+    #[test]
+    fn lane_samplers_draw_the_scalar_numbers() {
+        struct Check;
+        impl pulp::WithSimd for Check {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: Simd>(self, s: S) {
+                let lanes = S::F32_LANES;
+                for round in 0..200u32 {
+                    let mut scalar: Vec<Sampler> = (0..lanes)
+                        .map(|i| {
+                            let h = mix64((round as u64) << 8 | i as u64);
+                            let mut sm = Sampler::new(h >> 40, (h >> 20) as i64 & 7);
+                            let pixel = UVec2::new(h as u32 & 0x3ff, (h >> 10) as u32 & 0x3ff);
+                            // Small sample indices and some up to 2^32 - 1.
+                            let idx =
+                                if i % 3 == 0 { (h >> 24) as u32 } else { (h >> 24) as u32 & 63 };
+                            sm.start_pixel_sample(pixel, idx);
+                            sm.skip((h >> 56) as u32 % 40);
+                            sm
+                        })
+                        .collect();
+                    let mut lane = LaneSampler::new(s);
+                    for (i, sm) in scalar.iter().enumerate() {
+                        lane.set_lane(i, sm);
+                    }
+                    for _ in 0..3 {
+                        let (x0, y0) = lane.draw_2d(0);
+                        let x1 = lane.draw_1d(1);
+                        let (x2, y2) = lane.draw_2d(2);
+                        // Some lanes move on, the others stay (as paths that ended).
+                        let moving: Vec<bool> =
+                            (0..lanes).map(|i| (i + round as usize) % 3 != 0).collect();
+                        for (i, sm) in scalar.iter_mut().enumerate() {
+                            let mut probe = sm.clone();
+                            let want = (probe.next_2d(), probe.next_1d(), probe.next_2d());
+                            let got = (
+                                Vec2::new(x0.lane(i), y0.lane(i)),
+                                x1.lane(i),
+                                Vec2::new(x2.lane(i), y2.lane(i)),
+                            );
+                            assert_eq!(
+                                got.0.to_array().map(f32::to_bits),
+                                want.0.to_array().map(f32::to_bits)
+                            );
+                            assert_eq!(got.1.to_bits(), want.1.to_bits());
+                            assert_eq!(
+                                got.2.to_array().map(f32::to_bits),
+                                want.2.to_array().map(f32::to_bits)
+                            );
+                            if moving[i] {
+                                sm.skip(3);
+                            }
+                        }
+                        lane.advance(M::from_bools(s, &moving), 3);
+                    }
+                }
+            }
+        }
+        pulp::WithSimd::with_simd(Check, pulp::Scalar128b);
+        pulp::WithSimd::with_simd(Check, pulp::Scalar256b);
+        pulp::WithSimd::with_simd(Check, pulp::Scalar512b);
+        pulp::Arch::new().dispatch(Check);
+    }
+
+    #[test]
+    fn lane_bit_tricks_are_exact() {
+        let s = pulp::Scalar512b;
+        let values: Vec<u32> = (0..16u64).map(|k| mix64(k) as u32).collect();
+        let mut v = U::splat(s, 0);
+        for (i, &x) in values.iter().enumerate() {
+            v.set_lane(i, x);
+        }
+        let reversed = v.reverse_bits();
+        let sobol = sobol_1_reversed_lanes(v);
+        for (i, &x) in values.iter().enumerate() {
+            assert_eq!(reversed.lane(i), x.reverse_bits());
+            assert_eq!(sobol.lane(i), sobol_1_reversed(x));
+        }
+        // Conversions of every kind of value below 2^24: both halves, the edges, zero.
+        for x in [0u32, 1, 2, 0x7f_ffff, 0x80_0000, 0x80_0001, 0xff_ffff, 0x12_3456, 0xab_cdef] {
+            let f = U::splat(s, x).small_to_f32();
+            assert_eq!(f.lane(3).to_bits(), (x as f32).to_bits(), "{x:#x}");
+            assert_eq!(to_unit_lanes(U::splat(s, x << 8)).lane(0), to_unit(x << 8));
+        }
     }
 }

@@ -5,14 +5,15 @@
 //! untextured emitters, any lights and environment, nothing moving, nothing alpha-tested (the
 //! Cornell box and the furnaces among them). Each lane holds one path; a lane whose path ends
 //! takes the task's next sample at once (one whose ray escapes, before the shading), so that
-//! the vectors stay full whatever the path lengths. Ray casting, the sampler, the light
-//! choice, samples of lights other than emissive triangles and what escaping rays see stay
-//! scalar, one lane at a time, through the scalar renderer's own calls. The shading between
-//! them (hit point, frame, MIS weights, light and BSDF sampling, ray origins, roulette) is
-//! vector code transcribed from the scalar routines with the same operations in the same
-//! order, so every lane computes the scalar path's bits, and samples reach the film in the
-//! scalar order: the images are bit for bit those of `integrator::li` on every CPU (a test
-//! compares them).
+//! the vectors stay full whatever the path lengths. Ray casting, the start of a sample (its film
+//! and lens numbers), the light choice, samples of lights other than emissive triangles and
+//! what escaping rays see stay scalar, one lane at a time, through the scalar renderer's own
+//! calls. The numbers each bounce draws come from `LaneSampler`, the sampler's integer
+//! arithmetic in all lanes at once, and the shading (hit point, frame, MIS weights, light and
+//! BSDF sampling, ray origins, roulette) is vector code transcribed from the scalar routines
+//! with the same operations in the same order, so every lane computes the scalar path's bits,
+//! and samples reach the film in the scalar order: the images are bit for bit those of
+//! `integrator::li` on every CPU (a test compares them).
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
@@ -29,7 +30,7 @@ use super::{
     lanes::{F, M, U, V3},
     light::Light,
     material::{self, SurfacePoint},
-    sampler::Sampler,
+    sampler::{LaneSampler, Sampler},
     scene::{PreparedScene, NONE},
 };
 
@@ -368,7 +369,10 @@ struct Paths<S: Simd> {
     depth: [u32; MAX_LANES],
     item: [u64; MAX_LANES],
     alive: [bool; MAX_LANES],
+    /// Each lane's sampler while its sample starts (film and lens numbers, drawn lane by lane).
     sampler: [Sampler; MAX_LANES],
+    /// The same samplers as vectors, for the numbers every bounce draws in all lanes at once.
+    draws: LaneSampler<S>,
 }
 
 #[inline(always)]
@@ -393,6 +397,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         item: [0; MAX_LANES],
         alive: [false; MAX_LANES],
         sampler: std::array::from_fn(|_| sampler.clone()),
+        draws: LaneSampler::new(s),
     };
     // Per-bounce data gathered lane by lane.
     let (mut t, mut b1, mut b2) = (zero, zero, zero);
@@ -418,8 +423,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let mut unblocked = [false; MAX_LANES];
     let mut roulette = [false; MAX_LANES];
     let mut survive = [false; MAX_LANES];
-    let (mut ul_x, mut ul_y, mut ub_x, mut ub_y, mut u_rr, mut choice_pdf) =
-        (zero, zero, zero, zero, zero, zero);
+    let (mut ul_x, mut ul_y, mut choice_pdf) = (zero, zero, zero);
     let mut lp = [z3; 3];
     let (mut ln, mut la, mut lem) = (z3, zero, z3);
     loop {
@@ -438,6 +442,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 sm.start_pixel_sample(pixel, sample_idx);
                 let film = pixel.as_vec2() + sm.next_2d();
                 let lens = if scene.camera.has_lens() { sm.next_2d() } else { Vec2::ZERO };
+                paths.draws.set_lane(i, sm);
                 let ray = scene.camera.generate_ray(film, lens);
                 paths.origin.set_lane(i, ray.origin);
                 paths.dir.set_lane(i, ray.dir);
@@ -551,7 +556,13 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let going = livem & ng_ok & !wo_z.le(zero);
         going.to_bools(&mut cont);
 
-        // The bounce's numbers (light, lobe, direction, roulette) and the light choice.
+        // The bounce's numbers, in `integrator::li`'s dimensions: the light's pair, the lobe's
+        // number (a diffuse BSDF has one lobe: not drawn), the direction's pair, roulette's
+        // number (drawn where roulette plays).
+        let (u_light_x, u_light_y) = paths.draws.draw_2d(0);
+        let (ub_x, ub_y) = paths.draws.draw_2d(2);
+        let u_rr = paths.draws.draw_1d(3);
+        // The light choice.
         for i in 0..lanes {
             if !live[i] {
                 continue;
@@ -564,18 +575,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
                 continue;
             }
-            let sm = &mut paths.sampler[i];
-            let u_light = sm.next_2d();
-            sm.skip(1); // A diffuse BSDF has one lobe: no lobe choice.
-            let u_bsdf = sm.next_2d();
-            ub_x.set_lane(i, u_bsdf.x);
-            ub_y.set_lane(i, u_bsdf.y);
+            let u_light = Vec2::new(u_light_x.lane(i), u_light_y.lane(i));
             roulette[i] = paths.depth[i] + 1 > RR_MIN_DEPTH;
-            if roulette[i] {
-                u_rr.set_lane(i, sm.next_1d());
-            } else {
-                sm.skip(1);
-            }
             has_light[i] = false;
             other_light[i] = false;
             if let Some((light, pdf, u_x)) = scene.lights.choose_remapped(u_light.x) {
@@ -611,6 +612,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             }
         }
         let contm = M::from_bools(s, &cont);
+        paths.draws.advance(contm, 4);
 
         // Next-event estimation: `TriangleLight::sample_li`, then the shadow ray.
         let m = ul_x.min(ul_y) / F::splat(s, 2.0);
