@@ -1,13 +1,16 @@
-//! Ray-scene intersection: a four-wide BVH with full-precision boxes, tested four children at a
-//! time with SIMD, entered through a watertight ray-triangle test (Woop, Benthin and Wald 2013,
+//! Ray-scene intersection: an eight-wide BVH with full-precision boxes, tested four children at
+//! a time with SIMD, entered through a watertight ray-triangle test (Woop, Benthin and Wald 2013,
 //! with pbrt-v4's conservative distance bound) so that rays never slip through shared edges or
 //! re-hit their own surface.
 //!
 //! `obvhs` builds a binary BVH (PLOC, reinsertion, SAH leaf collapse); `Accel::build` collapses
-//! it into four-wide nodes (each inner node adopts the grandchildren of its largest children
-//! until it has four) whose boxes are stored per axis, so one node test is a handful of `Vec4`
-//! operations. Closest-hit traversal visits children nearest first and skips any whose entry
-//! distance lies beyond the closest hit so far; occlusion stops at the first blocker.
+//! it into eight-wide nodes (each inner node adopts the grandchildren of its largest children
+//! until it has eight) whose boxes are stored per axis, so one node test is two handfuls of
+//! `Vec4` operations. Eight children rather than four halve the tree's depth: on the Cornell
+//! box a sample took 7% less time (fewer node visits, stack entries and branches per ray), on
+//! the 1M-triangle spheres a bounce ray 25% less; sixteen gained nothing more. Closest-hit
+//! traversal visits children nearest first and skips any whose entry distance lies beyond the
+//! closest hit so far; occlusion stops at the first blocker.
 //!
 //! Triangles are reordered once at build time so that every leaf is a contiguous range;
 //! `Accel::build` returns the order so that the caller can reorder its per-triangle shading data
@@ -40,8 +43,8 @@ pub struct Hit {
 
 /// The acceleration structure with its triangles.
 pub struct Accel {
-    /// Four-wide nodes; node 0 is the root when `root` is an inner node.
-    nodes: Vec<Node4>,
+    /// Wide nodes; node 0 is the root when `root` is an inner node.
+    nodes: Vec<Node>,
     /// What the traversal starts from: an inner node, or a single leaf for tiny scenes.
     root: Child,
     /// The triangles, four to a block; a leaf is a run of blocks.
@@ -71,20 +74,26 @@ struct Child {
     count: u32,
 }
 
-/// Four children's boxes, stored per axis and bound so that one `Vec4` operation tests all four:
-/// `bounds[2 * axis]` holds the lower and `bounds[2 * axis + 1]` the upper bounds. An empty slot
-/// has lower bounds +inf and upper bounds -inf, which no ray enters.
+/// Children per node.
+const WIDTH: usize = 8;
+/// `Vec4`s that hold one bound of every child.
+const GROUPS: usize = WIDTH / 4;
+
+/// `WIDTH` children's boxes, stored per axis and bound so that one `Vec4` operation tests four:
+/// `bounds[2 * axis][g]` holds the lower and `bounds[2 * axis + 1][g]` the upper bounds of
+/// children `4 g .. 4 g + 4`. An empty slot has lower bounds +inf and upper bounds -inf, which
+/// no ray enters.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
-struct Node4 {
-    bounds: [Vec4; 6],
-    children: [Child; 4],
+struct Node {
+    bounds: [[Vec4; GROUPS]; 6],
+    children: [Child; WIDTH],
 }
 
-impl Node4 {
+impl Node {
     /// The slots that hold a child (an empty slot has an infinite lower bound).
     fn slots(&self) -> impl Iterator<Item = usize> + '_ {
-        (0..4).filter(|&i| self.bounds[0][i] != f32::INFINITY)
+        (0..WIDTH).filter(|&i| self.bounds[0][i / 4][i % 4] != f32::INFINITY)
     }
 }
 
@@ -103,7 +112,7 @@ const INLINE_STACK: usize = 128;
 struct BoxRay {
     origin: [Vec4; 3],
     inv_dir: [Vec4; 3],
-    /// Per axis: which of `Node4::bounds[2 * axis ..]` the ray enters through (0 or 1).
+    /// Per axis: which of `Node::bounds[2 * axis ..]` the ray enters through (0 or 1).
     near: [usize; 3],
 }
 
@@ -120,23 +129,29 @@ impl BoxRay {
         }
     }
 
-    /// Entry distances of the four boxes and a bit mask of those the ray enters within
+    /// Entry distances of the node's boxes and a bit mask of those the ray enters within
     /// (0, t_max]. Exit distances are scaled by 1 + 2 gamma(3) (pbrt-v4) so that rounding
     /// never drops a box the ray grazes.
     #[inline(always)]
-    fn test(&self, node: &Node4, t_max: f32) -> (Vec4, u32) {
+    fn test(&self, node: &Node, t_max: f32) -> ([f32; WIDTH], u32) {
         let b = &node.bounds;
-        let axis = |a: usize| {
-            let near = (b[2 * a + self.near[a]] - self.origin[a]) * self.inv_dir[a];
-            let far = (b[2 * a + 1 - self.near[a]] - self.origin[a]) * self.inv_dir[a];
-            (near, far)
-        };
-        let (nx, fx) = axis(0);
-        let (ny, fy) = axis(1);
-        let (nz, fz) = axis(2);
-        let t_enter = nx.max(ny).max(nz.max(Vec4::ZERO));
-        let t_exit = fx.min(fy).min(fz.min(Vec4::splat(t_max))) * (1.0 + 2.0 * gamma(3));
-        (t_enter, t_enter.cmple(t_exit).bitmask())
+        let mut t_enter = [0.0; WIDTH];
+        let mut mask = 0;
+        for g in 0..GROUPS {
+            let axis = |a: usize| {
+                let near = (b[2 * a + self.near[a]][g] - self.origin[a]) * self.inv_dir[a];
+                let far = (b[2 * a + 1 - self.near[a]][g] - self.origin[a]) * self.inv_dir[a];
+                (near, far)
+            };
+            let (nx, fx) = axis(0);
+            let (ny, fy) = axis(1);
+            let (nz, fz) = axis(2);
+            let enter = nx.max(ny).max(nz.max(Vec4::ZERO));
+            let exit = fx.min(fy).min(fz.min(Vec4::splat(t_max))) * (1.0 + 2.0 * gamma(3));
+            t_enter[4 * g..4 * g + 4].copy_from_slice(&enter.to_array());
+            mask |= enter.cmple(exit).bitmask() << (4 * g);
+        }
+        (t_enter, mask)
     }
 }
 
@@ -427,7 +442,7 @@ impl Accel {
 
     /// Bytes held by the BVH nodes and the triangle vertices.
     pub fn memory_bytes(&self) -> usize {
-        self.nodes.len() * std::mem::size_of::<Node4>()
+        self.nodes.len() * std::mem::size_of::<Node>()
             + self.blocks.len() * std::mem::size_of::<Tri4>()
             + self.prim_block.len() * std::mem::size_of::<u32>()
     }
@@ -522,7 +537,6 @@ impl Accel {
             } else {
                 let node = &self.nodes[child.index as usize];
                 let (t_enter, mask) = box_ray.test(node, t_best);
-                let t_enter = t_enter.to_array();
                 if mask != 0 {
                     // The child that would come out on top of the stack is the one visited next:
                     // the nearest, the later slot on ties.
@@ -648,7 +662,7 @@ fn reinsertion_ratio(n: usize) -> f32 {
 /// The most entries a traversal of `nodes` (children after their parents, the root first) can
 /// hold at once: popping a node with `k` children pushes them all, and while one child's subtree
 /// is traversed its `k - 1` siblings wait below it.
-fn stack_need(nodes: &[Node4]) -> usize {
+fn stack_need(nodes: &[Node]) -> usize {
     let mut need = vec![0usize; nodes.len()];
     for n in (0..nodes.len()).rev() {
         let node = &nodes[n];
@@ -664,17 +678,17 @@ fn stack_need(nodes: &[Node4]) -> usize {
     need.first().copied().unwrap_or(0).max(1)
 }
 
-/// Pushes the children of `node` in `mask` (three or four) except the nearest, far to near, and
+/// Pushes the children of `node` in `mask` (three or more) except the nearest, far to near, and
 /// returns the nearest's slot: the order a stack sorted by insertion in slot order gives (the
 /// later slot nearer on ties).
 #[inline(always)]
 fn push_sorted(
     stack: &mut impl TraversalStack,
-    node: &Node4,
-    t_enter: &[f32; 4],
+    node: &Node,
+    t_enter: &[f32; WIDTH],
     mut mask: u32,
 ) -> usize {
-    let mut order = [0usize; 4];
+    let mut order = [0usize; WIDTH];
     let mut len = 0;
     while mask != 0 {
         let slot = mask.trailing_zeros() as usize;
@@ -721,9 +735,9 @@ impl TraversalStack for Vec<Entry> {
     }
 }
 
-/// Collapses a binary BVH into four-wide nodes. Returns the nodes, the root and the leaf
+/// Collapses a binary BVH into `WIDTH`-wide nodes. Returns the nodes, the root and the leaf
 /// blocks. Iterative: a degenerate binary tree may be deep.
-fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>) {
+fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>) {
     let mut blocks = Vec::with_capacity(tris.len().div_ceil(2));
     let mut leaf = |i: usize| {
         let n = &bvh2.nodes[i];
@@ -746,25 +760,19 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>) {
         let root = leaf(0);
         return (Vec::new(), root, blocks);
     }
-    let empty = Node4 {
-        bounds: [
-            Vec4::INFINITY,
-            Vec4::NEG_INFINITY,
-            Vec4::INFINITY,
-            Vec4::NEG_INFINITY,
-            Vec4::INFINITY,
-            Vec4::NEG_INFINITY,
-        ],
-        children: [Child::default(); 4],
+    let (lower, upper) = ([Vec4::INFINITY; GROUPS], [Vec4::NEG_INFINITY; GROUPS]);
+    let empty = Node {
+        bounds: [lower, upper, lower, upper, lower, upper],
+        children: [Child::default(); WIDTH],
     };
     let mut nodes = vec![empty];
-    // (binary node, four-wide node to fill)
+    // (binary node, wide node to fill)
     let mut work = vec![(0usize, 0usize)];
     while let Some((n2, n4)) = work.pop() {
         let first = bvh2.nodes[n2].first_index as usize;
         let mut kids = vec![first, first + 1];
-        // Open the inner child with the largest surface area until there are four.
-        while kids.len() < 4 {
+        // Open the inner child with the largest surface area until there are `WIDTH`.
+        while kids.len() < WIDTH {
             let widest = kids
                 .iter()
                 .enumerate()
@@ -783,8 +791,8 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node4>, Child, Vec<Tri4>) {
         for (slot, &k) in kids.iter().enumerate() {
             let b = &bvh2.nodes[k].aabb;
             for axis in 0..3 {
-                node.bounds[2 * axis][slot] = b.min[axis];
-                node.bounds[2 * axis + 1][slot] = b.max[axis];
+                node.bounds[2 * axis][slot / 4][slot % 4] = b.min[axis];
+                node.bounds[2 * axis + 1][slot / 4][slot % 4] = b.max[axis];
             }
             node.children[slot] = if bvh2.nodes[k].is_leaf() {
                 leaf(k)
