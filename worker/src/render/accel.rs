@@ -491,6 +491,25 @@ impl Accel {
         }
     }
 
+    /// `intersect`, inlined into the caller (for the wavefront's kernel, compiled for its
+    /// instruction set).
+    #[inline(always)]
+    pub fn intersect_inlined(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
+        if self.is_empty() || self.stack_len > INLINE_STACK {
+            return self.intersect(ray, t_max);
+        }
+        self.closest(ray, t_max, &|_: &Hit| true, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+    }
+
+    /// `occluded`, inlined into the caller.
+    #[inline(always)]
+    pub fn occluded_inlined(&self, ray: &Ray, t_max: f32) -> bool {
+        if self.is_empty() || self.stack_len > INLINE_STACK {
+            return self.occluded(ray, t_max);
+        }
+        self.any(ray, t_max, &|_: &Hit| true, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+    }
+
     /// Whether anything blocks the ray for `t` in (0, t_max). Stops at the first blocker.
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {

@@ -462,7 +462,10 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 cast = true;
                 stats.rays += 1;
                 let ray = Ray::new(paths.origin.lane(i), paths.dir.lane(i));
-                let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else {
+                // `PreparedScene::intersect` for a static scene without cut-outs (all that
+                // `Tables::new` accepts): the BVH alone, its traversal compiled into this kernel
+                // for its instruction set (12% off a sample of the Cornell box on Zen 4).
+                let Some(hit) = scene.accel.intersect_inlined(&ray, f32::INFINITY) else {
                     // What the escaping ray sees (`integrator::li`'s miss, one lane).
                     if let (Some(env), Some(env_idx)) =
                         (&scene.environment, scene.lights.environment)
@@ -659,7 +662,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 stats.rays += 1;
                 let ray = Ray::new(s_origin.lane(i), s_dir.lane(i));
                 let t_max = if far[i] { f32::INFINITY } else { SHADOW_T_MAX };
-                unblocked[i] = !scene.occluded(&ray, t_max, None);
+                // `PreparedScene::occluded`, as for the closest hits above.
+                unblocked[i] = !scene.accel.occluded_inlined(&ray, t_max);
             }
         }
         let nee_pdf = light_pdf * choice_pdf;
