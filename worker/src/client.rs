@@ -215,7 +215,7 @@ pub fn run_linked(
             let mut stats = WorkerStats::default();
             let mut deliver = |g: Granted<'_>| -> Result<()> {
                 if let Some(out) = render_granted(link, options, cache, g) {
-                    hand_in(link, &out, &mut stats);
+                    hand_in(link, out, &mut stats);
                 }
                 Ok(())
             };
@@ -226,7 +226,7 @@ pub fn run_linked(
             let sender = s.spawn(move || {
                 let mut stats = WorkerStats::default();
                 for out in inbox {
-                    hand_in(link, &out, &mut stats);
+                    hand_in(link, out, &mut stats);
                 }
                 stats
             });
@@ -550,40 +550,17 @@ fn render_granted(
 }
 
 /// Hands a result in and counts the answer.
-fn hand_in(link: &dyn Link, out: &Outgoing, stats: &mut WorkerStats) {
-    match send_result(link, &out.worker, &out.lease, &out.result) {
-        Ok(true) => stats.merged += 1,
-        Ok(false) => stats.refused += 1,
-        Err(e) => tracing::warn!(lease = %out.lease, "{e}"),
-    }
-}
-
-/// Sends a result, retrying what the network lost. Ok(true): merged; Ok(false): refused as
-/// stale.
-fn send_result(
-    link: &dyn Link,
-    worker: &str,
-    lease: &str,
-    result: &TaskResult,
-) -> Result<bool, String> {
-    let mut attempt = 0;
-    loop {
-        match link.submit(worker, lease, result) {
-            Ok(()) => return Ok(true),
-            Err(CallError::Status(code, msg)) if code == 409 || code == 404 => {
-                tracing::info!(lease = %lease, "result not needed any more: {msg}");
-                return Ok(false);
-            }
-            Err(CallError::Status(code, msg)) => {
-                return Err(format!("result refused: HTTP {code}: {msg}"));
-            }
-            Err(e) if attempt < 5 => {
-                attempt += 1;
-                tracing::warn!(lease = %lease, "sending the result: {e}; retrying");
-                std::thread::sleep(Duration::from_millis(200 << attempt));
-            }
-            Err(e) => return Err(format!("sending the result: {e}")),
+fn hand_in(link: &dyn Link, out: Outgoing, stats: &mut WorkerStats) {
+    match link.submit(&out.worker, &out.lease, out.result) {
+        Ok(()) => stats.merged += 1,
+        Err(CallError::Status(code, msg)) if code == 409 || code == 404 => {
+            tracing::info!(lease = %out.lease, "result not needed any more: {msg}");
+            stats.refused += 1;
         }
+        Err(CallError::Status(code, msg)) => {
+            tracing::warn!(lease = %out.lease, "result refused: HTTP {code}: {msg}");
+        }
+        Err(e) => tracing::warn!(lease = %out.lease, "sending the result: {e}"),
     }
 }
 
@@ -610,7 +587,7 @@ mod tests {
         fn heartbeat(&self, _: &str, _: &str) -> Result<(), CallError> {
             Ok(())
         }
-        fn submit(&self, _: &str, _: &str, _: &TaskResult) -> Result<(), CallError> {
+        fn submit(&self, _: &str, _: &str, _: TaskResult) -> Result<(), CallError> {
             unreachable!("nothing was leased")
         }
         fn fail(&self, _: &str, _: &str, _: &FailReport) -> Result<(), CallError> {

@@ -39,8 +39,9 @@ pub trait Link: Sync {
     fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError>;
     /// Renews a lease.
     fn heartbeat(&self, worker: &str, lease: &str) -> Result<(), CallError>;
-    /// Hands in a lease's result.
-    fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError>;
+    /// Hands in a lease's result. The link takes it: an in-process one keeps its sums without a
+    /// copy, a network one sends it (and sends again what the network lost).
+    fn submit(&self, worker: &str, lease: &str, result: TaskResult) -> Result<(), CallError>;
     /// Reports that a lease's task cannot be rendered.
     fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError>;
     /// Leaves the farm.
@@ -150,12 +151,28 @@ impl Link for HttpLink {
         self.post_lease(worker, lease, "heartbeat").call().map(|_| ()).map_err(call_error)
     }
 
-    fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError> {
-        self.post_lease(worker, lease, "result")
-            .set("content-type", "application/octet-stream")
-            .send_bytes(&encode_result(result))
-            .map(|_| ())
-            .map_err(call_error)
+    /// Sends the result; what the network loses (no answer) is sent again, from the same bytes,
+    /// up to five times with a growing pause.
+    fn submit(&self, worker: &str, lease: &str, result: TaskResult) -> Result<(), CallError> {
+        let bytes = encode_result(&result);
+        drop(result);
+        let mut attempt = 0;
+        loop {
+            let sent = self
+                .post_lease(worker, lease, "result")
+                .set("content-type", "application/octet-stream")
+                .send_bytes(&bytes)
+                .map(|_| ())
+                .map_err(call_error);
+            match sent {
+                Err(CallError::Transport(e)) if attempt < 5 => {
+                    attempt += 1;
+                    tracing::warn!(lease = %lease, "sending the result: {e}; retrying");
+                    std::thread::sleep(Duration::from_millis(200 << attempt));
+                }
+                answer => return answer,
+            }
+        }
     }
 
     fn fail(&self, worker: &str, lease: &str, report: &FailReport) -> Result<(), CallError> {

@@ -124,12 +124,12 @@ impl Link for LocalLink {
         self.lock().heartbeat(lease, worker).map(|_| ()).map_err(refused)
     }
 
-    fn submit(&self, worker: &str, lease: &str, result: &TaskResult) -> Result<(), CallError> {
+    fn submit(&self, worker: &str, lease: &str, result: TaskResult) -> Result<(), CallError> {
         let (merged, ended) = {
             let mut farm = self.lock();
             let job = farm.lease_job(lease).map(str::to_string);
             // No bytes crossed a wire: the merged-bytes counter is for results received.
-            let merged = farm.submit(lease, worker, result.clone(), 0);
+            let merged = farm.submit(lease, worker, result, 0);
             if merged.is_err() {
                 farm.counters.results_refused += 1;
             }
@@ -258,15 +258,15 @@ mod tests {
             link.join(&JoinRequest { name: "other".into(), threads: 1, version: String::new() });
         let other = other.unwrap().id;
         assert_eq!(status(link.heartbeat(&other, &grant.lease)), 403);
-        assert_eq!(status(link.submit(&other, &grant.lease, &result_for(&grant, 0.5))), 403);
+        assert_eq!(status(link.submit(&other, &grant.lease, result_for(&grant, 0.5))), 403);
 
         // A result for other samples than the lease's is refused and counted; the task stays
         // leased, and the true result is merged once.
         let mut forged = result_for(&grant, 0.5);
         forged.spec.samples.end += 1;
-        assert_eq!(status(link.submit(&w, &grant.lease, &forged)), 422);
-        link.submit(&w, &grant.lease, &result_for(&grant, 0.5)).unwrap();
-        let again = link.submit(&w, &grant.lease, &result_for(&grant, 0.5));
+        assert_eq!(status(link.submit(&w, &grant.lease, forged)), 422);
+        link.submit(&w, &grant.lease, result_for(&grant, 0.5)).unwrap();
+        let again = link.submit(&w, &grant.lease, result_for(&grant, 0.5));
         assert!(matches!(again, Err(CallError::Status(404 | 409, _))), "{again:?}");
         {
             let farm = service.farm();
