@@ -17,7 +17,8 @@ use worker::link::{CallError, Link};
 
 use crate::farm::{Farm, FarmError};
 
-/// How often an idle local worker asks again while its lease request waits for work.
+/// How often an idle local worker asks again while its lease request waits for work (sooner
+/// when a hand-in or the end of the service wakes it).
 const POLL: Duration = Duration::from_millis(1);
 
 /// A result that ends no job wakes the waiter at most this often: on two cores each wake-up
@@ -50,6 +51,22 @@ impl Handins {
             count.woken = Some(now);
             self.changed.notify_all();
         }
+    }
+
+    /// Sleeps up to `timeout`: less if a hand-in wakes the waiters or `draining` is (or
+    /// becomes) set. Checked under the lock that `wake_all` takes, so no wake-up is lost.
+    fn nap(&self, timeout: Duration, draining: &AtomicBool) {
+        let count = self.count.lock().unwrap_or_else(|p| p.into_inner());
+        let _ = self
+            .changed
+            .wait_timeout_while(count, timeout, |_| !draining.load(Ordering::Relaxed))
+            .unwrap_or_else(|p| p.into_inner());
+    }
+
+    /// Wakes every thread waiting on a hand-in or napping (the service is draining).
+    pub(crate) fn wake_all(&self) {
+        let _count = self.count.lock().unwrap_or_else(|p| p.into_inner());
+        self.changed.notify_all();
     }
 
     /// Waits until more than `seen` hand-ins were counted and one of them woke it, or `timeout`
@@ -109,7 +126,7 @@ impl Link for LocalLink {
                 self.lock().seen(worker);
                 return Ok(None);
             }
-            std::thread::sleep(POLL.min(deadline - now));
+            self.handins.nap(POLL.min(deadline - now), &self.draining);
         }
     }
 

@@ -295,6 +295,8 @@ impl Running {
     pub fn drain(&self) {
         self.draining.store(true, Ordering::Relaxed);
         self.work.notify_waiters();
+        // Local workers napping between lease polls see it at once.
+        self.handins.wake_all();
     }
 
     /// Stops the service and waits for it.
