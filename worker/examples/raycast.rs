@@ -63,28 +63,14 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
-    let (secs, hits) = fastest(|| {
-        camera.iter().map(|r| prepared.intersect(r, f32::INFINITY, None).is_some() as u64).sum()
-    });
-    println!(
-        "camera closest hit: {:.1} ns/ray ({hits} of {})",
-        secs / camera.len() as f64 * 1e9,
-        camera.len()
-    );
-    let (secs, hits) = fastest(|| {
-        bounce.iter().map(|r| prepared.intersect(r, f32::INFINITY, None).is_some() as u64).sum()
-    });
-    println!(
-        "bounce closest hit: {:.1} ns/ray ({hits} of {})",
-        secs / bounce.len() as f64 * 1e9,
-        bounce.len()
-    );
-    let (secs, blocked) =
-        fastest(|| shadow.iter().map(|r| prepared.occluded(r, 0.999, None) as u64).sum());
-    println!(
-        "shadow ray: {:.1} ns/ray ({blocked} of {} blocked)",
-        secs / shadow.len() as f64 * 1e9,
-        shadow.len()
-    );
+    let time = |name: &str, what: &str, rays: &[Ray], cast: &dyn Fn(&Ray) -> bool| {
+        let (secs, found) = fastest(|| rays.iter().map(|r| cast(r) as u64).sum());
+        let per_ray = secs / rays.len() as f64 * 1e9;
+        println!("{name}: {per_ray:.1} ns/ray ({found} of {} {what})", rays.len());
+    };
+    let closest = |r: &Ray| prepared.intersect(r, f32::INFINITY, None).is_some();
+    time("camera closest hit", "hit", &camera, &closest);
+    time("bounce closest hit", "hit", &bounce, &closest);
+    time("shadow ray", "blocked", &shadow, &|r| prepared.occluded(r, 0.999, None));
     Ok(())
 }

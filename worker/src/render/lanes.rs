@@ -271,20 +271,21 @@ impl<S: Simd> U64<S> {
     }
 }
 
-macro_rules! bitop {
-    ($tr:ident, $f:ident, $op:ident) => {
-        impl<S: Simd> $tr for U<S> {
-            type Output = U<S>;
+/// A binary operator of `F` or `U`, lane by lane.
+macro_rules! lane_op {
+    ($ty:ident, $tr:ident, $f:ident, $op:ident) => {
+        impl<S: Simd> $tr for $ty<S> {
+            type Output = $ty<S>;
             #[inline(always)]
             fn $f(self, o: Self) -> Self {
-                U { s: self.s, v: self.s.$op(self.v, o.v) }
+                $ty { s: self.s, v: self.s.$op(self.v, o.v) }
             }
         }
     };
 }
-bitop!(BitAnd, bitand, and_u32s);
-bitop!(BitOr, bitor, or_u32s);
-bitop!(BitXor, bitxor, xor_u32s);
+lane_op!(U, BitAnd, bitand, and_u32s);
+lane_op!(U, BitOr, bitor, or_u32s);
+lane_op!(U, BitXor, bitxor, xor_u32s);
 
 impl<S: Simd> M<S> {
     /// Conditions from bools, one per lane (`lanes.len()` is at least the lane count).
@@ -333,21 +334,10 @@ impl<S: Simd> M<S> {
     }
 }
 
-macro_rules! binop {
-    ($tr:ident, $f:ident, $op:ident) => {
-        impl<S: Simd> $tr for F<S> {
-            type Output = F<S>;
-            #[inline(always)]
-            fn $f(self, o: Self) -> Self {
-                F { s: self.s, v: self.s.$op(self.v, o.v) }
-            }
-        }
-    };
-}
-binop!(Add, add, add_f32s);
-binop!(Sub, sub, sub_f32s);
-binop!(Mul, mul, mul_f32s);
-binop!(Div, div, div_f32s);
+lane_op!(F, Add, add, add_f32s);
+lane_op!(F, Sub, sub, sub_f32s);
+lane_op!(F, Mul, mul, mul_f32s);
+lane_op!(F, Div, div, div_f32s);
 
 impl<S: Simd> Neg for F<S> {
     type Output = F<S>;
