@@ -188,13 +188,11 @@ impl<S: Simd> U<S> {
         U { s: self.s, v: self.s.wrapping_dyn_shr_u32s(self.v, self.s.splat_u32s(n)) }
     }
 
-    /// `u32::reverse_bits`: halves, then quarters, ... swapped (five steps).
+    /// `u32::reverse_bits`: neighbouring bits, then pairs, ... swapped (five steps).
     #[inline(always)]
     pub(crate) fn reverse_bits(self) -> Self {
         let mut x = self;
-        for (n, mask) in
-            [(1, 0x5555_5555), (2, 0x3333_3333), (4, 0x0f0f_0f0f), (8, 0x00ff_00ff), (16, 0xffff)]
-        {
+        for (n, mask) in BIT_STEPS {
             let m = U::splat(self.s, mask);
             x = (x.shr(n) & m) | (x & m).shl(n);
         }
@@ -224,6 +222,11 @@ impl<S: Simd> U<S> {
         bytemuck::cast_slice_mut::<S::u32s, u32>(std::slice::from_mut(&mut self.v))[i] = x;
     }
 }
+
+/// Per bit `b` of a bit position: the shift `2^b`, and the positions whose bit `b` is clear
+/// (bit-reversal's swaps, and the sampler's superset sums).
+pub(crate) const BIT_STEPS: [(u32, u32); 5] =
+    [(1, 0x5555_5555), (2, 0x3333_3333), (4, 0x0f0f_0f0f), (8, 0x00ff_00ff), (16, 0x0000_ffff)];
 
 /// One u64 per lane, as its low and high halves.
 #[derive(Clone, Copy, Debug)]

@@ -14,7 +14,7 @@
 use glam::{UVec2, Vec2};
 use pulp::Simd;
 
-use super::lanes::{F, M, U, U64};
+use super::lanes::{BIT_STEPS, F, M, U, U64};
 
 /// Per-pixel sample generator. Create one per thread and call `start_pixel_sample` for every
 /// sample: it holds no state that outlives a sample.
@@ -141,15 +141,11 @@ fn sobol_1(mut i: u32) -> u32 {
 /// index's set bits `j` that contain `k`: a superset sum over GF(2), five shift-and-xor steps.
 #[inline]
 fn sobol_1_reversed(mut i: u32) -> u32 {
-    for (n, mask) in SUPERSET_STEPS {
+    for (n, mask) in BIT_STEPS {
         i ^= (i >> n) & mask;
     }
     i
 }
-
-/// Per index bit `b`: the shift `2^b`, and the positions whose bit `b` is clear.
-const SUPERSET_STEPS: [(u32, u32); 5] =
-    [(1, 0x5555_5555), (2, 0x3333_3333), (4, 0x0f0f_0f0f), (8, 0x00ff_00ff), (16, 0x0000_ffff)];
 
 /// Burley's improved Laine-Karras hash: each bit is flipped by a function of the lower bits.
 #[inline]
@@ -252,7 +248,7 @@ fn lk_lanes<S: Simd>(x: U<S>, seed: U<S>) -> U<S> {
 /// `sobol_1_reversed`, lane by lane.
 #[inline(always)]
 fn sobol_1_reversed_lanes<S: Simd>(mut i: U<S>) -> U<S> {
-    for (n, mask) in SUPERSET_STEPS {
+    for (n, mask) in BIT_STEPS {
         i = i ^ (i.shr(n) & U::splat(i.s(), mask));
     }
     i
