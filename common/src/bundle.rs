@@ -187,6 +187,19 @@ impl Bundle {
         Ok(scene)
     }
 
+    /// Every file of the bundle as `(path, bytes)`, the scene file first (named `main_path`, or
+    /// `scene.glb`/`scene.gltf` for a bare file): what [`Bundle::pack`] takes back.
+    pub fn into_files(self) -> Vec<(String, Vec<u8>)> {
+        let main_path = match (self.main_path.is_empty(), self.format) {
+            (false, _) => self.main_path,
+            (true, Format::Glb) => "scene.glb".to_string(),
+            (true, _) => "scene.gltf".to_string(),
+        };
+        let mut rest: Vec<(String, Vec<u8>)> = self.files.into_iter().collect();
+        rest.sort_by(|a, b| a.0.cmp(&b.0));
+        std::iter::once((main_path, self.main)).chain(rest).collect()
+    }
+
     /// Loads the environment map at `path` (relative to the scene file's folder).
     pub fn load_envmap(&self, path: &str) -> Result<EnvMap, String> {
         let bytes = self.read(path)?;

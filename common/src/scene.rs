@@ -336,4 +336,13 @@ impl Scene {
     pub fn triangle_count(&self) -> usize {
         self.instances.iter().map(|i| self.meshes[i.mesh].indices.len()).sum()
     }
+
+    /// Whether anything in the scene itself gives light: a placed mesh with an emissive
+    /// material, or a punctual light of non-zero intensity. Without either, only the
+    /// environment lights the scene.
+    pub fn has_lights(&self) -> bool {
+        let emits = |m: &Material| m.emissive != Vec3::ZERO;
+        self.instances.iter().any(|i| emits(&self.materials[self.meshes[i.mesh].material]))
+            || self.lights.iter().any(|l| l.intensity != Vec3::ZERO)
+    }
 }

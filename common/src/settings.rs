@@ -113,8 +113,11 @@ impl Default for Frames {
 }
 
 /// The environment: a uniform colour or an equirectangular map.
+///
+/// Read through [`EnvironmentKeys`], so that a wrong object is refused in plain words (which
+/// key is missing or does not belong) rather than as an unmatched variant.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, untagged)]
+#[serde(untagged, try_from = "EnvironmentKeys")]
 pub enum Environment {
     /// Uniform radiance in every direction.
     Color {
@@ -143,6 +146,68 @@ fn one() -> f32 {
 
 fn yes() -> bool {
     true
+}
+
+impl Environment {
+    /// True when it sends no light at all (a black colour, or a map at intensity 0).
+    pub fn is_black(&self) -> bool {
+        match self {
+            Environment::Color { color } => color.iter().all(|&c| c == 0.0),
+            Environment::Map { intensity, .. } => *intensity == 0.0,
+        }
+    }
+}
+
+/// Every key an `environment` object may have, as written; [`Environment`] is made from it.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvironmentKeys {
+    color: Option<[f32; 3]>,
+    map: Option<String>,
+    intensity: Option<f32>,
+    rotation_deg: Option<f32>,
+    visible: Option<bool>,
+}
+
+impl TryFrom<EnvironmentKeys> for Environment {
+    type Error = String;
+
+    fn try_from(k: EnvironmentKeys) -> Result<Self, String> {
+        match (k.color, k.map) {
+            (Some(_), Some(_)) => {
+                Err("give either `color` [r, g, b] or `map` \"file.hdr\", not both".into())
+            }
+            (None, None) => Err(
+                "needs `color` (linear RGB radiance, e.g. [1, 1, 1]) or `map` (an equirectangular .hdr or .exr file)"
+                    .into(),
+            ),
+            (Some(color), None) => {
+                let extra: Vec<&str> = [
+                    ("intensity", k.intensity.is_some()),
+                    ("rotation_deg", k.rotation_deg.is_some()),
+                    ("visible", k.visible.is_some()),
+                ]
+                .iter()
+                .filter(|(_, set)| *set)
+                .map(|(name, _)| *name)
+                .collect();
+                if extra.is_empty() {
+                    Ok(Environment::Color { color })
+                } else {
+                    Err(format!(
+                        "`{}` applies to a `map`, not to a `color` (scale the colour instead)",
+                        extra.join("`, `")
+                    ))
+                }
+            }
+            (None, Some(map)) => Ok(Environment::Map {
+                map,
+                intensity: k.intensity.unwrap_or_else(one),
+                rotation_deg: k.rotation_deg.unwrap_or_default(),
+                visible: k.visible.unwrap_or_else(yes),
+            }),
+        }
+    }
 }
 
 /// A setting that cannot be rendered, with the key that is wrong.
@@ -274,6 +339,30 @@ mod tests {
         assert!(
             matches!(s.environment, Some(Environment::Map { intensity, visible: true, .. }) if intensity == 1.0)
         );
+    }
+
+    #[test]
+    fn a_wrong_environment_is_refused_in_plain_words() {
+        for (json, needle) in [
+            (r#"{"environment": {}}"#, "needs `color`"),
+            (r#"{"environment": {"intensity": 2}}"#, "needs `color`"),
+            (r#"{"environment": {"color": [1, 1, 1], "map": "a.hdr"}}"#, "not both"),
+            (
+                r#"{"environment": {"color": [1, 1, 1], "intensity": 2}}"#,
+                "`intensity` applies to a `map`",
+            ),
+            (r#"{"environment": {"map": "a.hdr", "rotation": 90}}"#, "unknown field `rotation`"),
+        ] {
+            let e = RenderSettings::from_json(json).unwrap_err();
+            assert!(e.contains(needle), "{json}: {e}");
+            assert!(!e.contains("variant"), "{json}: {e}");
+        }
+        // Written back, the settings read the same (the EXR header and the farm keep them).
+        let s = RenderSettings::from_json(r#"{"environment": {"map": "a.hdr", "visible": false}}"#)
+            .unwrap();
+        let again: RenderSettings =
+            serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(again, s);
     }
 
     #[test]

@@ -11,7 +11,10 @@ use anyhow::{bail, Context, Result};
 use common::settings::RenderSettings;
 use serde_json::{json, Value};
 
-use crate::local::{bundle_scene, http_error, numbered, Progress};
+use crate::{
+    local::{bundle_scene, http_error, numbered, Progress, Stage},
+    output::{is_black, read_exr_rgb},
+};
 
 /// Where the farm is and how to talk to it.
 #[derive(Clone, Debug)]
@@ -68,8 +71,18 @@ impl Remote {
     }
 }
 
+/// A finished job, as `submit` saw it.
+pub struct Submitted {
+    /// The final job status (`GET /api/v1/jobs/{id}`).
+    pub status: Value,
+    /// Files written (EXR then PNG per frame).
+    pub outputs: Vec<std::path::PathBuf>,
+    /// The last frame is black.
+    pub black: bool,
+}
+
 /// Submits `scene_path` with `settings` to the farm, waits for the job, and writes its frames to
-/// `out` (`OUT_####.exr` for frame ranges) with PNG previews. Returns the final job status.
+/// `out` (`OUT_####.exr` for frame ranges) with PNG previews.
 pub fn submit(
     remote: &Remote,
     scene_path: &Path,
@@ -77,10 +90,11 @@ pub fn submit(
     priority: i32,
     out: &Path,
     progress: Progress<'_>,
-) -> Result<Value> {
+) -> Result<Submitted> {
     settings.validate()?;
-    let (bundle, settings) = bundle_scene(scene_path, settings)?;
-    let (hash, id) = remote.create_job(&bundle, &settings, priority)?;
+    progress(Stage::Loading);
+    let bundle = bundle_scene(scene_path, settings)?;
+    let (hash, id) = remote.create_job(&bundle.bytes, &bundle.settings, priority)?;
     let agent = remote.agent();
     tracing::info!(job = %id, scene = %hash, "job submitted");
     let mut unreachable_since: Option<Instant> = None;
@@ -90,9 +104,13 @@ pub fn submit(
                 unreachable_since = None;
                 let status: Value = resp.into_json()?;
                 let done = status["samples_done"].as_u64().unwrap_or(0);
-                let planned = status["samples_planned"].as_u64().unwrap_or(0)
+                let total = status["samples_planned"].as_u64().unwrap_or(0)
                     - status["samples_saved"].as_u64().unwrap_or(0);
-                progress(done as usize, planned as usize);
+                progress(match (status["state"].as_str(), done) {
+                    (Some("queued"), _) => Stage::Queued,
+                    (_, 0) => Stage::Preparing,
+                    _ => Stage::Rendering { done, total },
+                });
                 if matches!(status["state"].as_str(), Some("done" | "failed" | "cancelled")) {
                     break status;
                 }
@@ -118,6 +136,7 @@ pub fn submit(
         .as_array()
         .map(|a| a.iter().filter_map(Value::as_i64).collect())
         .unwrap_or_default();
+    let mut outputs = Vec::new();
     for &frame in &frames {
         let exr_path = if frames.len() > 1 { numbered(out, frame) } else { out.to_path_buf() };
         for (ext, path) in [("exr", exr_path.clone()), ("png", exr_path.with_extension("png"))] {
@@ -125,9 +144,14 @@ pub fn submit(
             let mut bytes = Vec::new();
             std::io::Read::read_to_end(&mut resp.into_reader(), &mut bytes)?;
             std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
+            outputs.push(path);
         }
     }
-    Ok(status)
+    let black = match outputs.iter().rev().nth(1) {
+        Some(last_exr) => is_black(&read_exr_rgb(last_exr)?.2),
+        None => false,
+    };
+    Ok(Submitted { status, outputs, black })
 }
 
 /// Exits non-zero unless `url` answers `/healthz` (the container image's health check).

@@ -16,7 +16,7 @@ use std::{
 
 use anyhow::{bail, Context, Result};
 use common::{
-    bundle::Bundle,
+    bundle::{Bundle, Format, Limits},
     envmap::EnvMap,
     gltf::{DirResolver, Resolver},
     settings::{Environment, RenderSettings},
@@ -54,11 +54,29 @@ pub struct RenderReport {
     pub rejected: u64,
 }
 
-/// Progress callback: (work done, work total).
-pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
+/// Where a render is, for a progress display.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Reading the scene and packing its bundle.
+    Loading,
+    /// Waiting for a worker to take the job's first task.
+    Queued,
+    /// Workers fetch and prepare the scene (decoding, BVH); no sample is in yet.
+    Preparing,
+    /// Pixel samples merged, out of those planned.
+    Rendering {
+        /// Merged.
+        done: u64,
+        /// Planned (less what adaptive sampling saved).
+        total: u64,
+    },
+}
+
+/// Progress callback.
+pub type Progress<'a> = &'a (dyn Fn(Stage) + Sync);
 
 /// `out.exr` -> `out_0007.exr` for frame 7.
-pub(crate) fn numbered(out: &Path, frame: i64) -> PathBuf {
+pub fn numbered(out: &Path, frame: i64) -> PathBuf {
     let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let ext = out.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or("exr".into());
     out.with_file_name(format!("{stem}_{frame:04}.{ext}"))
@@ -82,25 +100,59 @@ impl Resolver for RecordingResolver {
     }
 }
 
-/// A scene file (and the environment map the settings name) as one uploadable bundle: the file
-/// itself when it is self-contained, else a zip of it and exactly the files it uses. Returns the
-/// bundle and the settings with the map renamed to its place in the bundle.
-pub fn bundle_scene(
-    scene_path: &Path,
-    settings: &RenderSettings,
-) -> Result<(Vec<u8>, RenderSettings)> {
+/// A scene as one uploadable bundle, with the settings that go with it.
+pub struct SceneBundle {
+    /// The bytes to upload: a `.glb`/`.gltf` as it is, or a zip.
+    pub bytes: Vec<u8>,
+    /// The settings, the environment map renamed to its place in the bundle.
+    pub settings: RenderSettings,
+    /// Whether anything gives light: an emissive surface, a punctual light, or an environment
+    /// that is not black. Without any, the image is black.
+    pub lit: bool,
+}
+
+/// A scene file (`.glb`, `.gltf`, or a `.zip` of a folder, as the REST API takes) and the
+/// environment map the settings name, as one uploadable bundle: a self-contained file as it is,
+/// else a zip of it and exactly the files it uses (a zip as it is, with the map added when the
+/// settings name one). Warns when nothing in the scene or its environment gives light.
+pub fn bundle_scene(scene_path: &Path, settings: &RenderSettings) -> Result<SceneBundle> {
     let bytes = std::fs::read(scene_path)
         .with_context(|| format!("reading scene {}", scene_path.display()))?;
-    let dir = match scene_path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
+    let at = || scene_path.display().to_string();
+    let (scene, mut files, scene_dir) = if Format::detect(&bytes).ok() == Some(Format::Zip) {
+        let bundle = Bundle::open(&bytes, Limits::default()).with_context(at)?;
+        let scene = bundle.load_scene().with_context(at)?;
+        let dir = bundle.main_path.rfind('/').map_or("", |i| &bundle.main_path[..=i]).to_string();
+        (scene, Some(Files::Zip(bundle)), dir)
+    } else {
+        let dir = match scene_path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let resolver =
+            RecordingResolver { inner: DirResolver::new(dir), read: Mutex::new(Vec::new()) };
+        let scene = common::gltf::load_slice(&bytes, &resolver)
+            .with_context(|| format!("loading {}", scene_path.display()))?;
+        common::gltf::check_renderable(&scene).with_context(at)?;
+        let read = resolver.read.into_inner().unwrap_or_else(|p| p.into_inner());
+        let mut files = None;
+        if !read.is_empty() {
+            let ext = if bytes.starts_with(b"glTF") { "glb" } else { "gltf" };
+            let mut all = vec![(format!("scene.{ext}"), bytes.clone())];
+            all.extend(read);
+            files = Some(all);
+        }
+        (scene, files.map(Files::Loose), String::new())
     };
-    let resolver = RecordingResolver { inner: DirResolver::new(dir), read: Mutex::new(Vec::new()) };
-    let scene = common::gltf::load_slice(&bytes, &resolver)
-        .with_context(|| format!("loading {}", scene_path.display()))?;
-    common::gltf::check_renderable(&scene).with_context(|| format!("{}", scene_path.display()))?;
-    let mut files = resolver.read.into_inner().unwrap_or_else(|p| p.into_inner());
     let mut settings = settings.clone();
+    let lit = scene.has_lights() || settings.environment.as_ref().is_some_and(|e| !e.is_black());
+    if !lit {
+        tracing::warn!(
+            "{}: nothing lights this scene (no emissive material, no KHR_lights_punctual light) and the environment is {}, so the image will be black; light it with an environment map: --env FILE.hdr, or \"environment\": {{\"map\": \"FILE.hdr\"}} in the settings (\"environment\": {{\"color\": [1, 1, 1]}} for a uniform white sky)",
+            scene_path.display(),
+            if settings.environment.is_some() { "black" } else { "black (none is set)" }
+        );
+    }
     if let Some(Environment::Map { map, .. }) = &mut settings.environment {
         let path = PathBuf::from(&*map);
         let env_bytes = std::fs::read(&path)
@@ -108,14 +160,30 @@ pub fn bundle_scene(
         EnvMap::from_bytes(map, &env_bytes).context("settings.environment.map")?;
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         *map = format!("__environment__/{name}");
-        files.push((map.clone(), env_bytes));
+        let mut all = match files.take() {
+            Some(Files::Zip(bundle)) => bundle.into_files(),
+            Some(Files::Loose(all)) => all,
+            None => {
+                let ext = if bytes.starts_with(b"glTF") { "glb" } else { "gltf" };
+                vec![(format!("scene.{ext}"), bytes.clone())]
+            }
+        };
+        all.push((format!("{scene_dir}{map}"), env_bytes));
+        files = Some(Files::Loose(all));
     }
-    if files.is_empty() {
-        return Ok((bytes, settings));
-    }
-    let ext = if bytes.starts_with(b"glTF") { "glb" } else { "gltf" };
-    files.insert(0, (format!("scene.{ext}"), bytes));
-    Ok((Bundle::pack(&files)?, settings))
+    let bytes = match files {
+        Some(Files::Loose(all)) => Bundle::pack(&all)?,
+        Some(Files::Zip(_)) | None => bytes,
+    };
+    Ok(SceneBundle { bytes, settings, lit })
+}
+
+/// What goes into a bundle besides the scene file as read.
+enum Files {
+    /// An uploaded zip, opened.
+    Zip(Bundle),
+    /// Files to pack, the scene file first.
+    Loose(Vec<(String, Vec<u8>)>),
 }
 
 pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
@@ -145,7 +213,8 @@ pub fn render_file(
 ) -> Result<RenderReport> {
     settings.validate()?;
     let start = Instant::now();
-    let (bundle, job_settings) = bundle_scene(scene_path, settings)?;
+    progress(Stage::Loading);
+    let bundle = bundle_scene(scene_path, settings)?;
     let load_seconds = start.elapsed().as_secs_f64();
     let data = tempfile::Builder::new().prefix("renderfarm-").tempdir()?;
     let mut config = ServiceConfig::new(data.path().to_path_buf());
@@ -154,7 +223,7 @@ pub fn render_file(
     config.farm.durable = false;
     let service = crate::service::spawn("127.0.0.1:0", config)?;
     let (scene_hash, id) = service
-        .create_job(&bundle, job_settings, 0)
+        .create_job(&bundle.bytes, bundle.settings, 0)
         .map_err(|e| anyhow::anyhow!("{} (HTTP {})", e.message, e.status))?;
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
@@ -181,10 +250,14 @@ pub fn render_file(
                 .unwrap_or_else(|p| p.into_inner())
                 .status(&id)
                 .map_err(|e| anyhow::anyhow!(e.message))?;
-            progress(
-                status.samples_done as usize,
-                (status.samples_planned - status.samples_saved) as usize,
-            );
+            progress(if status.samples_done == 0 && cache.scenes_prepared() == 0 {
+                Stage::Preparing
+            } else {
+                Stage::Rendering {
+                    done: status.samples_done,
+                    total: status.samples_planned - status.samples_saved,
+                }
+            });
             if status.state.is_final() || handles.iter().all(|h| h.is_finished()) {
                 break status;
             }

@@ -12,7 +12,8 @@ use clap::{Args, Parser, Subcommand};
 use common::settings::{Environment, RenderSettings};
 use coordinator::{
     client::{healthcheck, submit, Remote},
-    local::render_file,
+    local::{render_file, Stage},
+    output::{check_writable, describe_error, exr_output, is_black},
     service::{serve_on, ServiceConfig},
 };
 use indicatif::{ProgressBar, ProgressStyle};
@@ -48,6 +49,13 @@ struct SettingsArgs {
     /// Render settings JSON file; flags override it.
     #[arg(long)]
     settings: Option<PathBuf>,
+    /// Light the scene with this equirectangular environment map (.hdr or .exr); the same as
+    /// `"environment": {"map": FILE}` in the settings.
+    #[arg(long, value_name = "FILE")]
+    env: Option<PathBuf>,
+    /// Multiplier of the environment map's radiance.
+    #[arg(long, value_name = "X")]
+    env_intensity: Option<f32>,
 }
 
 impl SettingsArgs {
@@ -75,6 +83,24 @@ impl SettingsArgs {
         s.height = self.height.unwrap_or(s.height);
         s.seed = self.seed.unwrap_or(s.seed);
         s.max_depth = self.max_depth.unwrap_or(s.max_depth);
+        if let Some(file) = &self.env {
+            let (intensity, rotation_deg, visible) = match &s.environment {
+                Some(Environment::Map { intensity, rotation_deg, visible, .. }) => {
+                    (*intensity, *rotation_deg, *visible)
+                }
+                _ => (1.0, 0.0, true),
+            };
+            let map = file.to_string_lossy().into_owned();
+            s.environment = Some(Environment::Map { map, intensity, rotation_deg, visible });
+        }
+        if let Some(x) = self.env_intensity {
+            match &mut s.environment {
+                Some(Environment::Map { intensity, .. }) => *intensity = x,
+                _ => anyhow::bail!(
+                    "--env-intensity scales an environment map: give one with --env FILE (or \"environment\": {{\"map\": ...}} in the settings)"
+                ),
+            }
+        }
         if let Some(range) = &self.frames {
             let parse = |v: &str| {
                 v.trim()
@@ -89,6 +115,7 @@ impl SettingsArgs {
             s.frames.start = start;
             s.frames.end = end;
         }
+        s.validate()?;
         Ok(s)
     }
 }
@@ -97,9 +124,10 @@ impl SettingsArgs {
 enum Command {
     /// Render a glTF scene on this machine and write OUT.exr (+ OUT.png).
     Render {
-        /// The scene (.gltf or .glb).
+        /// The scene: .gltf (with the files it names beside it), .glb, or a .zip of a folder.
         scene: PathBuf,
-        /// Output EXR path.
+        /// Output image: OUT.exr (an OUT.png preview is written beside it; -o OUT.png writes
+        /// both too).
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -138,9 +166,10 @@ enum Command {
     },
     /// Submit a scene to a running farm, wait, and write OUT.exr (+ OUT.png).
     Submit {
-        /// The scene (.gltf or .glb).
+        /// The scene: .gltf (with the files it names beside it), .glb, or a .zip of a folder.
         scene: PathBuf,
-        /// Output EXR path.
+        /// Output image: OUT.exr (an OUT.png preview is written beside it; -o OUT.png writes
+        /// both too).
         #[arg(short, long)]
         output: PathBuf,
         /// The coordinator.
@@ -168,15 +197,54 @@ fn token(t: Option<String>) -> Option<String> {
     t.filter(|t| !t.trim().is_empty())
 }
 
+/// A progress display on a terminal (nothing when stderr is a file or a pipe): the stage
+/// (loading, queued, preparing the scene) until samples come in, then a bar of samples.
 fn progress_bar() -> Option<ProgressBar> {
     std::io::stderr().is_terminal().then(|| {
         let bar = ProgressBar::new(0);
-        bar.set_style(
-            ProgressStyle::with_template("{bar:40} {percent}% of samples {elapsed} eta {eta}")
-                .expect("valid template"),
-        );
+        bar.enable_steady_tick(Duration::from_millis(200));
+        show_stage(&bar, Stage::Loading);
         bar
     })
+}
+
+fn show_stage(bar: &ProgressBar, stage: Stage) {
+    let waiting = |what: &str| {
+        bar.set_style(
+            ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
+        );
+        bar.set_message(what.to_string());
+    };
+    match stage {
+        Stage::Loading => waiting("loading the scene"),
+        Stage::Queued => waiting("queued: waiting for a worker"),
+        Stage::Preparing => waiting("preparing scene (loading, BVH)"),
+        Stage::Rendering { done, total } => {
+            if bar.message() != "rendering" {
+                bar.set_style(
+                    ProgressStyle::with_template(
+                        "{msg} {bar:40} {percent}% of samples {elapsed} eta {eta}",
+                    )
+                    .expect("valid template"),
+                );
+                bar.set_message("rendering");
+            }
+            bar.set_length(total);
+            bar.set_position(done);
+        }
+    }
+}
+
+/// The EXR to write for `-o OUT`, its files checked for writability before any work.
+fn outputs(out: &Path, settings: &RenderSettings) -> Result<PathBuf> {
+    let exr = exr_output(out)?;
+    let first = if settings.frames.end > settings.frames.start {
+        coordinator::local::numbered(&exr, settings.frames.start)
+    } else {
+        exr.clone()
+    };
+    check_writable(&[first.clone(), first.with_extension("png")])?;
+    Ok(exr)
 }
 
 fn main() -> Result<()> {
@@ -186,7 +254,7 @@ fn main() -> Result<()> {
         Command::Serve { .. } => "coordinator=info,worker=info,common=info",
         _ => "warn",
     };
-    tracing_subscriber::fmt()
+    let log = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| default_filter.into()),
@@ -195,8 +263,12 @@ fn main() -> Result<()> {
         // A log that can no longer be written (stderr piped into `head`, a closed terminal) is
         // dropped; the default would print a complaint to that same stderr, which panics.
         .log_internal_errors(false)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()));
+    // A service's log is read later and needs its times; a command's warnings are read now.
+    match cli.command {
+        Command::Serve { .. } => log.init(),
+        _ => log.without_time().with_target(false).init(),
+    }
     match cli.command {
         Command::Serve {
             listen,
@@ -249,38 +321,40 @@ fn main() -> Result<()> {
         Command::Healthcheck { url } => healthcheck(&url),
         Command::Submit { scene, output, url, api_token, priority, settings } => {
             let settings = settings.load()?;
+            let output = outputs(&output, &settings)?;
             let remote = Remote { url, api_token: token(api_token) };
             let bar = progress_bar();
-            let progress = |done: usize, total: usize| {
+            let progress = |stage: Stage| {
                 if let Some(bar) = &bar {
-                    bar.set_length(total as u64);
-                    bar.set_position(done as u64);
+                    show_stage(bar, stage);
                 }
             };
-            let status = submit(&remote, &scene, &settings, priority, &output, &progress)?;
+            let done = submit(&remote, &scene, &settings, priority, &output, &progress)?;
             if let Some(bar) = bar {
                 bar.finish_and_clear();
             }
+            let status = &done.status;
+            let rel_mse = status["est_rel_error"].as_f64().map(|e| e * e);
             summary(format_args!(
-                "job {} done: {} samples in {:.2} s, estimated relative error {}; wrote {}",
+                "job {} done: {} samples in {:.2} s; {}; wrote {}",
                 status["id"].as_str().unwrap_or("?"),
                 status["samples_done"],
                 status["elapsed_s"].as_f64().unwrap_or(0.0),
-                status["est_rel_error"],
-                output.display()
+                describe_error(rel_mse, done.black),
+                list(&done.outputs)
             ));
             Ok(())
         }
         Command::Render { scene, output, settings, workers } => {
             let s = settings.load()?;
+            let output = outputs(&output, &s)?;
             let workers = workers.unwrap_or_else(|| {
                 std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
             });
             let bar = progress_bar();
-            let progress = |done: usize, total: usize| {
+            let progress = |stage: Stage| {
                 if let Some(bar) = &bar {
-                    bar.set_length(total as u64);
-                    bar.set_position(done as u64);
+                    show_stage(bar, stage);
                 }
             };
             let report = render_file(&scene, &s, workers, &output, &progress)?;
@@ -293,24 +367,23 @@ fn main() -> Result<()> {
                     "samples were NaN, infinite or absurdly large and were counted as zero; reproduce one with `worker debug-sample`"
                 );
             }
-            let est_text = if report.est_rel_mse.is_finite() {
-                format!("{:.3e}", report.est_rel_mse)
-            } else {
-                "unknown (needs 2 spp)".to_string()
-            };
             summary(format_args!(
-                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s; estimated relMSE {}; wrote {}",
+                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s; {}; wrote {}",
                 report.samples,
                 report.render_seconds,
                 report.samples as f64 / report.render_seconds / 1e6,
                 report.rays as f64 / report.render_seconds / 1e6,
                 report.load_seconds,
-                est_text,
-                report.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+                describe_error(Some(report.est_rel_mse), is_black(&report.mean_rgb)),
+                list(&report.outputs)
             ));
             Ok(())
         }
     }
+}
+
+fn list(paths: &[PathBuf]) -> String {
+    paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
 }
 
 /// The closing summary on stderr. Unlike `eprintln!`, a stderr nobody reads any more (piped into

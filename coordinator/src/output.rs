@@ -1,7 +1,7 @@
 //! Writing a frame: the OpenEXR file of PRODUCT.md (`R`, `G`, `B`, `variance.R/G/B`, `samples`,
 //! header attributes) and a PNG preview (exposure + sRGB transfer) beside it.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use common::film::{ErrorEstimate, TileAccum};
@@ -210,6 +210,65 @@ fn png_of_mean(width: u32, height: u32, mean: &[Vec<f32>; 3], exposure: f32) -> 
     writer.write_image_data(&bytes).context("writing PNG data")?;
     writer.finish().context("finishing the PNG")?;
     Ok(out)
+}
+
+/// The EXR path for `-o OUT`: `OUT` itself when it names an `.exr`, `OUT` with the extension
+/// `.exr` when it names a `.png` (the PNG preview goes beside the EXR, so both are written, and
+/// a PNG never takes the EXR's place); anything else is refused.
+pub fn exr_output(out: &Path) -> Result<PathBuf> {
+    let ext = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("exr") => Ok(out.to_path_buf()),
+        Some("png") => Ok(out.with_extension("exr")),
+        _ => anyhow::bail!(
+            "-o {}: name the image OUT.exr (an OpenEXR file and its PNG preview OUT.png are written)",
+            out.display()
+        ),
+    }
+}
+
+/// Refuses, before any rendering, output files that could not be written: a folder that does
+/// not exist or is not writable, a path that is a folder, a read-only file. Creates nothing it
+/// leaves behind.
+pub fn check_writable(paths: &[PathBuf]) -> Result<()> {
+    for path in paths {
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        if path.is_dir() {
+            anyhow::bail!("cannot write {}: it is a folder", path.display());
+        }
+        if path.exists() {
+            std::fs::OpenOptions::new()
+                .append(true)
+                .open(path)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        } else {
+            tempfile::Builder::new().prefix(".renderfarm-probe-").tempfile_in(dir).with_context(
+                || format!("cannot write {}: folder {}", path.display(), dir.display()),
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// True when every mean of the image is zero (nothing lit what the camera sees).
+pub fn is_black(mean_rgb: &[[f32; 3]]) -> bool {
+    mean_rgb.iter().all(|p| p.iter().all(|&c| c == 0.0))
+}
+
+/// The error estimate as every command prints it: the estimated relative RMSE (the square root
+/// of the relative MSE in the EXR header and of `est_rel_error` in the job status) in percent.
+/// A black image has no relative error to speak of, and one sample per pixel gives no estimate.
+pub fn describe_error(rel_mse: Option<f64>, black: bool) -> String {
+    match rel_mse {
+        _ if black => "no error estimate (the image is black: nothing lit it)".to_string(),
+        Some(m) if m.is_finite() => {
+            format!("estimated relative error {:.2}% (relMSE {m:.3e})", m.sqrt() * 100.0)
+        }
+        _ => "no error estimate (it needs 2 samples per pixel)".to_string(),
+    }
 }
 
 /// Reads the mean RGB of an EXR written by `write_frame` (or any RGB EXR), row-major.

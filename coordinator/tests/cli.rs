@@ -155,3 +155,228 @@ fn a_closed_log_pipe_does_not_stop_the_render() {
     assert!(status.success(), "{status}");
     assert!(out.exists());
 }
+
+fn run_render(args: &[&str]) -> std::process::Output {
+    coordinator()
+        .arg("render")
+        .args(args)
+        .current_dir(repo())
+        .env_remove("RUST_BACKTRACE")
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap()
+}
+
+fn shared(path: &str) -> String {
+    repo().join("../shared/scenes").join(path).to_string_lossy().into_owned()
+}
+
+const SKY: &str = "real/environments/studio_small_05_1k.hdr";
+const AVOCADO: &str = "real/Avocado/glTF/Avocado.gltf";
+
+/// A real asset has no lights of its own: without an environment it renders black, and the
+/// command says so (and names the fix) instead of reporting a converged image.
+#[test]
+fn an_unlit_scene_is_reported_and_an_environment_lights_it() {
+    let out = temp("avocado.exr");
+    let small = ["--width", "24", "--height", "24", "--spp", "4"];
+    let output = run_render(
+        &[&[&shared(AVOCADO) as &str, "-o", out.to_str().unwrap()], &small[..]].concat(),
+    );
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("nothing lights this scene") && stderr.contains("--env FILE.hdr"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("the image is black"), "{stderr}");
+    assert!(!stderr.contains("relMSE 0"), "{stderr}");
+    let (_, _, rgb) = coordinator::output::read_exr_rgb(&out).unwrap();
+    assert!(coordinator::output::is_black(&rgb), "the warning said black; the image is not");
+
+    let sky = shared(SKY);
+    let lit = temp("avocado-lit.exr");
+    let output = run_render(
+        &[&[&shared(AVOCADO) as &str, "--env", &sky, "-o", lit.to_str().unwrap()], &small[..]]
+            .concat(),
+    );
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(!stderr.contains("nothing lights"), "{stderr}");
+    assert!(stderr.contains("estimated relative error"), "{stderr}");
+    let (_, _, rgb) = coordinator::output::read_exr_rgb(&lit).unwrap();
+    assert!(!coordinator::output::is_black(&rgb));
+
+    // A scene with an emitter of its own (the Cornell box) gets no warning.
+    let output = run_render(&[
+        "scenes/cornell-box.gltf",
+        "-o",
+        temp("cb.exr").to_str().unwrap(),
+        "--spp",
+        "2",
+        "--width",
+        "16",
+        "--height",
+        "16",
+    ]);
+    assert!(output.status.success());
+    assert!(!String::from_utf8_lossy(&output.stderr).contains("nothing lights"));
+}
+
+/// `--env FILE --env-intensity X` is the settings file's `environment` map, bit for bit, and a
+/// `.zip` of the scene's folder renders what the `.gltf` beside its files renders.
+#[test]
+fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
+    let dir = temp("envzip");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(shared(SKY), dir.join("sky.hdr")).unwrap();
+    std::fs::write(
+        dir.join("settings.json"),
+        r#"{"width": 24, "height": 16, "spp": 4, "environment": {"map": "sky.hdr", "intensity": 2.0}}"#,
+    )
+    .unwrap();
+    let by_settings = dir.join("settings.exr");
+    let output = run_render(&[
+        &shared(AVOCADO),
+        "--settings",
+        dir.join("settings.json").to_str().unwrap(),
+        "-o",
+        by_settings.to_str().unwrap(),
+    ]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let by_flag = dir.join("flag.exr");
+    let sky = dir.join("sky.hdr");
+    let small = ["--width", "24", "--height", "16", "--spp", "4"];
+    let output = run_render(
+        &[
+            &[&shared(AVOCADO) as &str, "--env", sky.to_str().unwrap(), "--env-intensity", "2"],
+            &small[..],
+            &["-o", by_flag.to_str().unwrap()],
+        ]
+        .concat(),
+    );
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert_eq!(channels(&by_flag), channels(&by_settings), "--env differs from the settings' map");
+
+    // The Avocado's folder as a zip (as the REST API takes it), with the map added by --env.
+    let folder = repo().join("../shared/scenes/real/Avocado/glTF");
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(&folder).unwrap() {
+        let path = entry.unwrap().path();
+        let name = format!("Avocado/{}", path.file_name().unwrap().to_string_lossy());
+        files.push((name, std::fs::read(&path).unwrap()));
+    }
+    let zip = dir.join("avocado.zip");
+    std::fs::write(&zip, common::bundle::Bundle::pack(&files).unwrap()).unwrap();
+    let by_zip = dir.join("zip.exr");
+    let output = run_render(
+        &[
+            &[zip.to_str().unwrap(), "--env", sky.to_str().unwrap(), "--env-intensity", "2"],
+            &small[..],
+            &["-o", by_zip.to_str().unwrap()],
+        ]
+        .concat(),
+    );
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert_eq!(channels(&by_zip), channels(&by_flag), "the zip renders another image");
+
+    // --env-intensity alone has nothing to scale.
+    let output =
+        run_render(&[&shared(AVOCADO), "--env-intensity", "2", "-o", by_flag.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("--env FILE"), "{stderr}");
+}
+
+/// `-o out.png` writes the EXR and its preview (never one in place of the other); an output
+/// that cannot be written is refused before anything renders; an unknown extension is refused.
+#[test]
+fn output_paths_are_checked_before_rendering() {
+    let png = temp("preview-named.png");
+    let _ = std::fs::remove_file(png.with_extension("exr"));
+    let output = run_render(&[
+        "scenes/cornell-box.gltf",
+        "-o",
+        png.to_str().unwrap(),
+        "--spp",
+        "2",
+        "--width",
+        "16",
+        "--height",
+        "16",
+    ]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n", "the .png is a PNG");
+    assert_eq!(channels(&png.with_extension("exr")).len(), 7, "the EXR is beside it");
+
+    let folder = temp("a-folder.exr");
+    std::fs::create_dir_all(&folder).unwrap();
+    let missing = repo().join("no-such-folder/out.exr");
+    for (out, needle) in [
+        (missing.to_str().unwrap(), "no-such-folder"),
+        (folder.to_str().unwrap(), "is a folder"),
+        ("out.jpg", "OUT.exr"),
+    ] {
+        // 16k x 16k at 64k spp would take hours: a refusal must come before the work.
+        let started = std::time::Instant::now();
+        let output = run_render(&[
+            "scenes/cornell-box.gltf",
+            "-o",
+            out,
+            "--spp",
+            "65536",
+            "--width",
+            "16384",
+            "--height",
+            "16384",
+        ]);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{out}: {stderr}");
+        assert!(stderr.contains(needle), "{out}: {stderr}");
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(30),
+            "{out}: refused only after rendering"
+        );
+    }
+    assert!(!repo().join("no-such-folder").exists());
+}
+
+/// A wrong `environment` object is refused in plain words, naming what is missing.
+#[test]
+fn settings_errors_are_plain_words() {
+    let settings = temp("bad-env.json");
+    std::fs::write(&settings, r#"{"environment": {"intensity": 3}}"#).unwrap();
+    let output = run_render(&[
+        "scenes/cornell-box.gltf",
+        "--settings",
+        settings.to_str().unwrap(),
+        "-o",
+        temp("x.exr").to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("needs `color`") && stderr.contains("`map`"), "{stderr}");
+    assert!(!stderr.contains("variant") && !stderr.contains("untagged"), "{stderr}");
+}
+
+/// On a terminal, the progress display names the stage before samples come in: the scene is
+/// loaded and prepared (textures decoded, BVH built) before the first sample.
+#[test]
+fn progress_shows_the_preparing_stage_on_a_terminal() {
+    let out = temp("progress.exr");
+    let command = format!(
+        "{} render {} -o {} --spp 4 --width 32 --height 32 --workers 1",
+        env!("CARGO_BIN_EXE_coordinator"),
+        shared("real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb"),
+        out.display()
+    );
+    // `script` runs it on a pseudo-terminal and copies what it drew to our stdout.
+    let output = Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .current_dir(repo())
+        .output()
+        .expect("`script` (util-linux) runs a command on a pseudo-terminal");
+    let drawn = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{drawn}");
+    assert!(drawn.contains("preparing scene"), "no preparing stage drawn: {drawn}");
+    assert!(drawn.contains("rendered"), "{drawn}");
+}

@@ -101,10 +101,17 @@ struct Loaded {
 pub struct SceneCache {
     entries: Mutex<Vec<(String, Arc<PreparedScene>)>>,
     loaded: Mutex<Option<Arc<Loaded>>>,
+    /// Scenes prepared so far (readable while one is being prepared).
+    prepared: std::sync::atomic::AtomicUsize,
 }
 
 impl SceneCache {
     const CAPACITY: usize = 4;
+
+    /// How many scenes (or frames of an animated one) this cache has prepared so far.
+    pub fn scenes_prepared(&self) -> usize {
+        self.prepared.load(Ordering::Relaxed)
+    }
 
     fn load(&self, link: &dyn Link, grant: &LeaseGrant, key: &str) -> Result<Arc<Loaded>, Failure> {
         let mut loaded = self.loaded.lock().unwrap_or_else(|p| p.into_inner());
@@ -173,6 +180,7 @@ impl SceneCache {
         let prepared = Arc::new(prepared);
         entries.insert(0, (key, prepared.clone()));
         entries.truncate(Self::CAPACITY);
+        self.prepared.fetch_add(1, Ordering::Relaxed);
         Ok(prepared)
     }
 }
@@ -180,8 +188,9 @@ impl SceneCache {
 /// Joins the coordinator at `config.url` over HTTP and renders tasks until `stop` is raised (then leaves
 /// cleanly). Returns an error only for what retrying cannot fix (the coordinator refuses the
 /// join).
-pub fn run(config: &JoinConfig, stop: &AtomicBool) -> Result<WorkerStats> {
-    let link = HttpLink::new(&config.url, config.token.as_deref(), config.options.wait_s);
+pub fn run(config: &JoinConfig, stop: &Arc<AtomicBool>) -> Result<WorkerStats> {
+    let link = HttpLink::new(&config.url, config.token.as_deref(), config.options.wait_s)
+        .stop_waiting_on(stop.clone());
     run_linked(&link, &config.options, stop, &SceneCache::default())
 }
 

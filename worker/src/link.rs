@@ -3,7 +3,17 @@
 //! farm in-process instead (the coordinator's `service::LocalLink`), with the same leases,
 //! checks and merging but no sockets or encoding.
 
-use std::time::Duration;
+use std::{
+    sync::{
+        atomic::{AtomicBool, Ordering},
+        mpsc::RecvTimeoutError,
+        Arc,
+    },
+    time::Duration,
+};
+
+/// How often a waiting lease request looks at the stop flag ([`HttpLink::stop_waiting_on`]).
+pub const STOP_POLL: Duration = Duration::from_millis(50);
 
 use common::protocol::{
     encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult, WORKER_HEADER,
@@ -60,6 +70,8 @@ pub struct HttpLink {
     agent: ureq::Agent,
     base: String,
     auth: Option<String>,
+    /// Raised when the worker is told to stop: a lease request waiting for work gives up.
+    stop: Option<Arc<AtomicBool>>,
 }
 
 impl HttpLink {
@@ -78,7 +90,17 @@ impl HttpLink {
             agent,
             base: url.trim_end_matches('/').to_string(),
             auth: token.map(|t| format!("Bearer {t}")),
+            stop: None,
         }
+    }
+
+    /// Lease requests stop waiting for work, and answer "no work", as soon as `stop` is raised
+    /// (within [`STOP_POLL`]): an idle worker told to stop leaves at once instead of at the end
+    /// of its long poll. The abandoned request ends on its own; a task it is granted meanwhile
+    /// goes back when the worker leaves (a grant after that is refused: the worker is gone).
+    pub fn stop_waiting_on(mut self, stop: Arc<AtomicBool>) -> Self {
+        self.stop = Some(stop);
+        self
     }
 
     fn url(&self, path: &str) -> String {
@@ -126,14 +148,33 @@ impl Link for HttpLink {
     }
 
     fn lease(&self, worker: &str, wait_s: f64) -> Result<Option<LeaseGrant>, CallError> {
-        let resp = self
-            .post(&format!("/workers/{worker}/lease?wait_s={wait_s}"))
-            .call()
-            .map_err(call_error)?;
-        if resp.status() == 204 {
-            return Ok(None);
+        let request = self.post(&format!("/workers/{worker}/lease?wait_s={wait_s}"));
+        let call = move || -> Result<Option<LeaseGrant>, CallError> {
+            let resp = request.call().map_err(call_error)?;
+            if resp.status() == 204 {
+                return Ok(None);
+            }
+            resp.into_json().map(Some).map_err(|e| CallError::Transport(e.to_string()))
+        };
+        let Some(stop) = &self.stop else { return call() };
+        // The long poll runs on its own thread, so that this one can stop waiting for it.
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("lease-poll".into())
+            .spawn(move || {
+                let _ = tx.send(call());
+            })
+            .map_err(|e| CallError::Transport(format!("starting the lease request: {e}")))?;
+        loop {
+            match rx.recv_timeout(STOP_POLL) {
+                Ok(answer) => return answer,
+                Err(RecvTimeoutError::Timeout) if stop.load(Ordering::Relaxed) => return Ok(None),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => {
+                    return Err(CallError::Transport("the lease request was lost".into()))
+                }
+            }
         }
-        resp.into_json().map(Some).map_err(|e| CallError::Transport(e.to_string()))
     }
 
     fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {

@@ -1,5 +1,6 @@
 //! `worker`: command-line entry point. `worker --join URL` renders tasks for a coordinator until
-//! SIGTERM or SIGINT (then finishes the task in hand and leaves); `worker debug-sample`
+//! SIGTERM or SIGINT (then finishes the task in hand, if any, and leaves; an idle worker leaves
+//! at once, without waiting out its long poll); `worker debug-sample`
 //! reproduces a single sample for debugging.
 
 use std::{

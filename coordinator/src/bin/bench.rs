@@ -103,14 +103,14 @@ fn main() -> Result<()> {
     );
     if !args.no_warmup {
         let settings = RenderSettings { spp: 1, ..base.clone() };
-        render_file(&cornell, &settings, args.threads, &out_dir.join("warmup.exr"), &|_, _| {})?;
+        render_file(&cornell, &settings, args.threads, &out_dir.join("warmup.exr"), &|_| {})?;
     }
     let mut rows = Vec::new();
     for &spp in &args.spp {
         let settings = RenderSettings { spp, ..base.clone() };
         let out = out_dir.join(format!("cornell-{spp}.exr"));
         let wall = Instant::now();
-        let report = render_file(&cornell, &settings, args.threads, &out, &|_, _| {})?;
+        let report = render_file(&cornell, &settings, args.threads, &out, &|_| {})?;
         // Like the peers' figures: loading and rendering, not writing the image files.
         let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
         let image = report.mean_rgb;
@@ -179,7 +179,7 @@ fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
                 &settings,
                 threads,
                 &out_dir.join(format!("{name}-ref.exr")),
-                &|_, _| {},
+                &|_| {},
             )?;
             report.mean_rgb
         };
@@ -191,7 +191,7 @@ fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
                 &settings,
                 threads,
                 &out_dir.join(format!("{name}-{spp}.exr")),
-                &|_, _| {},
+                &|_| {},
             )?;
             let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
             let (rmse, rel_mse) = metrics(&report.mean_rgb, &reference);
@@ -223,7 +223,7 @@ fn large_scene(scenes: &Path, threads: usize, out_dir: &Path) -> Result<()> {
     );
     drop(prepared);
     drop(scene);
-    let report = render_file(&path, &settings, threads, &out_dir.join("large.exr"), &|_, _| {})?;
+    let report = render_file(&path, &settings, threads, &out_dir.join("large.exr"), &|_| {})?;
     println!(
         "large scene: render 256x256 at 16 spp in {:.3} s ({:.0} samples/s, {:.0} rays/s)",
         report.render_seconds,

@@ -98,10 +98,11 @@ fn main() -> Result<()> {
                 .map(Killed)
         })
         .collect::<std::io::Result<_>>()?;
-    let (bundle, _) = coordinator::local::bundle_scene(
+    let bundle = coordinator::local::bundle_scene(
         &repo.join("scenes/cornell-box.gltf"),
         &Default::default(),
-    )?;
+    )?
+    .bytes;
     let scene: Value = agent
         .post(&format!("{url}/api/v1/scenes"))
         .set("content-type", "application/octet-stream")

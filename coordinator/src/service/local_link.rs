@@ -253,7 +253,8 @@ mod tests {
             ..Default::default()
         };
         let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.gltf");
-        let (bundle, settings) = bundle_scene(&scene, &settings).unwrap();
+        let bundled = bundle_scene(&scene, &settings).unwrap();
+        let (bundle, settings) = (bundled.bytes, bundled.settings);
         let mut info = validate_upload(&bundle, None).unwrap();
         let job = {
             let farm = service.farm();
