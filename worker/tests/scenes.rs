@@ -401,7 +401,6 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         for t in &mut p.shading {
             t.smooth = true;
         }
-        p.wavefront = wavefront::Tables::new(p);
     };
     for ((name, scene), smooth) in scenes.iter().flat_map(|s| [(s, false), (s, true)]) {
         for json in variants {

@@ -1,7 +1,9 @@
 //! The renderer: `render_task` path-traces one task (a tile x a sample range) of a prepared scene.
 //!
-//! Synchronous and free of I/O: no `.await`, no logging inside loops. Data flows one way:
-//! `scene::prepare -> accel -> integrator (camera, sampler, bsdf, light) -> TileAccum`.
+//! Synchronous and free of I/O: no `.await`, no logging inside loops. Data flows one way, each
+//! module using only modules before it: `geometry`, `sampling`, `lanes`, `texture` -> `sampler`,
+//! `accel`, `camera`, `bsdf`, `light` -> `material`, `motion` -> `wavefront_tables` -> `scene`
+//! (`prepare`) -> `integrator` (`li`) -> `wavefront` -> this module (`render_task`).
 
 pub mod accel;
 pub mod bsdf;
@@ -17,6 +19,7 @@ pub mod sampling;
 pub mod scene;
 pub mod texture;
 pub mod wavefront;
+pub mod wavefront_tables;
 
 #[cfg(test)]
 mod tests;

@@ -84,7 +84,7 @@ pub struct PreparedScene {
     pub build_seconds: f64,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
-    pub wavefront: Option<super::wavefront::Tables>,
+    pub wavefront: Option<super::wavefront_tables::Tables>,
 }
 
 /// Why a scene cannot be prepared for these settings.
@@ -380,7 +380,14 @@ fn prepare_inner(
         AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
         AlphaMode::Opaque => false,
     });
-    let mut prepared = PreparedScene {
+    let lights = LightSampler::new(lights, &emitters, scene_radius);
+    let wavefront = super::wavefront_tables::Tables::new(
+        &scene.materials,
+        &scene.textures,
+        &lights,
+        motion.is_some() || alpha_tested || !colors.is_empty(),
+    );
+    Ok(PreparedScene {
         origin,
         camera,
         accel,
@@ -391,16 +398,14 @@ fn prepare_inner(
         materials: scene.materials.clone(),
         textures: scene.textures.clone(),
         alpha_tested,
-        lights: LightSampler::new(lights, &emitters, scene_radius),
+        lights,
         environment,
         environment_visible,
         max_depth: settings.max_depth,
         build_seconds,
         motion,
-        wavefront: None,
-    };
-    prepared.wavefront = super::wavefront::Tables::new(&prepared);
-    Ok(prepared)
+        wavefront,
+    })
 }
 
 /// Prepares frame `frame` of a scene: a static scene once for all frames; an animated one posed at

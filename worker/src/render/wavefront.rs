@@ -1,7 +1,7 @@
 //! The wavefront renderer: the same path tracer as `integrator::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
-//! For the scenes `Tables::new` accepts: diffuse materials without textures or vertex colours,
+//! For the scenes `wavefront_tables::Tables::new` accepts: diffuse materials without textures or vertex colours,
 //! untextured emitters, any lights and environment, nothing moving, nothing alpha-tested (the
 //! Cornell box and the furnaces among them). Each lane holds one path; a lane whose path ends
 //! takes the task's next sample at once (one whose ray escapes, before the shading), so that
@@ -24,14 +24,12 @@ use glam::{UVec2, Vec2, Vec3};
 use pulp::{Arch, Simd, WithSimd};
 
 use super::{
-    bsdf::Bsdf,
     geometry::{gamma, Ray},
     integrator::{power_heuristic, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
     lanes::{F, M, U, V3},
-    light::Light,
-    material::{self, SurfacePoint},
     sampler::{LaneSampler, Sampler},
     scene::{PreparedScene, NONE},
+    wavefront_tables::Tables,
 };
 
 /// The most lanes a vector has (AVX-512's 16 f32s).
@@ -40,75 +38,6 @@ const MAX_LANES: usize = 16;
 /// Samples that may be in flight or finished but not yet added to the film: a lane waits
 /// rather than run further ahead of the oldest unfinished sample.
 const WINDOW: usize = 4096;
-
-/// An emissive triangle as the wavefront reads it.
-#[derive(Clone, Copy, Debug)]
-struct LightRec {
-    p: [Vec3; 3],
-    normal: Vec3,
-    area: f32,
-    emission: Vec3,
-    two_sided: bool,
-    probability: f32,
-}
-
-/// What the wavefront renderer needs of a scene it can render, built once per scene.
-#[derive(Clone, Debug)]
-pub struct Tables {
-    /// Lambert albedo per material.
-    albedo: Vec<Vec3>,
-    /// Emitted radiance per material.
-    emission: Vec<Vec3>,
-    /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
-    /// are sampled by `Light::sample_li`, one lane at a time).
-    lights: Vec<Option<LightRec>>,
-}
-
-impl Tables {
-    /// The tables, or `None` when the scene needs something only the scalar renderer does.
-    pub fn new(scene: &PreparedScene) -> Option<Tables> {
-        if scene.motion.is_some() || scene.alpha_tested || !scene.colors.is_empty() {
-            return None;
-        }
-        let mut albedo = Vec::with_capacity(scene.materials.len());
-        let mut emission = Vec::with_capacity(scene.materials.len());
-        for m in &scene.materials {
-            if m.base_color_texture.is_some()
-                || m.metallic_roughness_texture.is_some()
-                || m.normal_texture.is_some()
-                || m.emissive_texture.is_some()
-                || m.transmission_texture.is_some()
-            {
-                return None;
-            }
-            // Without textures or vertex colours every point of the material is this one.
-            match material::bsdf(&scene.textures, m, &SurfacePoint::PLAIN) {
-                Bsdf::Diffuse(d) => albedo.push(d.albedo),
-                Bsdf::MetalRough(_) => return None,
-            }
-            emission.push(material::emission(&scene.textures, m, &SurfacePoint::PLAIN));
-        }
-        let mut lights = Vec::with_capacity(scene.lights.lights.len());
-        for (i, light) in scene.lights.lights.iter().enumerate() {
-            let Light::Triangle(l) = light else {
-                lights.push(None);
-                continue;
-            };
-            if l.textured {
-                return None;
-            }
-            lights.push(Some(LightRec {
-                p: l.p,
-                normal: l.normal,
-                area: l.area,
-                emission: l.emission,
-                two_sided: l.two_sided,
-                probability: scene.lights.probability(i as u32),
-            }));
-        }
-        Some(Tables { albedo, emission, lights })
-    }
-}
 
 /// Paths the wavefront runs at once on this CPU (16 with AVX-512, 8 with AVX2), or 0 when
 /// it has neither and the scalar renderer runs instead.
