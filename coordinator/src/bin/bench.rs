@@ -5,15 +5,15 @@
 //!
 //! With `--peer-csv FILE` (the CSV of `../shared/bench/peers/run.py --csv`, any number of times)
 //! it also prints, for each of our sample counts, every peer's relative MSE at our time (its runs
-//! interpolated log-log) and our error over it: the README's equal-time ratios. The peers' curves
+//! interpolated log-log) and our error over it: the equal-time ratios of `docs/perf/`. The peers' curves
 //! go on the same plot.
 //!
 //! Like the peers harness, which renders each peer once untimed before its timed runs, the timed
 //! renders follow an untimed 1-spp one (`--no-warmup` leaves it out).
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
-//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--no-warmup]`; figures
-//! in the README come from this command.
+//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--no-warmup]`; the figures
+//! in `docs/perf/` come from this command.
 
 use std::{
     fmt::Write as _,
