@@ -5,8 +5,8 @@
 //!
 //! With `--peer-csv FILE` (the CSV of `../shared/bench/peers/run.py --csv`, any number of times)
 //! it also prints, for each of our sample counts, every peer's relative MSE at our time (its runs
-//! interpolated log-log) and our error over it: the equal-time ratios of `docs/perf/`. The peers' curves
-//! go on the same plot.
+//! interpolated log-log) and our error over it: the equal-time ratios of `docs/perf/`. The
+//! peers' curves go on the same plot.
 //!
 //! Like the peers harness, which renders each peer once untimed before its timed runs, the timed
 //! renders follow an untimed 1-spp one (`--no-warmup` leaves it out).
