@@ -1,9 +1,10 @@
 //! The renderer: `render_task` path-traces one task (a tile x a sample range) of a prepared scene.
 //!
 //! Synchronous and free of I/O: no `.await`, no logging inside loops. Data flows one way, each
-//! module using only modules before it: `geometry`, `sampling`, `lanes`, `texture` -> `sampler`,
-//! `accel`, `camera`, `bsdf`, `light` -> `material`, `motion` -> `wavefront_tables` -> `scene`
-//! (`prepare`) -> `integrator` (`li`) -> `wavefront` -> this module (`render_task`).
+//! module using only modules before it: `geometry`, `sampling`, `lanes`, `texture` -> `sampler`
+//! -> `sah_build` -> `accel`, `camera`, `bsdf`, `light` -> `material`, `motion` ->
+//! `wavefront_tables` -> `scene` (`prepare`) -> `integrator` (`li`) -> `wavefront` -> this module
+//! (`render_task`).
 
 pub mod accel;
 pub mod bsdf;
@@ -14,6 +15,7 @@ mod lanes;
 pub mod light;
 pub mod material;
 pub mod motion;
+pub mod sah_build;
 pub mod sampler;
 pub mod sampling;
 pub mod scene;
