@@ -186,8 +186,9 @@ pub struct Texture {
     pub width: u32,
     /// Height in texels.
     pub height: u32,
-    /// `width * height` RGBA8 texels, row-major from the top row.
-    pub texels: Vec<[u8; 4]>,
+    /// `width * height` RGBA8 texels, row-major from the top row; shared by every texture that
+    /// samples the same image (and by clones of the scene).
+    pub texels: std::sync::Arc<[[u8; 4]]>,
     /// Wrap mode along u.
     pub wrap_s: Wrap,
     /// Wrap mode along v.

@@ -217,11 +217,6 @@ impl Loader<'_> {
             };
             self.decode_image(source).context(|| format!("texture {index}"))?;
             let image = &self.images[&source];
-            self.charge(
-                image.texels.len() as u64,
-                |b| &mut b.texels,
-                || format!("texture {index}"),
-            )?;
             self.textures.push(Texture {
                 width: image.width,
                 height: image.height,
@@ -254,27 +249,63 @@ impl Loader<'_> {
             }
             (None, None) => return fail(format!("image {index}: has neither uri nor bufferView")),
         };
-        let decoded = decode(&bytes).context(|| format!("image {index}"))?;
+        let format = format_of(&bytes).context(|| format!("image {index}"))?;
+        // The texels are charged from the header, before anything is decoded: an image too
+        // large for the budget costs its header's bytes, not its decoded size.
+        let (width, height) = image::ImageReader::with_format(Cursor::new(&bytes), format)
+            .into_dimensions()
+            .map_err(|e| {
+                SceneError(format!("image {index}: cannot decode the {format:?} header: {e}"))
+            })?;
+        if width == 0 || height == 0 {
+            return fail(format!("image {index}: has no texels"));
+        }
+        self.charge(
+            width as u64 * height as u64,
+            |b| &mut b.texels,
+            || format!("image {index} ({width}x{height})"),
+        )?;
+        let decoded =
+            decode(&bytes, format, (width, height)).context(|| format!("image {index}"))?;
         self.images.insert(index, decoded);
         Ok(())
     }
 }
 
-/// Decodes PNG or JPEG bytes into RGBA8.
-fn decode(bytes: &[u8]) -> Result<Image, SceneError> {
+/// The format of image bytes, PNG or JPEG.
+fn format_of(bytes: &[u8]) -> Result<image::ImageFormat, SceneError> {
     let format = image::guess_format(bytes).map_err(|_| {
         SceneError("unrecognised image format (only PNG and JPEG are supported)".into())
     })?;
     if !matches!(format, image::ImageFormat::Png | image::ImageFormat::Jpeg) {
         return fail(format!("{format:?} images are not supported (only PNG and JPEG)"));
     }
-    let decoded = image::ImageReader::with_format(Cursor::new(bytes), format)
-        .decode()
-        .map_err(|e| SceneError(format!("cannot decode {format:?}: {e}")))?;
+    Ok(format)
+}
+
+/// Decodes PNG or JPEG bytes of the size their header gave into RGBA8, allocating no more than
+/// that size needs.
+fn decode(
+    bytes: &[u8],
+    format: image::ImageFormat,
+    (width, height): (u32, u32),
+) -> Result<Image, SceneError> {
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(width);
+    limits.max_image_height = Some(height);
+    // The decoded image at up to 16 bytes a texel (16-bit RGBA), and its RGBA8 copy.
+    limits.max_alloc = Some(width as u64 * height as u64 * 20 + (1 << 20));
+    reader.limits(limits);
+    let decoded =
+        reader.decode().map_err(|e| SceneError(format!("cannot decode {format:?}: {e}")))?;
     let rgba = decoded.to_rgba8();
-    let (width, height) = rgba.dimensions();
-    if width == 0 || height == 0 {
-        return fail("image has no texels");
+    if rgba.dimensions() != (width, height) {
+        return fail(format!(
+            "decoded to {}x{}, not the {width}x{height} of its header",
+            rgba.width(),
+            rgba.height()
+        ));
     }
     let texels = rgba.pixels().map(|p| p.0).collect();
     Ok(Image { width, height, texels })

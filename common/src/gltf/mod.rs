@@ -168,7 +168,7 @@ impl<T> Context<T> for Result<T, SceneError> {
 struct Image {
     width: u32,
     height: u32,
-    texels: Vec<[u8; 4]>,
+    texels: std::sync::Arc<[[u8; 4]]>,
 }
 
 /// The loader's state: the parsed document, lazily loaded buffers and images, and the scene

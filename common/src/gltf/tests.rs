@@ -521,7 +521,7 @@ fn materials_textures_and_extensions() {
     assert_eq!(scene.textures.len(), 2, "one per glTF texture used");
     let tex = &scene.textures[base.texture];
     assert_eq!((tex.width, tex.height), (2, 1));
-    assert_eq!(tex.texels, vec![[255, 0, 0, 255], [0, 0, 255, 128]]);
+    assert_eq!(&tex.texels[..], [[255, 0, 0, 255], [0, 0, 255, 128]]);
     assert_eq!(
         (tex.wrap_s, tex.wrap_t, tex.nearest),
         (Wrap::ClampToEdge, Wrap::MirroredRepeat, true)
@@ -700,4 +700,62 @@ fn a_small_file_cannot_make_the_loader_allocate_without_limit() {
     assert_eq!(load(&doc).expect("loads").meshes.len(), 50);
     doc["accessors"][0] = json!({"componentType": 5126, "count": 200_000_000u64, "type": "VEC3"});
     assert_names(&load_err(&doc), &["accessor 0", "too large"]);
+}
+
+/// Textures that share one image share its decoded texels and are charged for them once, from
+/// the image's header, before anything is decoded.
+#[test]
+fn one_image_is_decoded_once_and_charged_from_its_header() {
+    let mut png = Vec::new();
+    image::RgbaImage::from_raw(64, 64, vec![200; 64 * 64 * 4])
+        .expect("image")
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("encode");
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    let prims: Vec<Value> = (0..8)
+        .map(|m| json!({"attributes": {"POSITION": 0}, "indices": 1, "material": m}))
+        .collect();
+    doc["meshes"][0]["primitives"] = Value::Array(prims);
+    doc["materials"] = Value::Array(
+        (0..8)
+            .map(|t| json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": t}}}))
+            .collect(),
+    );
+    doc["textures"] = Value::Array((0..8).map(|_| json!({"source": 0})).collect());
+    let uri =
+        format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(&png));
+    doc["images"] = json!([{ "uri": uri }]);
+    let parsed = json::parse(doc.to_string().as_bytes()).expect("parses");
+    // A budget of exactly one image's texels takes eight textures of it.
+    let loader = Loader::new(&parsed, None, &NoFiles);
+    loader.budget.set(Budget { texels: 64 * 64, ..Budget::FULL });
+    let scene = loader.load().expect("one image, charged once");
+    assert_eq!(scene.textures.len(), 8);
+    assert!(scene
+        .textures
+        .iter()
+        .all(|t| std::sync::Arc::ptr_eq(&t.texels, &scene.textures[0].texels)));
+    // One texel less refuses it, naming the image and its size.
+    let loader = Loader::new(&parsed, None, &NoFiles);
+    loader.budget.set(Budget { texels: 64 * 64 - 1, ..Budget::FULL });
+    assert_names(&loader.load().expect_err("over budget").0, &["image 0 (64x64)", "too large"]);
+    // A header that claims 100000x100000 texels over a few bytes is refused from the header.
+    let mut huge = png.clone();
+    huge[16..20].copy_from_slice(&100_000u32.to_be_bytes());
+    huge[20..24].copy_from_slice(&100_000u32.to_be_bytes());
+    // The IHDR chunk's CRC-32 (over its type and data) made right again.
+    let crc = huge[12..29].iter().fold(!0u32, |mut c, &b| {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 == 1 { (c >> 1) ^ 0xEDB8_8320 } else { c >> 1 };
+        }
+        c
+    });
+    huge[29..33].copy_from_slice(&(!crc).to_be_bytes());
+    let uri = format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&huge)
+    );
+    doc["images"] = json!([{ "uri": uri }]);
+    assert_names(&load_err(&doc), &["image 0 (100000x100000)", "too large"]);
 }

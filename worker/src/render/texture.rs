@@ -117,7 +117,8 @@ mod tests {
         Texture {
             width: 2,
             height: 2,
-            texels: vec![[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 0]],
+            texels: vec![[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 0]]
+                .into(),
             wrap_s: Wrap::Repeat,
             wrap_t: Wrap::ClampToEdge,
             nearest: true,
@@ -147,7 +148,8 @@ mod tests {
         t.nearest = false;
         let mid = lookup(&t, Vec2::new(0.5, 0.25), false);
         assert!((mid - Vec4::new(0.5, 0.5, 0.0, 1.0)).length() < 1e-6);
-        let grey = Texture { width: 1, height: 1, texels: vec![[188, 188, 188, 255]], ..checker() };
+        let grey =
+            Texture { width: 1, height: 1, texels: vec![[188, 188, 188, 255]].into(), ..checker() };
         let v = lookup(&grey, Vec2::splat(0.5), true).x;
         assert!((v - 0.5029).abs() < 1e-3, "sRGB 188 is linear 0.503, got {v}");
     }
