@@ -4,10 +4,13 @@
 //! Exactly-once merging: a task has at most one live lease; a result is merged only for a live
 //! lease held by the worker that sends it, and the merge turns the task merged and drops the
 //! lease, so a duplicate, a result for an expired or reassigned lease, or one for a cancelled
-//! job is refused (409) without touching the sums.
+//! job is refused (a conflict) without touching the sums.
 
+pub mod error;
 pub mod job;
 pub mod store;
+
+pub use error::{ErrorKind, FarmError, FarmResult};
 
 use std::{
     collections::{BTreeMap, HashMap},
@@ -80,30 +83,6 @@ impl FarmConfig {
         }
     }
 }
-
-/// An API error: an HTTP status and a message naming the problem.
-#[derive(Clone, Debug, PartialEq)]
-pub struct FarmError {
-    /// HTTP status code.
-    pub status: u16,
-    /// What is wrong.
-    pub message: String,
-}
-
-impl FarmError {
-    /// A `status` error.
-    pub fn new(status: u16, message: impl Into<String>) -> Self {
-        FarmError { status, message: message.into() }
-    }
-}
-
-impl From<anyhow::Error> for FarmError {
-    fn from(e: anyhow::Error) -> Self {
-        FarmError::new(500, format!("internal error: {e:#}"))
-    }
-}
-
-type FarmResult<T> = Result<T, FarmError>;
 
 struct Lease {
     job: String,
@@ -273,7 +252,7 @@ impl Farm {
     /// changes, it is named by its content).
     pub fn scene_file(&self, hash: &str) -> FarmResult<PathBuf> {
         if !is_hash(hash) || self.store.scene_format(hash)?.is_none() {
-            return Err(FarmError::new(404, format!("no scene {hash}")));
+            return Err(FarmError::not_found(format!("no scene {hash}")));
         }
         Ok(self.store.scene_path(hash))
     }
@@ -281,25 +260,19 @@ impl Farm {
     /// Checks settings against the farm's limits (the scene-dependent checks are
     /// [`validate_job_scene`]).
     pub fn check_settings(&self, settings: &RenderSettings) -> FarmResult<()> {
-        settings.validate().map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
+        settings.validate().map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
         if settings.spp > self.config.max_spp {
-            return Err(FarmError::new(
-                422,
-                format!(
-                    "settings: spp: {} is over this coordinator's limit of {}",
-                    settings.spp, self.config.max_spp
-                ),
-            ));
+            return Err(FarmError::invalid(format!(
+                "settings: spp: {} is over this coordinator's limit of {}",
+                settings.spp, self.config.max_spp
+            )));
         }
         let pixels = settings.width as u64 * settings.height as u64;
         if pixels > self.config.max_pixels {
-            return Err(FarmError::new(
-                422,
-                format!(
-                    "settings: width x height = {pixels} pixels is over the limit of {}",
-                    self.config.max_pixels
-                ),
-            ));
+            return Err(FarmError::invalid(format!(
+                "settings: width x height = {pixels} pixels is over the limit of {}",
+                self.config.max_pixels
+            )));
         }
         Ok(())
     }
@@ -313,15 +286,14 @@ impl Farm {
     ) -> FarmResult<JobStatus> {
         self.check_settings(&settings)?;
         if !is_hash(scene) || self.store.scene_format(scene)?.is_none() {
-            return Err(FarmError::new(
-                404,
-                format!("no scene {scene}: upload it to /api/v1/scenes first"),
-            ));
+            return Err(FarmError::not_found(format!(
+                "no scene {scene}: upload it to /api/v1/scenes first"
+            )));
         }
         let id = random_id();
         let job =
             Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, now_unix())
-                .map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
+                .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
         self.store.insert_job(&job)?;
         self.next_seq += 1;
         let status = job.status();
@@ -331,7 +303,7 @@ impl Farm {
     }
 
     fn job(&self, id: &str) -> FarmResult<&Job> {
-        self.jobs.get(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))
+        self.jobs.get(id).ok_or_else(|| FarmError::not_found(format!("no job {id}")))
     }
 
     /// The job a live lease belongs to.
@@ -441,22 +413,19 @@ impl Farm {
 
     fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
         job.frames.iter().position(|f| f.number == number).ok_or_else(|| {
-            FarmError::new(
-                404,
-                format!(
-                    "job {} has frames {}..={}, not {number}",
-                    job.id, job.settings.frames.start, job.settings.frames.end
-                ),
-            )
+            FarmError::not_found(format!(
+                "job {} has frames {}..={}, not {number}",
+                job.id, job.settings.frames.start, job.settings.frames.end
+            ))
         })
     }
 
     /// Cancels a job: its leases are dropped and results for them refused.
     pub fn cancel(&mut self, id: &str) -> FarmResult<JobStatus> {
         let job =
-            self.jobs.get_mut(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))?;
+            self.jobs.get_mut(id).ok_or_else(|| FarmError::not_found(format!("no job {id}")))?;
         if job.state.is_final() {
-            return Err(FarmError::new(409, format!("job {id} is already {}", job.state.name())));
+            return Err(FarmError::conflict(format!("job {id} is already {}", job.state.name())));
         }
         job.set_final(JobState::Cancelled, None);
         job.in_flight = 0;
@@ -483,10 +452,7 @@ impl Farm {
     /// A worker joins.
     pub fn join(&mut self, req: JoinRequest) -> FarmResult<JoinResponse> {
         if req.threads == 0 || req.threads > 4096 {
-            return Err(FarmError::new(
-                422,
-                format!("threads: {} is not in 1..=4096", req.threads),
-            ));
+            return Err(FarmError::invalid(format!("threads: {} is not in 1..=4096", req.threads)));
         }
         let id = random_id();
         let now = Instant::now();
@@ -514,7 +480,7 @@ impl Farm {
     /// A worker leaves: its leases are given back at once (not counted against the tasks).
     pub fn leave(&mut self, worker: &str) -> FarmResult<()> {
         if self.workers.remove(worker).is_none() {
-            return Err(FarmError::new(404, format!("unknown worker {worker}")));
+            return Err(FarmError::not_found(format!("unknown worker {worker}")));
         }
         let held: Vec<String> = self
             .leases
@@ -535,10 +501,9 @@ impl Farm {
 
     fn touch(&mut self, worker: &str) -> FarmResult<&mut WorkerInfo> {
         let w = self.workers.get_mut(worker).ok_or_else(|| {
-            FarmError::new(
-                404,
-                format!("unknown worker {worker}: join again (POST /api/v1/workers)"),
-            )
+            FarmError::not_found(format!(
+                "unknown worker {worker}: join again (POST /api/v1/workers)"
+            ))
         })?;
         w.last_seen = Some(Instant::now());
         Ok(w)
@@ -600,13 +565,11 @@ impl Farm {
 
     fn live_lease(&self, lease: &str, worker: &str) -> FarmResult<&Lease> {
         let l = self.leases.get(lease).ok_or_else(|| {
-            FarmError::new(
-                409,
-                format!("lease {lease} is not live (expired, already answered, its job ended, or the coordinator restarted)"),
+            FarmError::conflict(format!("lease {lease} is not live (expired, already answered, its job ended, or the coordinator restarted)"),
             )
         })?;
         if l.worker != worker {
-            return Err(FarmError::new(403, format!("lease {lease} belongs to another worker")));
+            return Err(FarmError::forbidden(format!("lease {lease} belongs to another worker")));
         }
         Ok(l)
     }
@@ -618,13 +581,10 @@ impl Farm {
         let timeout = self.config.lease_timeout;
         let l = self.leases.get_mut(lease).expect("checked");
         if Instant::now() >= l.last_renewal {
-            return Err(FarmError::new(
-                409,
-                format!(
-                    "lease {lease} has reached its maximum lifetime of {} s and will not be renewed",
-                    self.config.max_lease_lifetime.as_secs()
-                ),
-            ));
+            return Err(FarmError::conflict(format!(
+                "lease {lease} has reached its maximum lifetime of {} s and will not be renewed",
+                self.config.max_lease_lifetime.as_secs()
+            )));
         }
         l.deadline = Instant::now() + timeout;
         Ok(timeout.as_secs_f64())
@@ -647,7 +607,7 @@ impl Farm {
         let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
         result
             .check_answers(&job.spec(key))
-            .map_err(|e| FarmError::new(422, format!("result refused: {e}")))?;
+            .map_err(|e| FarmError::invalid(format!("result refused: {e}")))?;
         let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
         let rays = result.rays;
         job.merge(key, result.tile, samples);
@@ -799,11 +759,11 @@ pub fn is_hash(s: &str) -> bool {
 /// Checks an upload: a known format, a loadable scene with something to render. Slow for large
 /// scenes: call it outside the farm lock.
 pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<SceneInfo> {
-    let format = Format::detect(bytes).map_err(|e| FarmError::new(422, e.0))?;
+    let format = Format::detect(bytes).map_err(|e| FarmError::invalid(e.0))?;
     if let Some(d) = declared {
         if d != format {
             return Err(FarmError::new(
-                415,
+                ErrorKind::UnsupportedMediaType,
                 format!(
                     "the Content-Type says {} but the body is a {} file",
                     d.name(),
@@ -812,8 +772,8 @@ pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<Sce
             ));
         }
     }
-    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
-    let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
+    let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
     let triangles = scene.triangle_count() as u64;
     Ok(SceneInfo {
         scene: hex(&Sha256::digest(bytes)),
@@ -829,30 +789,27 @@ pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<Sce
 /// any, is in the bundle and decodes. Slow: call it outside the farm lock.
 pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
     let bundle =
-        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
+        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
     let shows_time = settings.frames.end > settings.frames.start
         || settings.shutter.open < settings.shutter.close;
     if shows_time {
-        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
-        scene.check_time(settings).map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        scene.check_time(settings).map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
     }
     if let Some(name) = &settings.camera {
-        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
+        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
         if !scene.cameras.iter().any(|c| &c.name == name) {
             let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
-            return Err(FarmError::new(
-                422,
-                format!(
-                    "settings: camera: no camera named '{name}' (the scene has: {})",
-                    names.join(", ")
-                ),
-            ));
+            return Err(FarmError::invalid(format!(
+                "settings: camera: no camera named '{name}' (the scene has: {})",
+                names.join(", ")
+            )));
         }
     }
     if let Some(Environment::Map { map, .. }) = &settings.environment {
         bundle
             .load_envmap(map)
-            .map_err(|e| FarmError::new(422, format!("settings: environment.map: {e}")))?;
+            .map_err(|e| FarmError::invalid(format!("settings: environment.map: {e}")))?;
     }
     Ok(())
 }
@@ -1010,7 +967,7 @@ pub(crate) mod tests {
         }
         std::thread::sleep(Duration::from_millis(40));
         let refused = farm.heartbeat(&grant.lease, &w).unwrap_err();
-        assert_eq!(refused.status, 409);
+        assert_eq!(refused.kind, ErrorKind::Conflict);
         assert!(refused.message.contains("maximum lifetime"), "{}", refused.message);
         std::thread::sleep(Duration::from_millis(60));
         assert!(farm.tick(), "the lease expired");

@@ -2,7 +2,8 @@
 //! worker protocol, both under `/api/v1` and described by `/api/v1/openapi.json`; `/healthz`,
 //! `/metrics` (Prometheus text) and a dashboard at `/`.
 //!
-//! Every error is a 4xx/5xx with a JSON body `{"error": "..."}` naming the problem. The farm
+//! Every error is a 4xx/5xx with a JSON body `{"error": "..."}` naming the problem: the farm's
+//! refusals ([`FarmError`]) get their status here, from their kind, and nowhere else. The farm
 //! state sits behind one mutex; slow work (validating an upload, decoding a result, encoding an
 //! image) runs outside it on blocking threads, and a merge holds it only for the in-memory
 //! addition and the database commit.
@@ -41,7 +42,7 @@ use serde_json::json;
 use tokio::sync::Notify;
 
 use crate::{
-    farm::{validate_job_scene, validate_upload, Farm, FarmConfig, FarmError},
+    farm::{validate_job_scene, validate_upload, ErrorKind, Farm, FarmConfig, FarmError},
     output::{exr_bytes, png_bytes, FrameInfo},
 };
 
@@ -113,19 +114,26 @@ fn create_checked_job(
     priority: i32,
 ) -> ApiResult<crate::farm::job::JobStatus> {
     lock_farm(farm).check_settings(&settings)?;
-    let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.status {
-        404 => FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message)),
+    let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.kind {
+        ErrorKind::NotFound => {
+            FarmError::not_found(format!("{}: upload it to /api/v1/scenes first", e.message))
+        }
         _ => e,
     })?;
-    let bytes = std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| FarmError::internal(format!("scene: {e}")))?;
     validate_job_scene(&bytes, &settings)?;
     lock_farm(farm).create_job(scene, settings, priority)
 }
 
+/// The HTTP status of each kind of refusal (the table is `common::error`'s, which the worker's
+/// HTTP link reads back).
+fn status_of(kind: ErrorKind) -> StatusCode {
+    StatusCode::from_u16(kind.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR)
+}
+
 impl IntoResponse for FarmError {
     fn into_response(self) -> Response {
-        let status = StatusCode::from_u16(self.status).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
-        (status, Json(json!({ "error": self.message }))).into_response()
+        (status_of(self.kind), Json(json!({ "error": self.message }))).into_response()
     }
 }
 
@@ -137,7 +145,7 @@ async fn blocking<T: Send + 'static>(
 ) -> ApiResult<T> {
     tokio::task::spawn_blocking(f)
         .await
-        .map_err(|e| FarmError::new(500, format!("internal error: {e}")))?
+        .map_err(|e| FarmError::internal(format!("internal error: {e}")))?
 }
 
 /// Reads a whole body, with clear errors for oversize and truncated ones.
@@ -153,7 +161,7 @@ async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
         let frame = frame.map_err(|e| {
             let source =
                 std::error::Error::source(&e).map(|s| format!(": {s}")).unwrap_or_default();
-            FarmError::new(400, format!("the body was cut short or unreadable: {e}{source}"))
+            FarmError::malformed(format!("the body was cut short or unreadable: {e}{source}"))
         })?;
         if let Ok(data) = frame.into_data() {
             total = total.saturating_add(data.len());
@@ -166,7 +174,7 @@ async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
     }
     if total > limit {
         return Err(FarmError::new(
-            413,
+            ErrorKind::TooLarge,
             format!("the body is larger than the limit of {limit} bytes"),
         ));
     }
@@ -192,7 +200,7 @@ async fn json_body<T: serde::de::DeserializeOwned>(
         Some("application/json") => {}
         other => {
             return Err(FarmError::new(
-                415,
+                ErrorKind::UnsupportedMediaType,
                 format!("expected Content-Type application/json, got {}", other.unwrap_or("none")),
             ))
         }
@@ -201,7 +209,7 @@ async fn json_body<T: serde::de::DeserializeOwned>(
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
         let at = if path == "." { String::new() } else { format!("{path}: ") };
-        FarmError::new(422, format!("request body: {at}{}", e.into_inner()))
+        FarmError::invalid(format!("request body: {at}{}", e.into_inner()))
     })
 }
 
@@ -224,11 +232,14 @@ fn router(state: AppState) -> Router {
         .route("/api/v1/leases/{lease}/result", post(submit_result))
         .route("/api/v1/leases/{lease}/fail", post(fail_task))
         .fallback(|uri: axum::http::Uri| async move {
-            FarmError::new(404, format!("no such endpoint: {uri} (see /api/v1/openapi.json)"))
+            FarmError::not_found(format!("no such endpoint: {uri} (see /api/v1/openapi.json)"))
         })
         .method_not_allowed_fallback(
             |method: axum::http::Method, uri: axum::http::Uri| async move {
-                FarmError::new(405, format!("{method} is not allowed on {uri}"))
+                FarmError::new(
+                    ErrorKind::MethodNotAllowed,
+                    format!("{method} is not allowed on {uri}"),
+                )
             },
         )
         .layer(axum::middleware::from_fn_with_state(state.clone(), auth::check))
@@ -434,9 +445,7 @@ async fn upload_scene(
         Some("application/zip") | Some("application/x-zip-compressed") => Some(Format::Zip),
         Some("application/octet-stream") | None => None,
         Some(other) => {
-            return Err(FarmError::new(
-                415,
-                format!("Content-Type {other} is not a scene: use model/gltf-binary, model/gltf+json, application/zip or application/octet-stream"),
+            return Err(FarmError::new(ErrorKind::UnsupportedMediaType, format!("Content-Type {other} is not a scene: use model/gltf-binary, model/gltf+json, application/zip or application/octet-stream"),
             ))
         }
     };
@@ -452,7 +461,7 @@ async fn download_scene(
 ) -> ApiResult<Response> {
     let bytes = blocking(move || {
         let path = state.lock().scene_file(&hash)?;
-        std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene {hash}: {e}")))
+        std::fs::read(path).map_err(|e| FarmError::internal(format!("scene {hash}: {e}")))
     })
     .await?;
     Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))], bytes)
@@ -480,7 +489,7 @@ async fn create_job(
         serde_path_to_error::deserialize(settings_value).map_err(|e| {
             let path = e.path().to_string();
             let at = if path == "." { String::new() } else { format!(".{path}") };
-            FarmError::new(422, format!("settings{at}: {}", e.into_inner()))
+            FarmError::invalid(format!("settings{at}: {}", e.into_inner()))
         })?;
     let farm = state.farm.clone();
     let status =
@@ -510,10 +519,12 @@ async fn frame_image(
         .rsplit_once('.')
         .and_then(|(n, e)| Some((n.parse::<i64>().ok()?, e.to_ascii_lowercase())))
         .ok_or_else(|| {
-            FarmError::new(404, format!("'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"))
+            FarmError::not_found(format!(
+                "'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"
+            ))
         })?;
     if ext != "exr" && ext != "png" {
-        return Err(FarmError::new(404, format!("'{file}': frames are served as .exr or .png")));
+        return Err(FarmError::not_found(format!("'{file}': frames are served as .exr or .png")));
     }
     let st = state.clone();
     blocking(move || {
@@ -571,14 +582,13 @@ async fn lease(
         match pair.split_once('=') {
             Some(("wait_s", v)) => {
                 wait_s = v.parse::<f64>().ok().filter(|w| w.is_finite()).ok_or_else(|| {
-                    FarmError::new(400, format!("wait_s: '{v}' is not a number of seconds"))
+                    FarmError::malformed(format!("wait_s: '{v}' is not a number of seconds"))
                 })?;
             }
             _ => {
-                return Err(FarmError::new(
-                    400,
-                    format!("unknown query parameter '{pair}' (only wait_s)"),
-                ))
+                return Err(FarmError::malformed(format!(
+                    "unknown query parameter '{pair}' (only wait_s)"
+                )))
             }
         }
     }
@@ -607,7 +617,7 @@ fn worker_id(headers: &HeaderMap) -> ApiResult<String> {
         .get(WORKER_HEADER)
         .and_then(|v| v.to_str().ok())
         .map(str::to_string)
-        .ok_or_else(|| FarmError::new(400, format!("missing the {WORKER_HEADER} header")))
+        .ok_or_else(|| FarmError::malformed(format!("missing the {WORKER_HEADER} header")))
 }
 
 async fn heartbeat(
@@ -647,7 +657,7 @@ async fn merge_result(
         Some("application/octet-stream") => {}
         other => {
             return Err(FarmError::new(
-                415,
+                ErrorKind::UnsupportedMediaType,
                 format!(
                     "a result is a bincode body with Content-Type application/octet-stream, got {}",
                     other.unwrap_or("none")
@@ -658,7 +668,7 @@ async fn merge_result(
     let st = state.clone();
     blocking(move || {
         let result = decode_result(&bytes)
-            .map_err(|e| FarmError::new(400, format!("result refused: {e}")))?;
+            .map_err(|e| FarmError::malformed(format!("result refused: {e}")))?;
         st.lock().submit(&lease, &worker, result, bytes.len() as u64)
     })
     .await?;
