@@ -9,8 +9,10 @@
 pub mod error;
 pub mod job;
 pub mod store;
+pub mod validate;
 
 pub use error::{ErrorKind, FarmError, FarmResult};
+pub use validate::{hex, is_hash, validate_job_scene, validate_upload, SceneInfo};
 
 use std::{
     collections::{BTreeMap, HashMap},
@@ -20,26 +22,20 @@ use std::{
 
 use anyhow::Result;
 use common::{
-    bundle::{Bundle, Format, Limits},
     protocol::{JoinRequest, JoinResponse, LeaseGrant, TaskResult},
-    settings::{Environment, RenderSettings},
+    settings::RenderSettings,
 };
 use serde::Serialize;
-use sha2::{Digest, Sha256};
 
 use job::{Job, JobState, JobStatus, TaskKey};
 use store::Store;
+use validate::check_settings;
 
 /// Seconds since the Unix epoch.
 pub fn now_unix() -> f64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// Lower-case hex of `bytes`.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 fn random_id() -> String {
@@ -144,23 +140,6 @@ pub struct Counters {
     pub rays: u64,
 }
 
-/// What an upload became.
-#[derive(Clone, Debug, Serialize)]
-pub struct SceneInfo {
-    /// SHA-256 of the bytes, hex.
-    pub scene: String,
-    /// `glb`, `gltf` or `zip`.
-    pub format: String,
-    /// Size of the upload.
-    pub bytes: u64,
-    /// Triangles after loading.
-    pub triangles: u64,
-    /// Camera names.
-    pub cameras: Vec<String>,
-    /// False when the same bytes were already stored.
-    pub created: bool,
-}
-
 /// The whole state.
 pub struct Farm {
     config: FarmConfig,
@@ -260,21 +239,7 @@ impl Farm {
     /// Checks settings against the farm's limits (the scene-dependent checks are
     /// [`validate_job_scene`]).
     pub fn check_settings(&self, settings: &RenderSettings) -> FarmResult<()> {
-        settings.validate().map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
-        if settings.spp > self.config.max_spp {
-            return Err(FarmError::invalid(format!(
-                "settings: spp: {} is over this coordinator's limit of {}",
-                settings.spp, self.config.max_spp
-            )));
-        }
-        let pixels = settings.width as u64 * settings.height as u64;
-        if pixels > self.config.max_pixels {
-            return Err(FarmError::invalid(format!(
-                "settings: width x height = {pixels} pixels is over the limit of {}",
-                self.config.max_pixels
-            )));
-        }
-        Ok(())
+        check_settings(settings, self.config.max_spp, self.config.max_pixels)
     }
 
     /// Creates a job on a stored scene.
@@ -749,69 +714,6 @@ impl Farm {
     pub fn leases_out(&self) -> usize {
         self.leases.len()
     }
-}
-
-/// True for 64 lower-case hex digits.
-pub fn is_hash(s: &str) -> bool {
-    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
-}
-
-/// Checks an upload: a known format, a loadable scene with something to render. Slow for large
-/// scenes: call it outside the farm lock.
-pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<SceneInfo> {
-    let format = Format::detect(bytes).map_err(|e| FarmError::invalid(e.0))?;
-    if let Some(d) = declared {
-        if d != format {
-            return Err(FarmError::new(
-                ErrorKind::UnsupportedMediaType,
-                format!(
-                    "the Content-Type says {} but the body is a {} file",
-                    d.name(),
-                    format.name()
-                ),
-            ));
-        }
-    }
-    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
-    let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-    let triangles = scene.triangle_count() as u64;
-    Ok(SceneInfo {
-        scene: hex(&Sha256::digest(bytes)),
-        format: format.name().to_string(),
-        bytes: bytes.len() as u64,
-        triangles,
-        cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
-        created: true,
-    })
-}
-
-/// The scene-dependent checks of a job: the named camera exists and the environment map, if
-/// any, is in the bundle and decodes. Slow: call it outside the farm lock.
-pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
-    let bundle =
-        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
-    let shows_time = settings.frames.end > settings.frames.start
-        || settings.shutter.open < settings.shutter.close;
-    if shows_time {
-        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        scene.check_time(settings).map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-    }
-    if let Some(name) = &settings.camera {
-        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        if !scene.cameras.iter().any(|c| &c.name == name) {
-            let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
-            return Err(FarmError::invalid(format!(
-                "settings: camera: no camera named '{name}' (the scene has: {})",
-                names.join(", ")
-            )));
-        }
-    }
-    if let Some(Environment::Map { map, .. }) = &settings.environment {
-        bundle
-            .load_envmap(map)
-            .map_err(|e| FarmError::invalid(format!("settings: environment.map: {e}")))?;
-    }
-    Ok(())
 }
 
 /// Makes sure frame `f` of `job` is in the database before it leaves memory: a durable store
