@@ -17,10 +17,7 @@
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
 
-use std::{
-    collections::{BTreeMap, HashMap},
-    time::Instant,
-};
+use std::collections::{BTreeMap, HashMap};
 
 use common::{
     film::{ErrorEstimate, TileAccum},
@@ -29,6 +26,7 @@ use common::{
 };
 use serde::Serialize;
 
+use super::clock::Moment;
 use crate::{output::FrameImage, split::tiles};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
@@ -162,7 +160,8 @@ pub struct Job {
     pub created_unix: f64,
     /// Running seconds accumulated before the current run (coordinator restarts).
     pub elapsed_before: f64,
-    running_since: Option<Instant>,
+    /// When the current run started (the first lease since the coordinator started).
+    running_since: Option<Moment>,
     /// The frames.
     pub frames: Vec<Frame>,
     /// Tasks per tile (the last one may cover fewer samples).
@@ -311,9 +310,9 @@ impl Job {
         }
     }
 
-    /// Seconds spent running (accumulated over coordinator restarts).
-    pub fn elapsed(&self) -> f64 {
-        self.elapsed_before + self.running_since.map_or(0.0, |t| t.elapsed().as_secs_f64())
+    /// Seconds spent running at `now` (accumulated over coordinator restarts).
+    pub fn elapsed(&self, now: Moment) -> f64 {
+        self.elapsed_before + self.running_since.map_or(0.0, |t| now.since(t).as_secs_f64())
     }
 
     fn adaptive_target(&self) -> Option<f64> {
@@ -359,8 +358,8 @@ impl Job {
         best.map(|(_, _, key)| key)
     }
 
-    /// Marks `key` leased.
-    pub fn lease(&mut self, key: TaskKey) {
+    /// Marks `key` leased at `now`.
+    pub fn lease(&mut self, key: TaskKey, now: Moment) {
         let slot =
             &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
         debug_assert_eq!(*slot, TaskState::Open);
@@ -370,13 +369,13 @@ impl Job {
             self.state = JobState::Running;
         }
         if self.running_since.is_none() {
-            self.running_since = Some(Instant::now());
+            self.running_since = Some(now);
         }
     }
 
     /// Puts a leased task back to be leased again (expired lease, worker left or failed).
     /// Returns how many times this has happened to the task for this `reason_is_failure` kind.
-    pub fn release(&mut self, key: TaskKey, failure: bool) -> u32 {
+    pub fn release(&mut self, key: TaskKey, failure: bool, now: Moment) -> u32 {
         let slot =
             &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
         if *slot == TaskState::Leased {
@@ -388,24 +387,24 @@ impl Job {
         *n += 1;
         let n = *n;
         // Past the time limit nothing is leased again: the last lease out ends the job.
-        self.finish_if_complete();
+        self.finish_if_complete(now);
         n
     }
 
     /// Returns a leased task without counting it against the task (the worker left cleanly).
-    pub fn give_back(&mut self, key: TaskKey) {
+    pub fn give_back(&mut self, key: TaskKey, now: Moment) {
         let slot =
             &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
         if *slot == TaskState::Leased {
             *slot = TaskState::Open;
             self.in_flight -= 1;
         }
-        self.finish_if_complete();
+        self.finish_if_complete(now);
     }
 
     /// Accepts the sums of the leased task `key` (the caller has checked that they answer it):
     /// adds them to the tile in task order, or keeps them pending until their predecessors are in.
-    pub fn merge(&mut self, key: TaskKey, tile: TileAccum, samples: u64) {
+    pub fn merge(&mut self, key: TaskKey, tile: TileAccum, samples: u64, now: Moment) {
         let t = &mut self.frames[key.frame as usize].tiles[key.tile as usize];
         debug_assert_eq!(t.tasks[key.k as usize], TaskState::Leased);
         t.tasks[key.k as usize] = TaskState::Merged;
@@ -416,7 +415,7 @@ impl Job {
         self.samples_done += samples;
         self.frames[key.frame as usize].samples_done += samples;
         self.update_adaptive(key.frame as usize);
-        self.finish_if_complete();
+        self.finish_if_complete(now);
     }
 
     /// Whether frame index `f` needs no more samples.
@@ -557,30 +556,32 @@ impl Job {
 
     /// Moves the job to `Done` when no tile needs more samples, or when the time limit has
     /// passed and nothing is in flight.
-    pub fn finish_if_complete(&mut self) {
+    pub fn finish_if_complete(&mut self, now: Moment) {
         if self.state.is_final() {
             return;
         }
         if self.tiles_open == 0 || (self.time_up && self.in_flight == 0) {
-            self.set_final(JobState::Done, None);
+            self.set_final(JobState::Done, None, now);
         }
     }
 
-    /// Ends the job.
-    pub fn set_final(&mut self, state: JobState, error: Option<String>) {
+    /// Ends the job at `now`.
+    pub fn set_final(&mut self, state: JobState, error: Option<String>, now: Moment) {
         if let Some(t) = self.running_since.take() {
-            self.elapsed_before += t.elapsed().as_secs_f64();
+            self.elapsed_before += now.since(t).as_secs_f64();
         }
         self.state = state;
         self.error = error;
     }
 
-    /// Checks the time limit; returns true when it has just passed.
-    pub fn check_time_limit(&mut self) -> bool {
+    /// Checks the time limit at `now`; returns true when it has just passed.
+    pub fn check_time_limit(&mut self, now: Moment) -> bool {
         match self.settings.time_limit_s {
-            Some(limit) if !self.time_up && !self.state.is_final() && self.elapsed() >= limit => {
+            Some(limit)
+                if !self.time_up && !self.state.is_final() && self.elapsed(now) >= limit =>
+            {
                 self.time_up = true;
-                self.finish_if_complete();
+                self.finish_if_complete(now);
                 true
             }
             _ => false,
@@ -634,8 +635,8 @@ impl Job {
         film
     }
 
-    /// The job's status.
-    pub fn status(&self) -> JobStatus {
+    /// The job's status at `now`.
+    pub fn status(&self, now: Moment) -> JobStatus {
         let pixels = self.settings.width as u64 * self.settings.height as u64;
         let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
         let mut saved = 0u64;
@@ -656,7 +657,7 @@ impl Job {
         let effective = planned - saved;
         let progress =
             if effective == 0 { 1.0 } else { self.samples_done as f64 / effective as f64 };
-        let elapsed = self.elapsed();
+        let elapsed = self.elapsed(now);
         let eta = match self.state {
             JobState::Running if self.samples_done > 0 => Some(
                 elapsed * (effective - self.samples_done.min(effective)) as f64
@@ -700,6 +701,9 @@ impl Job {
 mod tests {
     use super::*;
 
+    /// Every test runs at one moment except where time matters.
+    const NOW: Moment = Moment::ZERO;
+
     fn job(spp: u32, spt: u32, target: Option<f64>) -> Job {
         let settings = RenderSettings {
             width: 64,
@@ -731,7 +735,7 @@ mod tests {
         let mut j = job(100, 32, None);
         let mut order = Vec::new();
         while let Some(key) = j.next_task() {
-            j.lease(key);
+            j.lease(key, NOW);
             order.push(key);
         }
         assert_eq!(order.len(), 2 * 4);
@@ -739,7 +743,7 @@ mod tests {
         for key in order {
             let r = fake_result(&j, key, 0.5);
             let n = r.pixels.iter().map(|p| p.n as u64).sum();
-            j.merge(key, r, n);
+            j.merge(key, r, n, NOW);
         }
         assert_eq!(j.state, JobState::Done);
         assert_eq!(j.samples_done, 64 * 32 * 100);
@@ -750,8 +754,8 @@ mod tests {
     fn released_tasks_are_leased_again() {
         let mut j = job(64, 32, None);
         let a = j.next_task().unwrap();
-        j.lease(a);
-        assert_eq!(j.release(a, false), 1);
+        j.lease(a, NOW);
+        assert_eq!(j.release(a, false, NOW), 1);
         assert_eq!(j.next_task(), Some(a));
         assert_eq!(j.in_flight, 0);
     }
@@ -762,7 +766,7 @@ mod tests {
         let mut j = job(256, 8, Some(0.01));
         let mut leased = Vec::new();
         while let Some(key) = j.next_task() {
-            j.lease(key);
+            j.lease(key, NOW);
             leased.push(key);
         }
         // Without merged data only the first MIN_ADAPTIVE_SAMPLES are issued.
@@ -770,10 +774,10 @@ mod tests {
         for key in leased {
             let r = fake_result(&j, key, 0.25);
             let n = r.pixels.iter().map(|p| p.n as u64).sum();
-            j.merge(key, r, n);
+            j.merge(key, r, n, NOW);
         }
         assert_eq!(j.state, JobState::Done);
-        let status = j.status();
+        let status = j.status(NOW);
         assert_eq!(status.samples_saved, 64 * 32 * (256 - 16));
         assert_eq!(status.progress, 1.0);
     }
@@ -784,7 +788,7 @@ mod tests {
             let mut j = job(96, 32, None);
             let mut keys = Vec::new();
             while let Some(key) = j.next_task() {
-                j.lease(key);
+                j.lease(key, NOW);
                 keys.push(key);
             }
             for &i in order {
@@ -792,7 +796,7 @@ mod tests {
                 // Values that differ per task so that the order of addition shows in the bits.
                 let r = fake_result(&j, key, 0.1 + 0.37 * key.k as f32 + 0.011 * key.tile as f32);
                 let n = r.pixels.iter().map(|p| p.n as u64).sum();
-                j.merge(key, r, n);
+                j.merge(key, r, n, NOW);
             }
             assert_eq!(j.state, JobState::Done);
             assert!(j.frames[0].tiles.iter().all(|t| t.pending.is_empty()));
@@ -808,11 +812,11 @@ mod tests {
         let mut j = job(64, 32, None);
         j.settings.time_limit_s = Some(1e-9);
         let key = j.next_task().unwrap();
-        j.lease(key);
-        assert!(j.check_time_limit());
+        j.lease(key, NOW);
+        assert!(j.check_time_limit(NOW + std::time::Duration::from_micros(1)));
         assert_eq!(j.state, JobState::Running, "a lease is still out");
         assert_eq!(j.next_task(), None, "nothing more is issued");
-        j.release(key, false);
+        j.release(key, false, NOW);
         assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
     }
 }

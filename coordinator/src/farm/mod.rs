@@ -1,11 +1,13 @@
 //! The farm's state machine: scenes, jobs, leases and workers, kept in memory and persisted in
-//! the [`store`]. Synchronous and free of HTTP: the service wraps it in a mutex.
+//! the [`store`]. Synchronous and free of HTTP: the service wraps it in a mutex. Time comes from
+//! the [`clock`] the farm was opened with, read once per request and passed on.
 //!
 //! Exactly-once merging: a task has at most one live lease; a result is merged only for a live
 //! lease held by the worker that sends it, and the merge turns the task merged and drops the
 //! lease, so a duplicate, a result for an expired or reassigned lease, or one for a cancelled
 //! job is refused (a conflict) without touching the sums.
 
+pub mod clock;
 pub mod error;
 pub mod job;
 pub mod store;
@@ -17,7 +19,8 @@ pub use validate::{hex, is_hash, validate_job_scene, validate_upload, SceneInfo}
 use std::{
     collections::{BTreeMap, HashMap},
     path::PathBuf,
-    time::{Duration, Instant},
+    sync::Arc,
+    time::Duration,
 };
 
 use anyhow::Result;
@@ -27,16 +30,10 @@ use common::{
 };
 use serde::Serialize;
 
+use clock::{Clock, Moment, SystemClock};
 use job::{Job, JobState, JobStatus, TaskKey};
 use store::Store;
 use validate::check_settings;
-
-/// Seconds since the Unix epoch.
-pub fn now_unix() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
 
 fn random_id() -> String {
     format!("{:016x}", rand::random::<u64>())
@@ -84,10 +81,10 @@ struct Lease {
     job: String,
     key: TaskKey,
     worker: String,
-    deadline: Instant,
+    deadline: Moment,
     /// Heartbeats do not renew a lease past this (a worker whose render hangs keeps
     /// heartbeating; the task must go to someone else eventually).
-    last_renewal: Instant,
+    last_renewal: Moment,
 }
 
 /// A worker as the coordinator sees it.
@@ -112,9 +109,9 @@ pub struct WorkerInfo {
     /// Leases it holds now.
     pub leases: u32,
     #[serde(skip)]
-    joined: Option<Instant>,
+    joined: Option<Moment>,
     #[serde(skip)]
-    last_seen: Option<Instant>,
+    last_seen: Option<Moment>,
 }
 
 /// Counters for `/metrics`.
@@ -143,6 +140,8 @@ pub struct Counters {
 /// The whole state.
 pub struct Farm {
     config: FarmConfig,
+    /// Read once per request; every decision about time takes that reading.
+    clock: Arc<dyn Clock>,
     store: Store,
     jobs: BTreeMap<String, Job>,
     next_seq: u64,
@@ -150,12 +149,18 @@ pub struct Farm {
     workers: HashMap<String, WorkerInfo>,
     /// Counters for `/metrics`.
     pub counters: Counters,
-    started: Instant,
+    started: Moment,
 }
 
 impl Farm {
     /// Opens the data folder and resumes every unfinished job from the database.
     pub fn open(config: FarmConfig) -> Result<Farm> {
+        Self::open_with_clock(config, Arc::new(SystemClock::new()))
+    }
+
+    /// [`Farm::open`], with time read from `clock`.
+    pub fn open_with_clock(config: FarmConfig, clock: Arc<dyn Clock>) -> Result<Farm> {
+        let now = clock.now();
         let store = Store::open(&config.data_dir, config.durable)?;
         let mut jobs = BTreeMap::new();
         let mut next_seq = 0;
@@ -189,24 +194,25 @@ impl Farm {
                 }
             }
             if stored.state.is_final() {
-                job.set_final(stored.state, stored.error);
+                job.set_final(stored.state, stored.error, now);
                 job.evict();
             } else {
                 job.state = if job.samples_done > 0 { JobState::Running } else { JobState::Queued };
-                job.finish_if_complete();
+                job.finish_if_complete(now);
                 tracing::info!(job = %job.id, samples = job.samples_done, "resuming job");
             }
             jobs.insert(stored.id, job);
         }
         Ok(Farm {
             config,
+            clock,
             store,
             jobs,
             next_seq,
             leases: HashMap::new(),
             workers: HashMap::new(),
             counters: Counters::default(),
-            started: Instant::now(),
+            started: now,
         })
     }
 
@@ -217,7 +223,7 @@ impl Farm {
 
     /// Seconds since this process opened the farm.
     pub fn uptime(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
+        self.clock.now().since(self.started).as_secs_f64()
     }
 
     /// Checks and stores an upload (call [`validate_upload`] first, outside any lock).
@@ -256,12 +262,14 @@ impl Farm {
             )));
         }
         let id = random_id();
+        let now = self.clock.now();
+        let created = self.clock.unix();
         let job =
-            Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, now_unix())
+            Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, created)
                 .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
-        self.store.insert_job(&job)?;
+        self.store.insert_job(&job, now)?;
         self.next_seq += 1;
-        let status = job.status();
+        let status = job.status(now);
         tracing::info!(job = %id, scene, priority, "job created");
         self.jobs.insert(id, job);
         Ok(status)
@@ -283,14 +291,15 @@ impl Farm {
 
     /// A job's status.
     pub fn status(&self, id: &str) -> FarmResult<JobStatus> {
-        Ok(self.job(id)?.status())
+        Ok(self.job(id)?.status(self.clock.now()))
     }
 
     /// Every job's status, oldest first.
     pub fn list(&self) -> Vec<JobStatus> {
         let mut jobs: Vec<&Job> = self.jobs.values().collect();
         jobs.sort_by_key(|j| j.seq);
-        jobs.into_iter().map(Job::status).collect()
+        let now = self.clock.now();
+        jobs.into_iter().map(|j| j.status(now)).collect()
     }
 
     /// Counts of jobs by state.
@@ -313,13 +322,13 @@ impl Farm {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
         if !job.frames[f].evicted {
-            return Ok((job.film(f), job.status()));
+            return Ok((job.film(f), job.status(self.clock.now())));
         }
         let mut film = common::film::Film::new(job.settings.width, job.settings.height);
         for tile in self.stored_tiles(job, f)? {
             film.merge_tile(&tile);
         }
-        Ok((film, job.status()))
+        Ok((film, job.status(self.clock.now())))
     }
 
     /// The summed tiles of frame index `f` of an evicted job, from the database.
@@ -328,10 +337,10 @@ impl Farm {
     }
 
     /// Persists and evicts a job that a lease going back just finished (time limit reached).
-    fn settle(&mut self, id: &str) {
+    fn settle(&mut self, id: &str, now: Moment) {
         if let Some(job) = self.jobs.get(id) {
             if job.state.is_final() && !job.evicted {
-                if let Err(e) = self.store.update_job(job) {
+                if let Err(e) = self.store.update_job(job, now) {
                     tracing::error!(job = id, "recording the job's end failed: {e:#}");
                 }
                 self.evict_if_final(id);
@@ -341,7 +350,7 @@ impl Farm {
 
     /// Notes that a worker was heard from (a long poll that ended without work).
     pub fn seen(&mut self, worker: &str) {
-        let _ = self.touch(worker);
+        let _ = self.touch(worker, self.clock.now());
     }
 
     /// Drops a finished job's sums from memory. A scratch store (the one-shot render: one job
@@ -367,13 +376,13 @@ impl Farm {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
         if !job.frames[f].evicted {
-            return Ok((job.image(f), job.status()));
+            return Ok((job.image(f), job.status(self.clock.now())));
         }
         let mut image = crate::output::FrameImage::new(job.settings.width, job.settings.height);
         for tile in self.stored_tiles(job, f)? {
             image.put_tile(&tile);
         }
-        Ok((image, job.status()))
+        Ok((image, job.status(self.clock.now())))
     }
 
     fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
@@ -387,15 +396,16 @@ impl Farm {
 
     /// Cancels a job: its leases are dropped and results for them refused.
     pub fn cancel(&mut self, id: &str) -> FarmResult<JobStatus> {
+        let now = self.clock.now();
         let job =
             self.jobs.get_mut(id).ok_or_else(|| FarmError::not_found(format!("no job {id}")))?;
         if job.state.is_final() {
             return Err(FarmError::conflict(format!("job {id} is already {}", job.state.name())));
         }
-        job.set_final(JobState::Cancelled, None);
+        job.set_final(JobState::Cancelled, None, now);
         job.in_flight = 0;
-        self.store.update_job(job)?;
-        let status = job.status();
+        self.store.update_job(job, now)?;
+        let status = job.status(now);
         self.drop_leases_of(id);
         self.evict_if_final(id);
         tracing::info!(job = %id, "job cancelled");
@@ -420,7 +430,7 @@ impl Farm {
             return Err(FarmError::invalid(format!("threads: {} is not in 1..=4096", req.threads)));
         }
         let id = random_id();
-        let now = Instant::now();
+        let now = self.clock.now();
         tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker joined");
         self.workers.insert(
             id.clone(),
@@ -444,6 +454,7 @@ impl Farm {
 
     /// A worker leaves: its leases are given back at once (not counted against the tasks).
     pub fn leave(&mut self, worker: &str) -> FarmResult<()> {
+        let now = self.clock.now();
         if self.workers.remove(worker).is_none() {
             return Err(FarmError::not_found(format!("unknown worker {worker}")));
         }
@@ -456,28 +467,29 @@ impl Farm {
         for id in held {
             let l = self.leases.remove(&id).expect("listed above");
             if let Some(job) = self.jobs.get_mut(&l.job) {
-                job.give_back(l.key);
+                job.give_back(l.key, now);
             }
-            self.settle(&l.job);
+            self.settle(&l.job, now);
         }
         tracing::info!(worker, "worker left");
         Ok(())
     }
 
-    fn touch(&mut self, worker: &str) -> FarmResult<&mut WorkerInfo> {
+    fn touch(&mut self, worker: &str, now: Moment) -> FarmResult<&mut WorkerInfo> {
         let w = self.workers.get_mut(worker).ok_or_else(|| {
             FarmError::not_found(format!(
                 "unknown worker {worker}: join again (POST /api/v1/workers)"
             ))
         })?;
-        w.last_seen = Some(Instant::now());
+        w.last_seen = Some(now);
         Ok(w)
     }
 
     /// Leases the most urgent task to `worker`: the highest-priority job first; among equal
     /// priorities the job with the fewest leases out (fair sharing), then the oldest.
     pub fn lease(&mut self, worker: &str) -> FarmResult<Option<LeaseGrant>> {
-        self.touch(worker)?;
+        let now = self.clock.now();
+        self.touch(worker, now)?;
         let mut best: Option<(&Job, TaskKey)> = None;
         for job in self.jobs.values() {
             let Some(key) = job.next_task() else { continue };
@@ -496,7 +508,7 @@ impl Farm {
         let job_id = job.id.clone();
         let job = self.jobs.get_mut(&job_id).expect("found above");
         let was_queued = job.state == JobState::Queued;
-        job.lease(key);
+        job.lease(key, now);
         let grant = LeaseGrant {
             lease: random_id(),
             job: job_id.clone(),
@@ -506,8 +518,8 @@ impl Farm {
             lease_timeout_s: self.config.lease_timeout.as_secs_f64(),
         };
         if was_queued {
-            if let Err(e) = self.store.update_job(job) {
-                job.give_back(key);
+            if let Err(e) = self.store.update_job(job, now) {
+                job.give_back(key, now);
                 return Err(e.into());
             }
         }
@@ -517,8 +529,8 @@ impl Farm {
                 job: job_id,
                 key,
                 worker: worker.to_string(),
-                deadline: Instant::now() + self.config.lease_timeout,
-                last_renewal: Instant::now() + self.config.max_lease_lifetime,
+                deadline: now + self.config.lease_timeout,
+                last_renewal: now + self.config.max_lease_lifetime,
             },
         );
         self.counters.tasks_leased += 1;
@@ -541,17 +553,18 @@ impl Farm {
 
     /// Renews a lease; returns seconds until it expires.
     pub fn heartbeat(&mut self, lease: &str, worker: &str) -> FarmResult<f64> {
-        self.touch(worker)?;
+        let now = self.clock.now();
+        self.touch(worker, now)?;
         self.live_lease(lease, worker)?;
         let timeout = self.config.lease_timeout;
         let l = self.leases.get_mut(lease).expect("checked");
-        if Instant::now() >= l.last_renewal {
+        if now >= l.last_renewal {
             return Err(FarmError::conflict(format!(
                 "lease {lease} has reached its maximum lifetime of {} s and will not be renewed",
                 self.config.max_lease_lifetime.as_secs()
             )));
         }
-        l.deadline = Instant::now() + timeout;
+        l.deadline = now + timeout;
         Ok(timeout.as_secs_f64())
     }
 
@@ -563,8 +576,8 @@ impl Farm {
         result: TaskResult,
         bytes: u64,
     ) -> FarmResult<()> {
-        let start = Instant::now();
-        self.touch(worker)?;
+        let now = self.clock.now();
+        self.touch(worker, now)?;
         let (job_id, key) = {
             let l = self.live_lease(lease, worker)?;
             (l.job.clone(), l.key)
@@ -575,26 +588,26 @@ impl Farm {
             .map_err(|e| FarmError::invalid(format!("result refused: {e}")))?;
         let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
         let rays = result.rays;
-        job.merge(key, result.tile, samples);
+        job.merge(key, result.tile, samples, now);
         self.leases.remove(lease);
         let job = &self.jobs[&job_id];
         // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
         if self.config.durable {
-            if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k) {
+            if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k, now) {
                 // The sums in memory are ahead of the database: fail loudly rather than go on.
                 tracing::error!("committing a merged result failed: {e:#}");
                 return Err(e.into());
             }
         }
         if job.state == JobState::Done {
-            tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(), "job done");
+            tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(now), "job done");
         }
         self.evict_if_final(&job_id);
         if let Some(job) = self.jobs.get_mut(&job_id) {
             let f = key.frame as usize;
             if !job.frames[f].evicted && job.frames.len() > 1 && job.frame_complete(f) {
                 // Committed (above, or by `keep_frame`): its images are read back from SQLite.
-                if keep_frame(&mut self.store, self.config.durable, job, f) {
+                if keep_frame(&mut self.store, self.config.durable, job, f, now) {
                     job.evict_frame(f);
                 }
             }
@@ -604,7 +617,7 @@ impl Farm {
         c.samples_merged += samples;
         c.bytes_merged += bytes;
         c.rays += rays;
-        c.merge_seconds += start.elapsed().as_secs_f64();
+        c.merge_seconds += self.clock.now().since(now).as_secs_f64();
         if let Some(w) = self.workers.get_mut(worker) {
             w.tasks_done += 1;
             w.samples_done += samples;
@@ -616,7 +629,8 @@ impl Farm {
     /// A worker could not render its task: the task is leased again, or after
     /// `max_task_failures` reports its job fails with the reason.
     pub fn fail(&mut self, lease: &str, worker: &str, error: &str) -> FarmResult<()> {
-        self.touch(worker)?;
+        let now = self.clock.now();
+        self.touch(worker, now)?;
         let (job_id, key) = {
             let l = self.live_lease(lease, worker)?;
             (l.job.clone(), l.key)
@@ -629,26 +643,26 @@ impl Farm {
         let max = self.config.max_task_failures;
         let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
         let spec = job.spec(key);
-        let n = job.release(key, true);
+        let n = job.release(key, true, now);
         tracing::warn!(job = %job_id, worker, "task failed ({n}/{max}): {error}");
         if n >= max {
             let reason = format!(
                 "task frame {} tile ({}, {}) samples {}..{} failed {n} times; last error: {error}",
                 spec.frame, spec.rect.x0, spec.rect.y0, spec.samples.start, spec.samples.end
             );
-            job.set_final(JobState::Failed, Some(reason));
-            self.store.update_job(job)?;
+            job.set_final(JobState::Failed, Some(reason), now);
+            self.store.update_job(job, now)?;
             self.drop_leases_of(&job_id);
             self.evict_if_final(&job_id);
         }
-        self.settle(&job_id);
+        self.settle(&job_id, now);
         Ok(())
     }
 
     /// Expires overdue leases, applies time limits and forgets silent workers. Returns true when
     /// tasks became available.
     pub fn tick(&mut self) -> bool {
-        let now = Instant::now();
+        let now = self.clock.now();
         let mut freed = false;
         let overdue: Vec<String> = self
             .leases
@@ -665,7 +679,7 @@ impl Farm {
             let max = self.config.max_task_expiries;
             let Some(job) = self.jobs.get_mut(&l.job) else { continue };
             let spec = job.spec(l.key);
-            let n = job.release(l.key, false);
+            let n = job.release(l.key, false, now);
             tracing::warn!(job = %l.job, worker = %l.worker, "lease expired ({n}/{max})");
             freed = true;
             if n >= max {
@@ -673,36 +687,37 @@ impl Farm {
                     "task frame {} tile ({}, {}) samples {}..{}: its lease expired {n} times (workers died or hung on it)",
                     spec.frame, spec.rect.x0, spec.rect.y0, spec.samples.start, spec.samples.end
                 );
-                job.set_final(JobState::Failed, Some(reason));
-                let _ = self.store.update_job(job);
+                job.set_final(JobState::Failed, Some(reason), now);
+                let _ = self.store.update_job(job, now);
                 self.drop_leases_of(&l.job);
                 self.evict_if_final(&l.job);
             }
-            self.settle(&l.job);
+            self.settle(&l.job, now);
         }
         for job in self.jobs.values_mut() {
-            if job.check_time_limit() {
+            if job.check_time_limit(now) {
                 tracing::info!(job = %job.id, "time limit reached: no more tasks are issued");
-                let _ = self.store.update_job(job);
+                let _ = self.store.update_job(job, now);
                 if job.state.is_final() {
                     job.evict();
                 }
             }
         }
         let silent = self.config.lease_timeout * 3;
-        self.workers.retain(|_, w| w.last_seen.is_some_and(|t| now.duration_since(t) < silent));
+        self.workers.retain(|_, w| w.last_seen.is_some_and(|t| now.since(t) < silent));
         freed
     }
 
     /// The workers, with their ages filled in.
     pub fn workers(&self) -> Vec<WorkerInfo> {
+        let now = self.clock.now();
         let mut out: Vec<WorkerInfo> = self
             .workers
             .values()
             .map(|w| {
                 let mut w = w.clone();
-                w.joined_s_ago = w.joined.map_or(0.0, |t| t.elapsed().as_secs_f64());
-                w.last_seen_s_ago = w.last_seen.map_or(0.0, |t| t.elapsed().as_secs_f64());
+                w.joined_s_ago = w.joined.map_or(0.0, |t| now.since(t).as_secs_f64());
+                w.last_seen_s_ago = w.last_seen.map_or(0.0, |t| now.since(t).as_secs_f64());
                 w
             })
             .collect();
@@ -719,11 +734,11 @@ impl Farm {
 /// Makes sure frame `f` of `job` is in the database before it leaves memory: a durable store
 /// committed every result already; a scratch store writes the frame now. False when that write
 /// failed (the frame then stays in memory).
-fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize) -> bool {
+fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize, now: Moment) -> bool {
     if durable {
         return true;
     }
-    match store.commit_frame(job, f as u32) {
+    match store.commit_frame(job, f as u32, now) {
         Ok(()) => true,
         Err(e) => {
             tracing::error!(job = %job.id, frame = f, "writing a frame to the scratch store failed: {e:#}");
@@ -735,6 +750,7 @@ fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize) -> bool {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use clock::ManualClock;
     use common::{film::TileAccum, protocol::TaskResult};
 
     /// A result with the counts `grant` asks for (values from `v`), as a worker would send.
@@ -845,15 +861,16 @@ pub(crate) mod tests {
         assert!(films[1].iter().all(|f| f.pixels.iter().all(|p| p.n == 8)));
     }
 
-    /// A worker whose render hangs keeps heartbeating; past the lease's maximum lifetime the
-    /// heartbeats are refused and the task goes back to the queue.
+    /// A worker whose render hangs keeps heartbeating; at the lease's maximum lifetime the
+    /// heartbeats are refused, and at its last deadline the task goes back to the queue.
     #[test]
-    fn leases_do_not_outlive_their_maximum_lifetime() {
+    fn a_hung_worker_loses_its_lease_at_the_maximum_lifetime() {
         let dir = tempfile::tempdir().unwrap();
         let mut config = FarmConfig::new(dir.path().into());
         config.lease_timeout = Duration::from_millis(40);
         config.max_lease_lifetime = Duration::from_millis(100);
-        let mut farm = Farm::open(config).unwrap();
+        let clock = ManualClock::new();
+        let mut farm = Farm::open_with_clock(config, Arc::new(clock.clone())).unwrap();
         let hash = "cd".repeat(32);
         farm.store.put_scene(&hash, "glb", b"scene").unwrap();
         let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
@@ -864,16 +881,20 @@ pub(crate) mod tests {
             .id;
         let grant = farm.lease(&w).unwrap().unwrap();
         for _ in 0..4 {
-            std::thread::sleep(Duration::from_millis(20));
+            clock.advance(Duration::from_millis(20));
             farm.heartbeat(&grant.lease, &w).unwrap();
         }
-        std::thread::sleep(Duration::from_millis(40));
+        // At 100 ms, renewed last at 80 ms until 120 ms.
+        clock.advance(Duration::from_millis(20));
         let refused = farm.heartbeat(&grant.lease, &w).unwrap_err();
         assert_eq!(refused.kind, ErrorKind::Conflict);
         assert!(refused.message.contains("maximum lifetime"), "{}", refused.message);
-        std::thread::sleep(Duration::from_millis(60));
-        assert!(farm.tick(), "the lease expired");
+        clock.advance(Duration::from_millis(19));
+        assert!(!farm.tick(), "the lease expired before its deadline");
+        clock.advance(Duration::from_millis(1));
+        assert!(farm.tick(), "the lease did not expire at its deadline");
         assert_eq!(farm.status(&id).unwrap().tasks_in_flight, 0);
+        assert_eq!(farm.counters.tasks_expired, 1);
         assert!(farm.lease(&w).unwrap().is_some(), "the task is leased again");
     }
 }
