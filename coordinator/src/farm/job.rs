@@ -17,7 +17,7 @@
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 
 use common::{
     film::{ErrorEstimate, TileAccum},
@@ -171,8 +171,6 @@ pub struct Job {
     /// Samples merged (pixel samples).
     pub samples_done: u64,
     tiles_open: usize,
-    failures: HashMap<TaskKey, u32>,
-    expiries: HashMap<TaskKey, u32>,
     /// The time limit has passed: no more tasks are issued.
     pub time_up: bool,
     /// A finished job's sums were dropped from memory (they stay in the database).
@@ -292,8 +290,6 @@ impl Job {
             in_flight: 0,
             samples_done: 0,
             tiles_open,
-            failures: HashMap::new(),
-            expiries: HashMap::new(),
             time_up: false,
             evicted: false,
         })
@@ -373,25 +369,8 @@ impl Job {
         }
     }
 
-    /// Puts a leased task back to be leased again (expired lease, worker left or failed).
-    /// Returns how many times this has happened to the task for this `reason_is_failure` kind.
-    pub fn release(&mut self, key: TaskKey, failure: bool, now: Moment) -> u32 {
-        let slot =
-            &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
-        if *slot == TaskState::Leased {
-            *slot = TaskState::Open;
-            self.in_flight -= 1;
-        }
-        let counter = if failure { &mut self.failures } else { &mut self.expiries };
-        let n = counter.entry(key).or_default();
-        *n += 1;
-        let n = *n;
-        // Past the time limit nothing is leased again: the last lease out ends the job.
-        self.finish_if_complete(now);
-        n
-    }
-
-    /// Returns a leased task without counting it against the task (the worker left cleanly).
+    /// Puts a leased task back to be leased again (its lease expired, failed or was given
+    /// back; the lease machine counts those).
     pub fn give_back(&mut self, key: TaskKey, now: Moment) {
         let slot =
             &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
@@ -399,6 +378,7 @@ impl Job {
             *slot = TaskState::Open;
             self.in_flight -= 1;
         }
+        // Past the time limit nothing is leased again: the last lease out ends the job.
         self.finish_if_complete(now);
     }
 
@@ -755,7 +735,7 @@ mod tests {
         let mut j = job(64, 32, None);
         let a = j.next_task().unwrap();
         j.lease(a, NOW);
-        assert_eq!(j.release(a, false, NOW), 1);
+        j.give_back(a, NOW);
         assert_eq!(j.next_task(), Some(a));
         assert_eq!(j.in_flight, 0);
     }
@@ -816,7 +796,7 @@ mod tests {
         assert!(j.check_time_limit(NOW + std::time::Duration::from_micros(1)));
         assert_eq!(j.state, JobState::Running, "a lease is still out");
         assert_eq!(j.next_task(), None, "nothing more is issued");
-        j.release(key, false, NOW);
+        j.give_back(key, NOW);
         assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
     }
 }
