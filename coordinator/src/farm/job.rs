@@ -17,6 +17,9 @@
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
 
+mod restore;
+mod status;
+
 use std::collections::BTreeMap;
 
 use common::{
@@ -28,6 +31,8 @@ use serde::Serialize;
 
 use super::clock::Moment;
 use crate::{output::FrameImage, split::tiles};
+
+pub use status::{FrameProgress, JobStatus};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
 pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;
@@ -175,56 +180,6 @@ pub struct Job {
     pub time_up: bool,
     /// A finished job's sums were dropped from memory (they stay in the database).
     pub evicted: bool,
-}
-
-/// A job's public status.
-#[derive(Clone, Debug, Serialize)]
-pub struct JobStatus {
-    /// The job id.
-    pub id: String,
-    /// The scene hash.
-    pub scene: String,
-    /// Scheduling priority.
-    pub priority: i32,
-    /// `queued`, `running`, `done`, `failed` or `cancelled`.
-    pub state: JobState,
-    /// Fraction of the planned samples merged (tiles stopped by adaptivity count as complete).
-    pub progress: f64,
-    /// Pixel samples merged.
-    pub samples_done: u64,
-    /// Pixel samples a uniform render would take.
-    pub samples_planned: u64,
-    /// Pixel samples adaptive sampling did not need to take (so far: tiles already stopped).
-    pub samples_saved: u64,
-    /// Estimated relative RMSE (sqrt of the estimated relative MSE) of the merged image.
-    pub est_rel_error: Option<f64>,
-    /// Seconds spent running.
-    pub elapsed_s: f64,
-    /// Estimated seconds left.
-    pub eta_s: Option<f64>,
-    /// Why it failed.
-    pub error: Option<String>,
-    /// The frame numbers.
-    pub frames: Vec<i64>,
-    /// Tasks leased now.
-    pub tasks_in_flight: u32,
-    /// Progress of each frame, in frame order.
-    pub frame_progress: Vec<FrameProgress>,
-    /// The render settings.
-    pub settings: RenderSettings,
-    /// Creation time, seconds since the Unix epoch.
-    pub created_unix: f64,
-}
-
-/// One frame's progress in a job's status.
-#[derive(Clone, Debug, Serialize)]
-pub struct FrameProgress {
-    /// The frame number.
-    pub frame: i64,
-    /// Pixel samples accepted.
-    pub samples_done: u64,
-    /// Every tile of the frame is complete.
-    pub done: bool,
 }
 
 /// A job refuses more than this many tasks (absurd settings would only fill memory).
@@ -476,64 +431,6 @@ impl Job {
             self.frames.iter().flat_map(|f| &f.tiles).filter(|t| !t.is_complete()).count();
     }
 
-    /// Restores a tile from the database: tasks `0..prefix` summed in `sums`, and the pending
-    /// results. Call [`Job::restore_adaptive`] once every tile is restored.
-    pub fn restore_tile(
-        &mut self,
-        frame: u32,
-        tile: u32,
-        prefix: u32,
-        sums: Option<TileAccum>,
-        pending: Vec<(u32, TileAccum)>,
-    ) -> Result<(), String> {
-        let t = self
-            .frames
-            .get_mut(frame as usize)
-            .and_then(|f| f.tiles.get_mut(tile as usize))
-            .ok_or_else(|| format!("stored tile {frame}/{tile} is not in the job"))?;
-        let count = |a: &TileAccum| a.pixels.iter().map(|p| p.n as u64).sum::<u64>();
-        let sums = sums.unwrap_or(TileAccum { rect: t.sums.rect, pixels: Vec::new(), rejected: 0 });
-        if prefix as usize > t.tasks.len() || sums.rect != t.sums.rect {
-            return Err(format!("stored tile {frame}/{tile} does not fit the job"));
-        }
-        for k in 0..prefix {
-            t.tasks[k as usize] = TaskState::Merged;
-        }
-        let mut restored = count(&sums);
-        t.sums = sums;
-        t.prefix = prefix;
-        for (k, acc) in pending {
-            if k < prefix || k as usize >= t.tasks.len() {
-                continue; // already in the sums (a crash between the two writes cannot happen,
-                          // they share a transaction, but an old row must never count twice)
-            }
-            t.tasks[k as usize] = TaskState::Merged;
-            restored += count(&acc);
-            t.pending.insert(k, acc);
-        }
-        t.merged = prefix + t.pending.len() as u32;
-        t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
-        self.samples_done += restored;
-        self.frames[frame as usize].samples_done += restored;
-        Ok(())
-    }
-
-    /// Restores the frames' stopping scales (as stored: they were fixed from the pilot alone,
-    /// which the merged sums no longer show) and the tiles they stop.
-    pub fn restore_adaptive(&mut self, scales: &[Option<f64>]) {
-        for (frame, &scale) in self.frames.iter_mut().zip(scales) {
-            frame.scale = scale;
-        }
-        for f in 0..self.frames.len() {
-            self.update_adaptive(f);
-        }
-    }
-
-    /// The frames' stopping scales, for the database.
-    pub fn scales(&self) -> Vec<Option<f64>> {
-        self.frames.iter().map(|f| f.scale).collect()
-    }
-
     /// Moves the job to `Done` when no tile needs more samples, or when the time limit has
     /// passed and nothing is in flight.
     pub fn finish_if_complete(&mut self, now: Moment) {
@@ -614,189 +511,7 @@ impl Job {
         }
         film
     }
-
-    /// The job's status at `now`.
-    pub fn status(&self, now: Moment) -> JobStatus {
-        let pixels = self.settings.width as u64 * self.settings.height as u64;
-        let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
-        let mut saved = 0u64;
-        let mut rel_sum = 0.0;
-        let mut rel_known = true;
-        for frame in &self.frames {
-            for tile in &frame.tiles {
-                let area = tile.sums.rect.area() as u64;
-                if tile.converged {
-                    let taken: u64 = (tile.prefix * self.settings.samples_per_task)
-                        .min(self.settings.spp) as u64;
-                    saved += area * (self.settings.spp as u64 - taken);
-                }
-                rel_known &= tile.rel_mse.is_finite();
-                rel_sum += tile.rel_mse * area as f64;
-            }
-        }
-        let effective = planned - saved;
-        let progress =
-            if effective == 0 { 1.0 } else { self.samples_done as f64 / effective as f64 };
-        let elapsed = self.elapsed(now);
-        let eta = match self.state {
-            JobState::Running if self.samples_done > 0 => Some(
-                elapsed * (effective - self.samples_done.min(effective)) as f64
-                    / self.samples_done as f64,
-            ),
-            s if s.is_final() => Some(0.0),
-            _ => None,
-        };
-        let total_pixels = (pixels * self.frames.len() as u64).max(1) as f64;
-        JobStatus {
-            id: self.id.clone(),
-            scene: self.scene.clone(),
-            priority: self.priority,
-            state: self.state,
-            progress: progress.clamp(0.0, 1.0),
-            samples_done: self.samples_done,
-            samples_planned: planned,
-            samples_saved: saved,
-            est_rel_error: rel_known.then(|| (rel_sum / total_pixels).sqrt()),
-            elapsed_s: elapsed,
-            eta_s: eta,
-            error: self.error.clone(),
-            frames: self.frames.iter().map(|f| f.number).collect(),
-            tasks_in_flight: self.in_flight,
-            frame_progress: self
-                .frames
-                .iter()
-                .map(|f| FrameProgress {
-                    frame: f.number,
-                    samples_done: f.samples_done,
-                    done: f.tiles.iter().all(Tile::is_complete),
-                })
-                .collect(),
-            settings: self.settings.clone(),
-            created_unix: self.created_unix,
-        }
-    }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every test runs at one moment except where time matters.
-    const NOW: Moment = Moment::ZERO;
-
-    fn job(spp: u32, spt: u32, target: Option<f64>) -> Job {
-        let settings = RenderSettings {
-            width: 64,
-            height: 32,
-            tile_size: 32,
-            spp,
-            samples_per_task: spt,
-            target_rel_error: target,
-            ..Default::default()
-        };
-        Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap()
-    }
-
-    fn fake_result(job: &Job, key: TaskKey, value: f32) -> TileAccum {
-        let spec = job.spec(key);
-        let mut acc = TileAccum::new(spec.rect);
-        for y in 0..spec.rect.height {
-            for x in 0..spec.rect.width {
-                for s in spec.samples.start..spec.samples.end {
-                    acc.add_sample(x, y, s, [value; 3]);
-                }
-            }
-        }
-        acc
-    }
-
-    #[test]
-    fn tasks_are_issued_progressively_and_complete_the_job() {
-        let mut j = job(100, 32, None);
-        let mut order = Vec::new();
-        while let Some(key) = j.next_task() {
-            j.lease(key, NOW);
-            order.push(key);
-        }
-        assert_eq!(order.len(), 2 * 4);
-        assert!(order.windows(2).all(|w| w[0].k <= w[1].k), "progressive order: {order:?}");
-        for key in order {
-            let r = fake_result(&j, key, 0.5);
-            let n = r.pixels.iter().map(|p| p.n as u64).sum();
-            j.merge(key, r, n, NOW);
-        }
-        assert_eq!(j.state, JobState::Done);
-        assert_eq!(j.samples_done, 64 * 32 * 100);
-        assert!(j.film(0).pixels.iter().all(|p| p.n == 100));
-    }
-
-    #[test]
-    fn released_tasks_are_leased_again() {
-        let mut j = job(64, 32, None);
-        let a = j.next_task().unwrap();
-        j.lease(a, NOW);
-        j.give_back(a, NOW);
-        assert_eq!(j.next_task(), Some(a));
-        assert_eq!(j.in_flight, 0);
-    }
-
-    #[test]
-    fn adaptive_stops_converged_tiles_from_merged_data_only() {
-        // A constant image has zero estimated error: every tile stops at the minimum.
-        let mut j = job(256, 8, Some(0.01));
-        let mut leased = Vec::new();
-        while let Some(key) = j.next_task() {
-            j.lease(key, NOW);
-            leased.push(key);
-        }
-        // Without merged data only the first MIN_ADAPTIVE_SAMPLES are issued.
-        assert_eq!(leased.len(), 2 * 2);
-        for key in leased {
-            let r = fake_result(&j, key, 0.25);
-            let n = r.pixels.iter().map(|p| p.n as u64).sum();
-            j.merge(key, r, n, NOW);
-        }
-        assert_eq!(j.state, JobState::Done);
-        let status = j.status(NOW);
-        assert_eq!(status.samples_saved, 64 * 32 * (256 - 16));
-        assert_eq!(status.progress, 1.0);
-    }
-
-    #[test]
-    fn results_in_any_order_give_the_same_bits() {
-        let run = |order: &[usize]| {
-            let mut j = job(96, 32, None);
-            let mut keys = Vec::new();
-            while let Some(key) = j.next_task() {
-                j.lease(key, NOW);
-                keys.push(key);
-            }
-            for &i in order {
-                let key = keys[i];
-                // Values that differ per task so that the order of addition shows in the bits.
-                let r = fake_result(&j, key, 0.1 + 0.37 * key.k as f32 + 0.011 * key.tile as f32);
-                let n = r.pixels.iter().map(|p| p.n as u64).sum();
-                j.merge(key, r, n, NOW);
-            }
-            assert_eq!(j.state, JobState::Done);
-            assert!(j.frames[0].tiles.iter().all(|t| t.pending.is_empty()));
-            j.film(0)
-        };
-        let forward = run(&[0, 1, 2, 3, 4, 5]);
-        assert_eq!(forward, run(&[5, 4, 3, 2, 1, 0]));
-        assert_eq!(forward, run(&[3, 0, 5, 1, 4, 2]));
-    }
-
-    #[test]
-    fn past_the_time_limit_the_last_lease_to_lapse_ends_the_job() {
-        let mut j = job(64, 32, None);
-        j.settings.time_limit_s = Some(1e-9);
-        let key = j.next_task().unwrap();
-        j.lease(key, NOW);
-        assert!(j.check_time_limit(NOW + std::time::Duration::from_micros(1)));
-        assert_eq!(j.state, JobState::Running, "a lease is still out");
-        assert_eq!(j.next_task(), None, "nothing more is issued");
-        j.give_back(key, NOW);
-        assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
-    }
-}
+mod tests;
