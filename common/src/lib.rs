@@ -9,6 +9,7 @@
 //! - [`envmap`]: equirectangular environment maps (HDR, EXR) and their direction convention.
 //! - [`film`]: per-pixel partial sums that merge exactly, variance and error estimates.
 //! - [`protocol`]: task specifications and results.
+//! - [`error`]: the kinds of refusal in the farm protocol, and their HTTP statuses.
 //!
 //! No networking, no threads, no rendering here.
 
@@ -17,6 +18,7 @@
 pub mod animation;
 pub mod bundle;
 pub mod envmap;
+pub mod error;
 pub mod film;
 pub mod gltf;
 pub mod protocol;

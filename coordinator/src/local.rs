@@ -224,7 +224,7 @@ pub fn render_file(
     let service = crate::service::spawn("127.0.0.1:0", config)?;
     let (scene_hash, id) = service
         .create_job(&bundle.bytes, bundle.settings, 0)
-        .map_err(|e| anyhow::anyhow!("{} (HTTP {})", e.message, e.status))?;
+        .map_err(|e| anyhow::anyhow!("{} ({})", e.message, e.kind))?;
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
     let cache = client::SceneCache::default();

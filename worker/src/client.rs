@@ -22,6 +22,7 @@ use anyhow::{bail, Result};
 use common::{
     bundle::{Bundle, Limits},
     envmap::EnvMap,
+    error::ErrorKind,
     protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult},
     scene::Scene,
     settings::Environment,
@@ -120,8 +121,10 @@ impl SceneCache {
         }
         let bytes = link.scene(&grant.scene).map_err(|e| Failure {
             // Only the scene itself is worth reporting: a network error is not the task's.
-            transient: matches!(e, CallError::Transport(_))
-                || matches!(e, CallError::Status(c, _) if c >= 500),
+            transient: matches!(
+                e,
+                CallError::Transport(_) | CallError::Refused(ErrorKind::Internal, _)
+            ),
             message: format!("fetching scene {}: {e}", grant.scene),
         })?;
         let bundle = Bundle::open(&bytes, Limits::default())
@@ -326,8 +329,8 @@ fn lease_loop<'a>(
                     me = Some(j);
                     backoff = Duration::from_millis(200);
                 }
-                Err(CallError::Status(code, msg)) if (400..500).contains(&code) => {
-                    bail!("the coordinator refused to let this worker join: HTTP {code}: {msg}");
+                Err(CallError::Refused(kind, msg)) if kind != ErrorKind::Internal => {
+                    bail!("the coordinator refused to let this worker join ({kind}): {msg}");
                 }
                 Err(e) => {
                     tracing::warn!("joining: {e}; retrying in {backoff:?}");
@@ -351,7 +354,7 @@ fn lease_loop<'a>(
                 tracing::trace!(lease_s = leased.as_secs_f64(), "task leased");
                 deliver(Granted { worker, grant, renewing })?;
             }
-            Err(CallError::Status(404, msg)) => {
+            Err(CallError::Refused(ErrorKind::NotFound, msg)) => {
                 tracing::info!("coordinator forgot this worker ({msg}); joining again");
                 me = None;
             }
@@ -482,8 +485,11 @@ impl Renewer {
             drop(st);
             match link.heartbeat(&worker, &lease) {
                 Ok(()) => {}
-                Err(CallError::Status(code @ (403 | 404 | 409), msg)) => {
-                    tracing::warn!(lease = %lease, "lease lost (HTTP {code}: {msg})");
+                Err(CallError::Refused(
+                    kind @ (ErrorKind::Forbidden | ErrorKind::NotFound | ErrorKind::Conflict),
+                    msg,
+                )) => {
+                    tracing::warn!(lease = %lease, "lease lost ({kind}: {msg})");
                     lost.store(true, Ordering::Relaxed);
                 }
                 Err(e) => tracing::warn!(lease = %lease, "heartbeat: {e}"),
@@ -562,12 +568,12 @@ fn render_granted(
 fn hand_in(link: &dyn Link, out: Outgoing, stats: &mut WorkerStats) {
     match link.submit(&out.worker, &out.lease, out.result) {
         Ok(()) => stats.merged += 1,
-        Err(CallError::Status(code, msg)) if code == 409 || code == 404 => {
+        Err(CallError::Refused(ErrorKind::Conflict | ErrorKind::NotFound, msg)) => {
             tracing::info!(lease = %out.lease, "result not needed any more: {msg}");
             stats.refused += 1;
         }
-        Err(CallError::Status(code, msg)) => {
-            tracing::warn!(lease = %out.lease, "result refused: HTTP {code}: {msg}");
+        Err(CallError::Refused(kind, msg)) => {
+            tracing::warn!(lease = %out.lease, "result refused ({kind}): {msg}");
         }
         Err(e) => tracing::warn!(lease = %out.lease, "sending the result: {e}"),
     }

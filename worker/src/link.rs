@@ -15,15 +15,18 @@ use std::{
 /// How often a waiting lease request looks at the stop flag ([`HttpLink::stop_waiting_on`]).
 pub const STOP_POLL: Duration = Duration::from_millis(50);
 
-use common::protocol::{
-    encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult, WORKER_HEADER,
+use common::{
+    error::ErrorKind,
+    protocol::{
+        encode_result, FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult, WORKER_HEADER,
+    },
 };
 
 /// Why a call failed.
 #[derive(Clone, Debug)]
 pub enum CallError {
-    /// The coordinator answered with this HTTP status and message.
-    Status(u16, String),
+    /// The coordinator refused the call: the kind of refusal and its message.
+    Refused(ErrorKind, String),
     /// No answer (connection refused, reset, timed out).
     Transport(String),
 }
@@ -31,7 +34,7 @@ pub enum CallError {
 impl std::fmt::Display for CallError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            CallError::Status(code, msg) => write!(f, "HTTP {code}: {msg}"),
+            CallError::Refused(kind, msg) => write!(f, "{kind}: {msg}"),
             CallError::Transport(msg) => write!(f, "coordinator unreachable: {msg}"),
         }
     }
@@ -123,6 +126,8 @@ impl HttpLink {
     }
 }
 
+/// An HTTP error as the refusal it carries. A status of no kind (a proxy's) stays in the
+/// message.
 fn call_error(e: ureq::Error) -> CallError {
     match e {
         ureq::Error::Status(code, resp) => {
@@ -131,7 +136,9 @@ fn call_error(e: ureq::Error) -> CallError {
                 .ok()
                 .and_then(|v| v.get("error").and_then(|e| e.as_str()).map(str::to_string))
                 .unwrap_or(text);
-            CallError::Status(code, msg)
+            let kind = ErrorKind::from_http_status(code);
+            let msg = if kind.http_status() == code { msg } else { format!("HTTP {code}: {msg}") };
+            CallError::Refused(kind, msg)
         }
         ureq::Error::Transport(t) => CallError::Transport(t.to_string()),
     }

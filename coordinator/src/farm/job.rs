@@ -17,10 +17,10 @@
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
 
-use std::{
-    collections::{BTreeMap, HashMap},
-    time::Instant,
-};
+mod restore;
+mod status;
+
+use std::collections::BTreeMap;
 
 use common::{
     film::{ErrorEstimate, TileAccum},
@@ -29,7 +29,10 @@ use common::{
 };
 use serde::Serialize;
 
+use super::clock::Moment;
 use crate::{output::FrameImage, split::tiles};
+
+pub use status::{FrameProgress, JobStatus};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
 pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;
@@ -162,7 +165,8 @@ pub struct Job {
     pub created_unix: f64,
     /// Running seconds accumulated before the current run (coordinator restarts).
     pub elapsed_before: f64,
-    running_since: Option<Instant>,
+    /// When the current run started (the first lease since the coordinator started).
+    running_since: Option<Moment>,
     /// The frames.
     pub frames: Vec<Frame>,
     /// Tasks per tile (the last one may cover fewer samples).
@@ -172,62 +176,10 @@ pub struct Job {
     /// Samples merged (pixel samples).
     pub samples_done: u64,
     tiles_open: usize,
-    failures: HashMap<TaskKey, u32>,
-    expiries: HashMap<TaskKey, u32>,
     /// The time limit has passed: no more tasks are issued.
     pub time_up: bool,
     /// A finished job's sums were dropped from memory (they stay in the database).
     pub evicted: bool,
-}
-
-/// A job's public status.
-#[derive(Clone, Debug, Serialize)]
-pub struct JobStatus {
-    /// The job id.
-    pub id: String,
-    /// The scene hash.
-    pub scene: String,
-    /// Scheduling priority.
-    pub priority: i32,
-    /// `queued`, `running`, `done`, `failed` or `cancelled`.
-    pub state: JobState,
-    /// Fraction of the planned samples merged (tiles stopped by adaptivity count as complete).
-    pub progress: f64,
-    /// Pixel samples merged.
-    pub samples_done: u64,
-    /// Pixel samples a uniform render would take.
-    pub samples_planned: u64,
-    /// Pixel samples adaptive sampling did not need to take (so far: tiles already stopped).
-    pub samples_saved: u64,
-    /// Estimated relative RMSE (sqrt of the estimated relative MSE) of the merged image.
-    pub est_rel_error: Option<f64>,
-    /// Seconds spent running.
-    pub elapsed_s: f64,
-    /// Estimated seconds left.
-    pub eta_s: Option<f64>,
-    /// Why it failed.
-    pub error: Option<String>,
-    /// The frame numbers.
-    pub frames: Vec<i64>,
-    /// Tasks leased now.
-    pub tasks_in_flight: u32,
-    /// Progress of each frame, in frame order.
-    pub frame_progress: Vec<FrameProgress>,
-    /// The render settings.
-    pub settings: RenderSettings,
-    /// Creation time, seconds since the Unix epoch.
-    pub created_unix: f64,
-}
-
-/// One frame's progress in a job's status.
-#[derive(Clone, Debug, Serialize)]
-pub struct FrameProgress {
-    /// The frame number.
-    pub frame: i64,
-    /// Pixel samples accepted.
-    pub samples_done: u64,
-    /// Every tile of the frame is complete.
-    pub done: bool,
 }
 
 /// A job refuses more than this many tasks (absurd settings would only fill memory).
@@ -293,8 +245,6 @@ impl Job {
             in_flight: 0,
             samples_done: 0,
             tiles_open,
-            failures: HashMap::new(),
-            expiries: HashMap::new(),
             time_up: false,
             evicted: false,
         })
@@ -311,9 +261,9 @@ impl Job {
         }
     }
 
-    /// Seconds spent running (accumulated over coordinator restarts).
-    pub fn elapsed(&self) -> f64 {
-        self.elapsed_before + self.running_since.map_or(0.0, |t| t.elapsed().as_secs_f64())
+    /// Seconds spent running at `now` (accumulated over coordinator restarts).
+    pub fn elapsed(&self, now: Moment) -> f64 {
+        self.elapsed_before + self.running_since.map_or(0.0, |t| now.since(t).as_secs_f64())
     }
 
     fn adaptive_target(&self) -> Option<f64> {
@@ -359,8 +309,8 @@ impl Job {
         best.map(|(_, _, key)| key)
     }
 
-    /// Marks `key` leased.
-    pub fn lease(&mut self, key: TaskKey) {
+    /// Marks `key` leased at `now`.
+    pub fn lease(&mut self, key: TaskKey, now: Moment) {
         let slot =
             &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
         debug_assert_eq!(*slot, TaskState::Open);
@@ -370,42 +320,26 @@ impl Job {
             self.state = JobState::Running;
         }
         if self.running_since.is_none() {
-            self.running_since = Some(Instant::now());
+            self.running_since = Some(now);
         }
     }
 
-    /// Puts a leased task back to be leased again (expired lease, worker left or failed).
-    /// Returns how many times this has happened to the task for this `reason_is_failure` kind.
-    pub fn release(&mut self, key: TaskKey, failure: bool) -> u32 {
+    /// Puts a leased task back to be leased again (its lease expired, failed or was given
+    /// back; the lease machine counts those).
+    pub fn give_back(&mut self, key: TaskKey, now: Moment) {
         let slot =
             &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
         if *slot == TaskState::Leased {
             *slot = TaskState::Open;
             self.in_flight -= 1;
         }
-        let counter = if failure { &mut self.failures } else { &mut self.expiries };
-        let n = counter.entry(key).or_default();
-        *n += 1;
-        let n = *n;
         // Past the time limit nothing is leased again: the last lease out ends the job.
-        self.finish_if_complete();
-        n
-    }
-
-    /// Returns a leased task without counting it against the task (the worker left cleanly).
-    pub fn give_back(&mut self, key: TaskKey) {
-        let slot =
-            &mut self.frames[key.frame as usize].tiles[key.tile as usize].tasks[key.k as usize];
-        if *slot == TaskState::Leased {
-            *slot = TaskState::Open;
-            self.in_flight -= 1;
-        }
-        self.finish_if_complete();
+        self.finish_if_complete(now);
     }
 
     /// Accepts the sums of the leased task `key` (the caller has checked that they answer it):
     /// adds them to the tile in task order, or keeps them pending until their predecessors are in.
-    pub fn merge(&mut self, key: TaskKey, tile: TileAccum, samples: u64) {
+    pub fn merge(&mut self, key: TaskKey, tile: TileAccum, samples: u64, now: Moment) {
         let t = &mut self.frames[key.frame as usize].tiles[key.tile as usize];
         debug_assert_eq!(t.tasks[key.k as usize], TaskState::Leased);
         t.tasks[key.k as usize] = TaskState::Merged;
@@ -416,7 +350,7 @@ impl Job {
         self.samples_done += samples;
         self.frames[key.frame as usize].samples_done += samples;
         self.update_adaptive(key.frame as usize);
-        self.finish_if_complete();
+        self.finish_if_complete(now);
     }
 
     /// Whether frame index `f` needs no more samples.
@@ -497,90 +431,34 @@ impl Job {
             self.frames.iter().flat_map(|f| &f.tiles).filter(|t| !t.is_complete()).count();
     }
 
-    /// Restores a tile from the database: tasks `0..prefix` summed in `sums`, and the pending
-    /// results. Call [`Job::restore_adaptive`] once every tile is restored.
-    pub fn restore_tile(
-        &mut self,
-        frame: u32,
-        tile: u32,
-        prefix: u32,
-        sums: Option<TileAccum>,
-        pending: Vec<(u32, TileAccum)>,
-    ) -> Result<(), String> {
-        let t = self
-            .frames
-            .get_mut(frame as usize)
-            .and_then(|f| f.tiles.get_mut(tile as usize))
-            .ok_or_else(|| format!("stored tile {frame}/{tile} is not in the job"))?;
-        let count = |a: &TileAccum| a.pixels.iter().map(|p| p.n as u64).sum::<u64>();
-        let sums = sums.unwrap_or(TileAccum { rect: t.sums.rect, pixels: Vec::new(), rejected: 0 });
-        if prefix as usize > t.tasks.len() || sums.rect != t.sums.rect {
-            return Err(format!("stored tile {frame}/{tile} does not fit the job"));
-        }
-        for k in 0..prefix {
-            t.tasks[k as usize] = TaskState::Merged;
-        }
-        let mut restored = count(&sums);
-        t.sums = sums;
-        t.prefix = prefix;
-        for (k, acc) in pending {
-            if k < prefix || k as usize >= t.tasks.len() {
-                continue; // already in the sums (a crash between the two writes cannot happen,
-                          // they share a transaction, but an old row must never count twice)
-            }
-            t.tasks[k as usize] = TaskState::Merged;
-            restored += count(&acc);
-            t.pending.insert(k, acc);
-        }
-        t.merged = prefix + t.pending.len() as u32;
-        t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
-        self.samples_done += restored;
-        self.frames[frame as usize].samples_done += restored;
-        Ok(())
-    }
-
-    /// Restores the frames' stopping scales (as stored: they were fixed from the pilot alone,
-    /// which the merged sums no longer show) and the tiles they stop.
-    pub fn restore_adaptive(&mut self, scales: &[Option<f64>]) {
-        for (frame, &scale) in self.frames.iter_mut().zip(scales) {
-            frame.scale = scale;
-        }
-        for f in 0..self.frames.len() {
-            self.update_adaptive(f);
-        }
-    }
-
-    /// The frames' stopping scales, for the database.
-    pub fn scales(&self) -> Vec<Option<f64>> {
-        self.frames.iter().map(|f| f.scale).collect()
-    }
-
     /// Moves the job to `Done` when no tile needs more samples, or when the time limit has
     /// passed and nothing is in flight.
-    pub fn finish_if_complete(&mut self) {
+    pub fn finish_if_complete(&mut self, now: Moment) {
         if self.state.is_final() {
             return;
         }
         if self.tiles_open == 0 || (self.time_up && self.in_flight == 0) {
-            self.set_final(JobState::Done, None);
+            self.set_final(JobState::Done, None, now);
         }
     }
 
-    /// Ends the job.
-    pub fn set_final(&mut self, state: JobState, error: Option<String>) {
+    /// Ends the job at `now`.
+    pub fn set_final(&mut self, state: JobState, error: Option<String>, now: Moment) {
         if let Some(t) = self.running_since.take() {
-            self.elapsed_before += t.elapsed().as_secs_f64();
+            self.elapsed_before += now.since(t).as_secs_f64();
         }
         self.state = state;
         self.error = error;
     }
 
-    /// Checks the time limit; returns true when it has just passed.
-    pub fn check_time_limit(&mut self) -> bool {
+    /// Checks the time limit at `now`; returns true when it has just passed.
+    pub fn check_time_limit(&mut self, now: Moment) -> bool {
         match self.settings.time_limit_s {
-            Some(limit) if !self.time_up && !self.state.is_final() && self.elapsed() >= limit => {
+            Some(limit)
+                if !self.time_up && !self.state.is_final() && self.elapsed(now) >= limit =>
+            {
                 self.time_up = true;
-                self.finish_if_complete();
+                self.finish_if_complete(now);
                 true
             }
             _ => false,
@@ -633,186 +511,7 @@ impl Job {
         }
         film
     }
-
-    /// The job's status.
-    pub fn status(&self) -> JobStatus {
-        let pixels = self.settings.width as u64 * self.settings.height as u64;
-        let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
-        let mut saved = 0u64;
-        let mut rel_sum = 0.0;
-        let mut rel_known = true;
-        for frame in &self.frames {
-            for tile in &frame.tiles {
-                let area = tile.sums.rect.area() as u64;
-                if tile.converged {
-                    let taken: u64 = (tile.prefix * self.settings.samples_per_task)
-                        .min(self.settings.spp) as u64;
-                    saved += area * (self.settings.spp as u64 - taken);
-                }
-                rel_known &= tile.rel_mse.is_finite();
-                rel_sum += tile.rel_mse * area as f64;
-            }
-        }
-        let effective = planned - saved;
-        let progress =
-            if effective == 0 { 1.0 } else { self.samples_done as f64 / effective as f64 };
-        let elapsed = self.elapsed();
-        let eta = match self.state {
-            JobState::Running if self.samples_done > 0 => Some(
-                elapsed * (effective - self.samples_done.min(effective)) as f64
-                    / self.samples_done as f64,
-            ),
-            s if s.is_final() => Some(0.0),
-            _ => None,
-        };
-        let total_pixels = (pixels * self.frames.len() as u64).max(1) as f64;
-        JobStatus {
-            id: self.id.clone(),
-            scene: self.scene.clone(),
-            priority: self.priority,
-            state: self.state,
-            progress: progress.clamp(0.0, 1.0),
-            samples_done: self.samples_done,
-            samples_planned: planned,
-            samples_saved: saved,
-            est_rel_error: rel_known.then(|| (rel_sum / total_pixels).sqrt()),
-            elapsed_s: elapsed,
-            eta_s: eta,
-            error: self.error.clone(),
-            frames: self.frames.iter().map(|f| f.number).collect(),
-            tasks_in_flight: self.in_flight,
-            frame_progress: self
-                .frames
-                .iter()
-                .map(|f| FrameProgress {
-                    frame: f.number,
-                    samples_done: f.samples_done,
-                    done: f.tiles.iter().all(Tile::is_complete),
-                })
-                .collect(),
-            settings: self.settings.clone(),
-            created_unix: self.created_unix,
-        }
-    }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn job(spp: u32, spt: u32, target: Option<f64>) -> Job {
-        let settings = RenderSettings {
-            width: 64,
-            height: 32,
-            tile_size: 32,
-            spp,
-            samples_per_task: spt,
-            target_rel_error: target,
-            ..Default::default()
-        };
-        Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap()
-    }
-
-    fn fake_result(job: &Job, key: TaskKey, value: f32) -> TileAccum {
-        let spec = job.spec(key);
-        let mut acc = TileAccum::new(spec.rect);
-        for y in 0..spec.rect.height {
-            for x in 0..spec.rect.width {
-                for s in spec.samples.start..spec.samples.end {
-                    acc.add_sample(x, y, s, [value; 3]);
-                }
-            }
-        }
-        acc
-    }
-
-    #[test]
-    fn tasks_are_issued_progressively_and_complete_the_job() {
-        let mut j = job(100, 32, None);
-        let mut order = Vec::new();
-        while let Some(key) = j.next_task() {
-            j.lease(key);
-            order.push(key);
-        }
-        assert_eq!(order.len(), 2 * 4);
-        assert!(order.windows(2).all(|w| w[0].k <= w[1].k), "progressive order: {order:?}");
-        for key in order {
-            let r = fake_result(&j, key, 0.5);
-            let n = r.pixels.iter().map(|p| p.n as u64).sum();
-            j.merge(key, r, n);
-        }
-        assert_eq!(j.state, JobState::Done);
-        assert_eq!(j.samples_done, 64 * 32 * 100);
-        assert!(j.film(0).pixels.iter().all(|p| p.n == 100));
-    }
-
-    #[test]
-    fn released_tasks_are_leased_again() {
-        let mut j = job(64, 32, None);
-        let a = j.next_task().unwrap();
-        j.lease(a);
-        assert_eq!(j.release(a, false), 1);
-        assert_eq!(j.next_task(), Some(a));
-        assert_eq!(j.in_flight, 0);
-    }
-
-    #[test]
-    fn adaptive_stops_converged_tiles_from_merged_data_only() {
-        // A constant image has zero estimated error: every tile stops at the minimum.
-        let mut j = job(256, 8, Some(0.01));
-        let mut leased = Vec::new();
-        while let Some(key) = j.next_task() {
-            j.lease(key);
-            leased.push(key);
-        }
-        // Without merged data only the first MIN_ADAPTIVE_SAMPLES are issued.
-        assert_eq!(leased.len(), 2 * 2);
-        for key in leased {
-            let r = fake_result(&j, key, 0.25);
-            let n = r.pixels.iter().map(|p| p.n as u64).sum();
-            j.merge(key, r, n);
-        }
-        assert_eq!(j.state, JobState::Done);
-        let status = j.status();
-        assert_eq!(status.samples_saved, 64 * 32 * (256 - 16));
-        assert_eq!(status.progress, 1.0);
-    }
-
-    #[test]
-    fn results_in_any_order_give_the_same_bits() {
-        let run = |order: &[usize]| {
-            let mut j = job(96, 32, None);
-            let mut keys = Vec::new();
-            while let Some(key) = j.next_task() {
-                j.lease(key);
-                keys.push(key);
-            }
-            for &i in order {
-                let key = keys[i];
-                // Values that differ per task so that the order of addition shows in the bits.
-                let r = fake_result(&j, key, 0.1 + 0.37 * key.k as f32 + 0.011 * key.tile as f32);
-                let n = r.pixels.iter().map(|p| p.n as u64).sum();
-                j.merge(key, r, n);
-            }
-            assert_eq!(j.state, JobState::Done);
-            assert!(j.frames[0].tiles.iter().all(|t| t.pending.is_empty()));
-            j.film(0)
-        };
-        let forward = run(&[0, 1, 2, 3, 4, 5]);
-        assert_eq!(forward, run(&[5, 4, 3, 2, 1, 0]));
-        assert_eq!(forward, run(&[3, 0, 5, 1, 4, 2]));
-    }
-
-    #[test]
-    fn past_the_time_limit_the_last_lease_to_lapse_ends_the_job() {
-        let mut j = job(64, 32, None);
-        j.settings.time_limit_s = Some(1e-9);
-        let key = j.next_task().unwrap();
-        j.lease(key);
-        assert!(j.check_time_limit());
-        assert_eq!(j.state, JobState::Running, "a lease is still out");
-        assert_eq!(j.next_task(), None, "nothing more is issued");
-        j.release(key, false);
-        assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
-    }
-}
+mod tests;

@@ -1,43 +1,53 @@
-//! The farm's state machine: scenes, jobs, leases and workers, kept in memory and persisted in
-//! the [`store`]. Synchronous and free of HTTP: the service wraps it in a mutex.
+//! The farm: scenes, jobs, leases and workers, kept in memory and persisted in the [`store`].
+//! Synchronous and free of HTTP: the service wraps it in a mutex.
+//!
+//! A worker's request is one step of the lease machine ([`lease`]), which decides, followed by
+//! the farm carrying out the step's effects on the jobs ([`job`]), the store, the counters and
+//! the logs. Time comes from the [`clock`] the farm was opened with, read once per request.
 //!
 //! Exactly-once merging: a task has at most one live lease; a result is merged only for a live
 //! lease held by the worker that sends it, and the merge turns the task merged and drops the
 //! lease, so a duplicate, a result for an expired or reassigned lease, or one for a cancelled
-//! job is refused (409) without touching the sums.
+//! job is refused (a conflict) without touching the sums.
+//!
+//! # Layout
+//! - [`clock`]: monotonic time passed in ([`clock::Moment`]); the system's and a manual clock.
+//! - [`error`]: [`FarmError`], a refusal's kind and message, free of HTTP.
+//! - [`validate`]: checks of uploads and settings, outside the farm lock.
+//! - [`job`]: one job's tiles and tasks, the merging of results, adaptive sampling.
+//! - [`lease`]: the task-and-lease state machine, a pure transition function.
+//! - [`workers`]: the registry of workers, kept by the lease machine.
+//! - [`store`]: SQLite and the scene files.
+//! - `jobs.rs`: the user side of [`Farm`] (scenes, jobs, images); this file: opening the farm
+//!   and the worker side (leases, results, failures, time passing).
+//!
+//! Data flows one way: `clock`, `error` and `validate` use nothing else of the farm; `job` and
+//! `store` use the clock; `workers` the clock and errors; `lease` those and `job`'s task keys;
+//! `jobs.rs` and this file use them all.
 
+pub mod clock;
+pub mod error;
 pub mod job;
+mod jobs;
+pub mod lease;
 pub mod store;
+pub mod validate;
+pub mod workers;
 
-use std::{
-    collections::{BTreeMap, HashMap},
-    path::PathBuf,
-    time::{Duration, Instant},
-};
+pub use error::{ErrorKind, FarmError, FarmResult};
+pub use validate::{hex, is_hash, validate_job_scene, validate_upload, SceneInfo};
+pub use workers::WorkerInfo;
+
+use std::{collections::BTreeMap, path::PathBuf, sync::Arc, time::Duration};
 
 use anyhow::Result;
-use common::{
-    bundle::{Bundle, Format, Limits},
-    protocol::{JoinRequest, JoinResponse, LeaseGrant, TaskResult},
-    settings::{Environment, RenderSettings},
-};
+use common::protocol::{JoinRequest, JoinResponse, LeaseGrant, TaskResult};
 use serde::Serialize;
-use sha2::{Digest, Sha256};
 
-use job::{Job, JobState, JobStatus, TaskKey};
+use clock::{Clock, Moment, SystemClock};
+use job::{Job, JobState, TaskKey};
+use lease::{Effect, Event, Leases, Offer, Release, Rules};
 use store::Store;
-
-/// Seconds since the Unix epoch.
-pub fn now_unix() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// Lower-case hex of `bytes`.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
-}
 
 fn random_id() -> String {
     format!("{:016x}", rand::random::<u64>())
@@ -79,67 +89,15 @@ impl FarmConfig {
             durable: true,
         }
     }
-}
 
-/// An API error: an HTTP status and a message naming the problem.
-#[derive(Clone, Debug, PartialEq)]
-pub struct FarmError {
-    /// HTTP status code.
-    pub status: u16,
-    /// What is wrong.
-    pub message: String,
-}
-
-impl FarmError {
-    /// A `status` error.
-    pub fn new(status: u16, message: impl Into<String>) -> Self {
-        FarmError { status, message: message.into() }
+    fn lease_rules(&self) -> Rules {
+        Rules {
+            lease_timeout: self.lease_timeout,
+            max_lease_lifetime: self.max_lease_lifetime,
+            max_task_failures: self.max_task_failures,
+            max_task_expiries: self.max_task_expiries,
+        }
     }
-}
-
-impl From<anyhow::Error> for FarmError {
-    fn from(e: anyhow::Error) -> Self {
-        FarmError::new(500, format!("internal error: {e:#}"))
-    }
-}
-
-type FarmResult<T> = Result<T, FarmError>;
-
-struct Lease {
-    job: String,
-    key: TaskKey,
-    worker: String,
-    deadline: Instant,
-    /// Heartbeats do not renew a lease past this (a worker whose render hangs keeps
-    /// heartbeating; the task must go to someone else eventually).
-    last_renewal: Instant,
-}
-
-/// A worker as the coordinator sees it.
-#[derive(Clone, Debug, Serialize)]
-pub struct WorkerInfo {
-    /// Its id.
-    pub id: String,
-    /// Its name.
-    pub name: String,
-    /// Render threads.
-    pub threads: u32,
-    /// Its version.
-    pub version: String,
-    /// Seconds since it joined.
-    pub joined_s_ago: f64,
-    /// Seconds since it was last heard from.
-    pub last_seen_s_ago: f64,
-    /// Tasks it has had merged.
-    pub tasks_done: u64,
-    /// Pixel samples it has had merged.
-    pub samples_done: u64,
-    /// Leases it holds now.
-    pub leases: u32,
-    #[serde(skip)]
-    joined: Option<Instant>,
-    #[serde(skip)]
-    last_seen: Option<Instant>,
 }
 
 /// Counters for `/metrics`.
@@ -165,39 +123,31 @@ pub struct Counters {
     pub rays: u64,
 }
 
-/// What an upload became.
-#[derive(Clone, Debug, Serialize)]
-pub struct SceneInfo {
-    /// SHA-256 of the bytes, hex.
-    pub scene: String,
-    /// `glb`, `gltf` or `zip`.
-    pub format: String,
-    /// Size of the upload.
-    pub bytes: u64,
-    /// Triangles after loading.
-    pub triangles: u64,
-    /// Camera names.
-    pub cameras: Vec<String>,
-    /// False when the same bytes were already stored.
-    pub created: bool,
-}
-
 /// The whole state.
 pub struct Farm {
     config: FarmConfig,
+    /// Read once per request; every decision about time takes that reading.
+    clock: Arc<dyn Clock>,
     store: Store,
     jobs: BTreeMap<String, Job>,
+    /// The next job's creation order.
     next_seq: u64,
-    leases: HashMap<String, Lease>,
-    workers: HashMap<String, WorkerInfo>,
+    /// Live leases, workers, and the tasks' failure and expiry counts.
+    leases: Leases,
     /// Counters for `/metrics`.
     pub counters: Counters,
-    started: Instant,
+    started: Moment,
 }
 
 impl Farm {
     /// Opens the data folder and resumes every unfinished job from the database.
     pub fn open(config: FarmConfig) -> Result<Farm> {
+        Self::open_with_clock(config, Arc::new(SystemClock::new()))
+    }
+
+    /// [`Farm::open`], with time read from `clock`.
+    pub fn open_with_clock(config: FarmConfig, clock: Arc<dyn Clock>) -> Result<Farm> {
+        let now = clock.now();
         let store = Store::open(&config.data_dir, config.durable)?;
         let mut jobs = BTreeMap::new();
         let mut next_seq = 0;
@@ -231,24 +181,25 @@ impl Farm {
                 }
             }
             if stored.state.is_final() {
-                job.set_final(stored.state, stored.error);
+                job.set_final(stored.state, stored.error, now);
                 job.evict();
             } else {
                 job.state = if job.samples_done > 0 { JobState::Running } else { JobState::Queued };
-                job.finish_if_complete();
+                job.finish_if_complete(now);
                 tracing::info!(job = %job.id, samples = job.samples_done, "resuming job");
             }
             jobs.insert(stored.id, job);
         }
+        let leases = Leases::new(config.lease_rules());
         Ok(Farm {
             config,
+            clock,
             store,
             jobs,
             next_seq,
-            leases: HashMap::new(),
-            workers: HashMap::new(),
+            leases,
             counters: Counters::default(),
-            started: Instant::now(),
+            started: now,
         })
     }
 
@@ -259,79 +210,42 @@ impl Farm {
 
     /// Seconds since this process opened the farm.
     pub fn uptime(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
+        self.clock.now().since(self.started).as_secs_f64()
     }
 
-    /// Checks and stores an upload (call [`validate_upload`] first, outside any lock).
-    pub fn put_scene(&mut self, bytes: &[u8], info: &mut SceneInfo) -> FarmResult<()> {
-        info.created = self.store.scene_format(&info.scene)?.is_none();
-        self.store.put_scene(&info.scene, &info.format, bytes)?;
-        Ok(())
-    }
-
-    /// Where a stored scene's bytes are (read them outside the farm lock: the file never
-    /// changes, it is named by its content).
-    pub fn scene_file(&self, hash: &str) -> FarmResult<PathBuf> {
-        if !is_hash(hash) || self.store.scene_format(hash)?.is_none() {
-            return Err(FarmError::new(404, format!("no scene {hash}")));
-        }
-        Ok(self.store.scene_path(hash))
-    }
-
-    /// Checks settings against the farm's limits (the scene-dependent checks are
-    /// [`validate_job_scene`]).
-    pub fn check_settings(&self, settings: &RenderSettings) -> FarmResult<()> {
-        settings.validate().map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
-        if settings.spp > self.config.max_spp {
-            return Err(FarmError::new(
-                422,
-                format!(
-                    "settings: spp: {} is over this coordinator's limit of {}",
-                    settings.spp, self.config.max_spp
-                ),
-            ));
-        }
-        let pixels = settings.width as u64 * settings.height as u64;
-        if pixels > self.config.max_pixels {
-            return Err(FarmError::new(
-                422,
-                format!(
-                    "settings: width x height = {pixels} pixels is over the limit of {}",
-                    self.config.max_pixels
-                ),
-            ));
-        }
-        Ok(())
-    }
-
-    /// Creates a job on a stored scene.
-    pub fn create_job(
-        &mut self,
-        scene: &str,
-        settings: RenderSettings,
-        priority: i32,
-    ) -> FarmResult<JobStatus> {
-        self.check_settings(&settings)?;
-        if !is_hash(scene) || self.store.scene_format(scene)?.is_none() {
-            return Err(FarmError::new(
-                404,
-                format!("no scene {scene}: upload it to /api/v1/scenes first"),
-            ));
-        }
+    /// A worker joins.
+    pub fn join(&mut self, req: JoinRequest) -> FarmResult<JoinResponse> {
         let id = random_id();
-        let job =
-            Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, now_unix())
-                .map_err(|e| FarmError::new(422, format!("settings: {e}")))?;
-        self.store.insert_job(&job)?;
-        self.next_seq += 1;
-        let status = job.status();
-        tracing::info!(job = %id, scene, priority, "job created");
-        self.jobs.insert(id, job);
-        Ok(status)
+        let (name, threads) = (req.name.clone(), req.threads);
+        self.leases.workers_mut().join(&id, req, self.clock.now())?;
+        tracing::info!(worker = %id, name = %name, threads, "worker joined");
+        let timeout = self.config.lease_timeout.as_secs_f64();
+        Ok(JoinResponse { id, lease_timeout_s: timeout, heartbeat_s: timeout / 4.0 })
     }
 
-    fn job(&self, id: &str) -> FarmResult<&Job> {
-        self.jobs.get(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))
+    /// A worker leaves: its leases are given back at once (not counted against the tasks).
+    pub fn leave(&mut self, worker: &str) -> FarmResult<()> {
+        let now = self.clock.now();
+        let given_back = self.leases.step(Event::Leave { worker }, now)?;
+        // Giving back fails no job, so there is no job's end to record.
+        let _ = self.apply_releases(given_back, now);
+        tracing::info!(worker, "worker left");
+        Ok(())
+    }
+
+    /// Notes that a worker was heard from (a long poll that ended without work).
+    pub fn seen(&mut self, worker: &str) {
+        let _ = self.leases.step(Event::Seen { worker }, self.clock.now());
+    }
+
+    /// The workers, with their ages filled in.
+    pub fn workers(&self) -> Vec<WorkerInfo> {
+        self.leases.worker_infos(self.clock.now())
+    }
+
+    /// Leases out now.
+    pub fn leases_out(&self) -> usize {
+        self.leases.len()
     }
 
     /// The job a live lease belongs to.
@@ -339,72 +253,200 @@ impl Farm {
         self.leases.get(lease).map(|l| l.job.as_str())
     }
 
-    /// Whether job `id` has ended (done, failed or cancelled) or is unknown.
-    pub fn job_ended(&self, id: &str) -> bool {
-        self.jobs.get(id).is_none_or(|j| j.state.is_final())
-    }
-
-    /// A job's status.
-    pub fn status(&self, id: &str) -> FarmResult<JobStatus> {
-        Ok(self.job(id)?.status())
-    }
-
-    /// Every job's status, oldest first.
-    pub fn list(&self) -> Vec<JobStatus> {
-        let mut jobs: Vec<&Job> = self.jobs.values().collect();
-        jobs.sort_by_key(|j| j.seq);
-        jobs.into_iter().map(Job::status).collect()
-    }
-
-    /// Counts of jobs by state.
-    pub fn job_counts(&self) -> BTreeMap<&'static str, u64> {
-        let mut out = BTreeMap::new();
-        for s in ["queued", "running", "done", "failed", "cancelled"] {
-            out.insert(s, 0);
+    /// Leases the most urgent task to `worker`: the highest-priority job first; among equal
+    /// priorities the job with the fewest leases out (fair sharing), then the oldest.
+    pub fn lease(&mut self, worker: &str) -> FarmResult<Option<LeaseGrant>> {
+        let now = self.clock.now();
+        let offer = self.most_urgent_task();
+        let granted = self.leases.step(Event::Lease { worker, offer }, now)?;
+        let [Effect::Granted { lease, job: job_id, key }] = granted.as_slice() else {
+            return Ok(None);
+        };
+        let key = *key;
+        let job = self.jobs.get_mut(job_id).expect("offered above");
+        let was_queued = job.state == JobState::Queued;
+        job.lease(key, now);
+        let grant = LeaseGrant {
+            lease: lease.clone(),
+            job: job_id.clone(),
+            scene: job.scene.clone(),
+            settings: job.settings.clone(),
+            task: job.spec(key),
+            lease_timeout_s: self.config.lease_timeout.as_secs_f64(),
+        };
+        let recorded = if was_queued { self.store.update_job(job, now) } else { Ok(()) };
+        if let Err(e) = recorded {
+            let given_back = self.leases.step(Event::GiveBack { lease }, now)?;
+            let _ = self.apply_releases(given_back, now);
+            return Err(e.into());
         }
-        for j in self.jobs.values() {
-            *out.entry(j.state.name()).or_default() += 1;
-        }
-        out
+        self.counters.tasks_leased += 1;
+        Ok(Some(grant))
     }
 
-    /// The merged film of frame `number` of job `id` (also while it runs), with its job's
-    /// settings and scene hash.
-    /// (Tests compare whole statistics with it; files are written from `image`.)
-    #[cfg(test)]
-    pub fn film(&self, id: &str, number: i64) -> FarmResult<(common::film::Film, JobStatus)> {
-        let job = self.job(id)?;
-        let f = Self::frame_index(job, number)?;
-        if !job.frames[f].evicted {
-            return Ok((job.film(f), job.status()));
+    /// The task to offer next, under a new lease id.
+    fn most_urgent_task(&self) -> Option<Offer> {
+        let mut best: Option<(&Job, TaskKey)> = None;
+        for job in self.jobs.values() {
+            let Some(key) = job.next_task() else { continue };
+            let better = match best {
+                None => true,
+                Some((b, _)) => {
+                    (job.priority, std::cmp::Reverse(job.in_flight), std::cmp::Reverse(job.seq))
+                        > (b.priority, std::cmp::Reverse(b.in_flight), std::cmp::Reverse(b.seq))
+                }
+            };
+            if better {
+                best = Some((job, key));
+            }
         }
-        let mut film = common::film::Film::new(job.settings.width, job.settings.height);
-        for tile in self.stored_tiles(job, f)? {
-            film.merge_tile(&tile);
-        }
-        Ok((film, job.status()))
+        best.map(|(job, key)| Offer {
+            lease: random_id(),
+            job: job.id.clone(),
+            key,
+            spec: job.spec(key),
+        })
     }
 
-    /// The summed tiles of frame index `f` of an evicted job, from the database.
-    fn stored_tiles(&self, job: &Job, f: usize) -> FarmResult<Vec<common::film::TileAccum>> {
-        Ok(self.store.frame_sums(&job.id, f as u32)?)
+    /// Renews a lease; returns seconds until it expires.
+    pub fn heartbeat(&mut self, lease: &str, worker: &str) -> FarmResult<f64> {
+        self.leases.step(Event::Heartbeat { lease, worker }, self.clock.now())?;
+        Ok(self.config.lease_timeout.as_secs_f64())
+    }
+
+    /// Merges the result of a live lease, exactly once, and commits it before returning.
+    pub fn submit(
+        &mut self,
+        lease: &str,
+        worker: &str,
+        result: TaskResult,
+        bytes: u64,
+    ) -> FarmResult<()> {
+        let now = self.clock.now();
+        let answered = self.leases.step(Event::Result { lease, worker, result: &result }, now)?;
+        let [Effect::Answered { job: job_id, key }] = answered.as_slice() else {
+            unreachable!("an accepted result is answered: {answered:?}");
+        };
+        let key = *key;
+        let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
+        let rays = result.rays;
+        let job = self.jobs.get_mut(job_id).expect("a live lease has a job");
+        job.merge(key, result.tile, samples, now);
+        // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
+        if self.config.durable {
+            if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k, now) {
+                // The sums in memory are ahead of the database: fail loudly rather than go on.
+                tracing::error!("committing a merged result failed: {e:#}");
+                return Err(e.into());
+            }
+        }
+        if job.state == JobState::Done {
+            tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(now), "job done");
+        }
+        self.evict_if_final(job_id);
+        if let Some(job) = self.jobs.get_mut(job_id) {
+            let f = key.frame as usize;
+            if !job.frames[f].evicted && job.frames.len() > 1 && job.frame_complete(f) {
+                // Committed (above, or by `keep_frame`): its images are read back from SQLite.
+                if keep_frame(&mut self.store, self.config.durable, job, f, now) {
+                    job.evict_frame(f);
+                }
+            }
+        }
+        let c = &mut self.counters;
+        c.tasks_merged += 1;
+        c.samples_merged += samples;
+        c.bytes_merged += bytes;
+        c.rays += rays;
+        c.merge_seconds += self.clock.now().since(now).as_secs_f64();
+        self.leases.workers_mut().credit(worker, samples);
+        Ok(())
+    }
+
+    /// A worker could not render its task: the task is leased again, or after
+    /// `max_task_failures` reports its job fails with the reason.
+    pub fn fail(&mut self, lease: &str, worker: &str, error: &str) -> FarmResult<()> {
+        let now = self.clock.now();
+        let released = self.leases.step(Event::Fail { lease, worker, error }, now)?;
+        self.apply_releases(released, now)
+    }
+
+    /// Expires overdue leases, applies time limits and forgets silent workers. Returns true when
+    /// tasks became available.
+    pub fn tick(&mut self) -> bool {
+        let now = self.clock.now();
+        let expired = self.leases.step(Event::Tick, now).unwrap_or_default();
+        let freed = !expired.is_empty();
+        // Nobody waits on a tick: a job's end that cannot be recorded is logged by `settle`.
+        let _ = self.apply_releases(expired, now);
+        for job in self.jobs.values_mut() {
+            if job.check_time_limit(now) {
+                tracing::info!(job = %job.id, "time limit reached: no more tasks are issued");
+                let _ = self.store.update_job(job, now);
+                if job.state.is_final() {
+                    job.evict();
+                }
+            }
+        }
+        freed
+    }
+
+    /// Carries out what a step decided about leases that ended without a result: their tasks
+    /// go back to their jobs, a job that failed ends, and the counters and logs say so. Every
+    /// effect is carried out; the first job's end that could not be recorded is returned.
+    fn apply_releases(&mut self, effects: Vec<Effect>, now: Moment) -> FarmResult<()> {
+        let mut recorded = Ok(());
+        let mut touched = Vec::new();
+        for effect in effects {
+            match effect {
+                Effect::Released { job, key, worker, why } => {
+                    match why {
+                        Release::Failed { count, error } => {
+                            self.counters.tasks_failed += 1;
+                            let max = self.config.max_task_failures;
+                            let worker = worker.as_str();
+                            tracing::warn!(job = %job, worker, "task failed ({count}/{max}): {error}");
+                        }
+                        Release::Expired { count } => {
+                            self.counters.tasks_expired += 1;
+                            let max = self.config.max_task_expiries;
+                            tracing::warn!(job = %job, worker = %worker, "lease expired ({count}/{max})");
+                        }
+                        Release::GivenBack => {}
+                    }
+                    if let Some(j) = self.jobs.get_mut(&job) {
+                        j.give_back(key, now);
+                    }
+                    touched.push(job);
+                }
+                Effect::JobFailed { job, reason } => {
+                    if let Some(j) = self.jobs.get_mut(&job) {
+                        j.set_final(JobState::Failed, Some(reason), now);
+                        if let Err(e) = self.store.update_job(j, now) {
+                            recorded = recorded.and(Err(e.into()));
+                        }
+                    }
+                    self.evict_if_final(&job);
+                }
+                other => unreachable!("not the end of a lease without a result: {other:?}"),
+            }
+        }
+        for job in touched {
+            self.settle(&job, now);
+        }
+        recorded
     }
 
     /// Persists and evicts a job that a lease going back just finished (time limit reached).
-    fn settle(&mut self, id: &str) {
+    fn settle(&mut self, id: &str, now: Moment) {
         if let Some(job) = self.jobs.get(id) {
             if job.state.is_final() && !job.evicted {
-                if let Err(e) = self.store.update_job(job) {
+                if let Err(e) = self.store.update_job(job, now) {
                     tracing::error!(job = id, "recording the job's end failed: {e:#}");
                 }
                 self.evict_if_final(id);
             }
         }
-    }
-
-    /// Notes that a worker was heard from (a long poll that ended without work).
-    pub fn seen(&mut self, worker: &str) {
-        let _ = self.touch(worker);
     }
 
     /// Drops a finished job's sums from memory. A scratch store (the one-shot render: one job
@@ -420,451 +462,16 @@ impl Farm {
             }
         }
     }
-
-    /// The image of frame `number` of job `id` (also while it runs), with the job's status.
-    pub fn image(
-        &self,
-        id: &str,
-        number: i64,
-    ) -> FarmResult<(crate::output::FrameImage, JobStatus)> {
-        let job = self.job(id)?;
-        let f = Self::frame_index(job, number)?;
-        if !job.frames[f].evicted {
-            return Ok((job.image(f), job.status()));
-        }
-        let mut image = crate::output::FrameImage::new(job.settings.width, job.settings.height);
-        for tile in self.stored_tiles(job, f)? {
-            image.put_tile(&tile);
-        }
-        Ok((image, job.status()))
-    }
-
-    fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
-        job.frames.iter().position(|f| f.number == number).ok_or_else(|| {
-            FarmError::new(
-                404,
-                format!(
-                    "job {} has frames {}..={}, not {number}",
-                    job.id, job.settings.frames.start, job.settings.frames.end
-                ),
-            )
-        })
-    }
-
-    /// Cancels a job: its leases are dropped and results for them refused.
-    pub fn cancel(&mut self, id: &str) -> FarmResult<JobStatus> {
-        let job =
-            self.jobs.get_mut(id).ok_or_else(|| FarmError::new(404, format!("no job {id}")))?;
-        if job.state.is_final() {
-            return Err(FarmError::new(409, format!("job {id} is already {}", job.state.name())));
-        }
-        job.set_final(JobState::Cancelled, None);
-        job.in_flight = 0;
-        self.store.update_job(job)?;
-        let status = job.status();
-        self.drop_leases_of(id);
-        self.evict_if_final(id);
-        tracing::info!(job = %id, "job cancelled");
-        Ok(status)
-    }
-
-    fn drop_leases_of(&mut self, job: &str) {
-        let dropped: Vec<String> =
-            self.leases.iter().filter(|(_, l)| l.job == job).map(|(id, _)| id.clone()).collect();
-        for id in dropped {
-            if let Some(l) = self.leases.remove(&id) {
-                if let Some(w) = self.workers.get_mut(&l.worker) {
-                    w.leases = w.leases.saturating_sub(1);
-                }
-            }
-        }
-    }
-
-    /// A worker joins.
-    pub fn join(&mut self, req: JoinRequest) -> FarmResult<JoinResponse> {
-        if req.threads == 0 || req.threads > 4096 {
-            return Err(FarmError::new(
-                422,
-                format!("threads: {} is not in 1..=4096", req.threads),
-            ));
-        }
-        let id = random_id();
-        let now = Instant::now();
-        tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker joined");
-        self.workers.insert(
-            id.clone(),
-            WorkerInfo {
-                id: id.clone(),
-                name: req.name,
-                threads: req.threads,
-                version: req.version,
-                joined_s_ago: 0.0,
-                last_seen_s_ago: 0.0,
-                tasks_done: 0,
-                samples_done: 0,
-                leases: 0,
-                joined: Some(now),
-                last_seen: Some(now),
-            },
-        );
-        let timeout = self.config.lease_timeout.as_secs_f64();
-        Ok(JoinResponse { id, lease_timeout_s: timeout, heartbeat_s: timeout / 4.0 })
-    }
-
-    /// A worker leaves: its leases are given back at once (not counted against the tasks).
-    pub fn leave(&mut self, worker: &str) -> FarmResult<()> {
-        if self.workers.remove(worker).is_none() {
-            return Err(FarmError::new(404, format!("unknown worker {worker}")));
-        }
-        let held: Vec<String> = self
-            .leases
-            .iter()
-            .filter(|(_, l)| l.worker == worker)
-            .map(|(id, _)| id.clone())
-            .collect();
-        for id in held {
-            let l = self.leases.remove(&id).expect("listed above");
-            if let Some(job) = self.jobs.get_mut(&l.job) {
-                job.give_back(l.key);
-            }
-            self.settle(&l.job);
-        }
-        tracing::info!(worker, "worker left");
-        Ok(())
-    }
-
-    fn touch(&mut self, worker: &str) -> FarmResult<&mut WorkerInfo> {
-        let w = self.workers.get_mut(worker).ok_or_else(|| {
-            FarmError::new(
-                404,
-                format!("unknown worker {worker}: join again (POST /api/v1/workers)"),
-            )
-        })?;
-        w.last_seen = Some(Instant::now());
-        Ok(w)
-    }
-
-    /// Leases the most urgent task to `worker`: the highest-priority job first; among equal
-    /// priorities the job with the fewest leases out (fair sharing), then the oldest.
-    pub fn lease(&mut self, worker: &str) -> FarmResult<Option<LeaseGrant>> {
-        self.touch(worker)?;
-        let mut best: Option<(&Job, TaskKey)> = None;
-        for job in self.jobs.values() {
-            let Some(key) = job.next_task() else { continue };
-            let better = match best {
-                None => true,
-                Some((b, _)) => {
-                    (job.priority, std::cmp::Reverse(job.in_flight), std::cmp::Reverse(job.seq))
-                        > (b.priority, std::cmp::Reverse(b.in_flight), std::cmp::Reverse(b.seq))
-                }
-            };
-            if better {
-                best = Some((job, key));
-            }
-        }
-        let Some((job, key)) = best else { return Ok(None) };
-        let job_id = job.id.clone();
-        let job = self.jobs.get_mut(&job_id).expect("found above");
-        let was_queued = job.state == JobState::Queued;
-        job.lease(key);
-        let grant = LeaseGrant {
-            lease: random_id(),
-            job: job_id.clone(),
-            scene: job.scene.clone(),
-            settings: job.settings.clone(),
-            task: job.spec(key),
-            lease_timeout_s: self.config.lease_timeout.as_secs_f64(),
-        };
-        if was_queued {
-            if let Err(e) = self.store.update_job(job) {
-                job.give_back(key);
-                return Err(e.into());
-            }
-        }
-        self.leases.insert(
-            grant.lease.clone(),
-            Lease {
-                job: job_id,
-                key,
-                worker: worker.to_string(),
-                deadline: Instant::now() + self.config.lease_timeout,
-                last_renewal: Instant::now() + self.config.max_lease_lifetime,
-            },
-        );
-        self.counters.tasks_leased += 1;
-        if let Some(w) = self.workers.get_mut(worker) {
-            w.leases += 1;
-        }
-        Ok(Some(grant))
-    }
-
-    fn live_lease(&self, lease: &str, worker: &str) -> FarmResult<&Lease> {
-        let l = self.leases.get(lease).ok_or_else(|| {
-            FarmError::new(
-                409,
-                format!("lease {lease} is not live (expired, already answered, its job ended, or the coordinator restarted)"),
-            )
-        })?;
-        if l.worker != worker {
-            return Err(FarmError::new(403, format!("lease {lease} belongs to another worker")));
-        }
-        Ok(l)
-    }
-
-    /// Renews a lease; returns seconds until it expires.
-    pub fn heartbeat(&mut self, lease: &str, worker: &str) -> FarmResult<f64> {
-        self.touch(worker)?;
-        self.live_lease(lease, worker)?;
-        let timeout = self.config.lease_timeout;
-        let l = self.leases.get_mut(lease).expect("checked");
-        if Instant::now() >= l.last_renewal {
-            return Err(FarmError::new(
-                409,
-                format!(
-                    "lease {lease} has reached its maximum lifetime of {} s and will not be renewed",
-                    self.config.max_lease_lifetime.as_secs()
-                ),
-            ));
-        }
-        l.deadline = Instant::now() + timeout;
-        Ok(timeout.as_secs_f64())
-    }
-
-    /// Merges the result of a live lease, exactly once, and commits it before returning.
-    pub fn submit(
-        &mut self,
-        lease: &str,
-        worker: &str,
-        result: TaskResult,
-        bytes: u64,
-    ) -> FarmResult<()> {
-        let start = Instant::now();
-        self.touch(worker)?;
-        let (job_id, key) = {
-            let l = self.live_lease(lease, worker)?;
-            (l.job.clone(), l.key)
-        };
-        let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
-        result
-            .check_answers(&job.spec(key))
-            .map_err(|e| FarmError::new(422, format!("result refused: {e}")))?;
-        let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
-        let rays = result.rays;
-        job.merge(key, result.tile, samples);
-        self.leases.remove(lease);
-        let job = &self.jobs[&job_id];
-        // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
-        if self.config.durable {
-            if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k) {
-                // The sums in memory are ahead of the database: fail loudly rather than go on.
-                tracing::error!("committing a merged result failed: {e:#}");
-                return Err(e.into());
-            }
-        }
-        if job.state == JobState::Done {
-            tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(), "job done");
-        }
-        self.evict_if_final(&job_id);
-        if let Some(job) = self.jobs.get_mut(&job_id) {
-            let f = key.frame as usize;
-            if !job.frames[f].evicted && job.frames.len() > 1 && job.frame_complete(f) {
-                // Committed (above, or by `keep_frame`): its images are read back from SQLite.
-                if keep_frame(&mut self.store, self.config.durable, job, f) {
-                    job.evict_frame(f);
-                }
-            }
-        }
-        let c = &mut self.counters;
-        c.tasks_merged += 1;
-        c.samples_merged += samples;
-        c.bytes_merged += bytes;
-        c.rays += rays;
-        c.merge_seconds += start.elapsed().as_secs_f64();
-        if let Some(w) = self.workers.get_mut(worker) {
-            w.tasks_done += 1;
-            w.samples_done += samples;
-            w.leases = w.leases.saturating_sub(1);
-        }
-        Ok(())
-    }
-
-    /// A worker could not render its task: the task is leased again, or after
-    /// `max_task_failures` reports its job fails with the reason.
-    pub fn fail(&mut self, lease: &str, worker: &str, error: &str) -> FarmResult<()> {
-        self.touch(worker)?;
-        let (job_id, key) = {
-            let l = self.live_lease(lease, worker)?;
-            (l.job.clone(), l.key)
-        };
-        self.leases.remove(lease);
-        if let Some(w) = self.workers.get_mut(worker) {
-            w.leases = w.leases.saturating_sub(1);
-        }
-        self.counters.tasks_failed += 1;
-        let max = self.config.max_task_failures;
-        let job = self.jobs.get_mut(&job_id).expect("a live lease has a job");
-        let spec = job.spec(key);
-        let n = job.release(key, true);
-        tracing::warn!(job = %job_id, worker, "task failed ({n}/{max}): {error}");
-        if n >= max {
-            let reason = format!(
-                "task frame {} tile ({}, {}) samples {}..{} failed {n} times; last error: {error}",
-                spec.frame, spec.rect.x0, spec.rect.y0, spec.samples.start, spec.samples.end
-            );
-            job.set_final(JobState::Failed, Some(reason));
-            self.store.update_job(job)?;
-            self.drop_leases_of(&job_id);
-            self.evict_if_final(&job_id);
-        }
-        self.settle(&job_id);
-        Ok(())
-    }
-
-    /// Expires overdue leases, applies time limits and forgets silent workers. Returns true when
-    /// tasks became available.
-    pub fn tick(&mut self) -> bool {
-        let now = Instant::now();
-        let mut freed = false;
-        let overdue: Vec<String> = self
-            .leases
-            .iter()
-            .filter(|(_, l)| l.deadline <= now)
-            .map(|(id, _)| id.clone())
-            .collect();
-        for id in overdue {
-            let l = self.leases.remove(&id).expect("listed above");
-            self.counters.tasks_expired += 1;
-            if let Some(w) = self.workers.get_mut(&l.worker) {
-                w.leases = w.leases.saturating_sub(1);
-            }
-            let max = self.config.max_task_expiries;
-            let Some(job) = self.jobs.get_mut(&l.job) else { continue };
-            let spec = job.spec(l.key);
-            let n = job.release(l.key, false);
-            tracing::warn!(job = %l.job, worker = %l.worker, "lease expired ({n}/{max})");
-            freed = true;
-            if n >= max {
-                let reason = format!(
-                    "task frame {} tile ({}, {}) samples {}..{}: its lease expired {n} times (workers died or hung on it)",
-                    spec.frame, spec.rect.x0, spec.rect.y0, spec.samples.start, spec.samples.end
-                );
-                job.set_final(JobState::Failed, Some(reason));
-                let _ = self.store.update_job(job);
-                self.drop_leases_of(&l.job);
-                self.evict_if_final(&l.job);
-            }
-            self.settle(&l.job);
-        }
-        for job in self.jobs.values_mut() {
-            if job.check_time_limit() {
-                tracing::info!(job = %job.id, "time limit reached: no more tasks are issued");
-                let _ = self.store.update_job(job);
-                if job.state.is_final() {
-                    job.evict();
-                }
-            }
-        }
-        let silent = self.config.lease_timeout * 3;
-        self.workers.retain(|_, w| w.last_seen.is_some_and(|t| now.duration_since(t) < silent));
-        freed
-    }
-
-    /// The workers, with their ages filled in.
-    pub fn workers(&self) -> Vec<WorkerInfo> {
-        let mut out: Vec<WorkerInfo> = self
-            .workers
-            .values()
-            .map(|w| {
-                let mut w = w.clone();
-                w.joined_s_ago = w.joined.map_or(0.0, |t| t.elapsed().as_secs_f64());
-                w.last_seen_s_ago = w.last_seen.map_or(0.0, |t| t.elapsed().as_secs_f64());
-                w
-            })
-            .collect();
-        out.sort_by(|a, b| a.name.cmp(&b.name).then(a.id.cmp(&b.id)));
-        out
-    }
-
-    /// Leases out now.
-    pub fn leases_out(&self) -> usize {
-        self.leases.len()
-    }
-}
-
-/// True for 64 lower-case hex digits.
-pub fn is_hash(s: &str) -> bool {
-    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
-}
-
-/// Checks an upload: a known format, a loadable scene with something to render. Slow for large
-/// scenes: call it outside the farm lock.
-pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<SceneInfo> {
-    let format = Format::detect(bytes).map_err(|e| FarmError::new(422, e.0))?;
-    if let Some(d) = declared {
-        if d != format {
-            return Err(FarmError::new(
-                415,
-                format!(
-                    "the Content-Type says {} but the body is a {} file",
-                    d.name(),
-                    format.name()
-                ),
-            ));
-        }
-    }
-    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
-    let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
-    let triangles = scene.triangle_count() as u64;
-    Ok(SceneInfo {
-        scene: hex(&Sha256::digest(bytes)),
-        format: format.name().to_string(),
-        bytes: bytes.len() as u64,
-        triangles,
-        cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
-        created: true,
-    })
-}
-
-/// The scene-dependent checks of a job: the named camera exists and the environment map, if
-/// any, is in the bundle and decodes. Slow: call it outside the farm lock.
-pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
-    let bundle =
-        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::new(422, e.0))?;
-    let shows_time = settings.frames.end > settings.frames.start
-        || settings.shutter.open < settings.shutter.close;
-    if shows_time {
-        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
-        scene.check_time(settings).map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
-    }
-    if let Some(name) = &settings.camera {
-        let scene = bundle.load_scene().map_err(|e| FarmError::new(422, format!("scene: {e}")))?;
-        if !scene.cameras.iter().any(|c| &c.name == name) {
-            let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
-            return Err(FarmError::new(
-                422,
-                format!(
-                    "settings: camera: no camera named '{name}' (the scene has: {})",
-                    names.join(", ")
-                ),
-            ));
-        }
-    }
-    if let Some(Environment::Map { map, .. }) = &settings.environment {
-        bundle
-            .load_envmap(map)
-            .map_err(|e| FarmError::new(422, format!("settings: environment.map: {e}")))?;
-    }
-    Ok(())
 }
 
 /// Makes sure frame `f` of `job` is in the database before it leaves memory: a durable store
 /// committed every result already; a scratch store writes the frame now. False when that write
 /// failed (the frame then stays in memory).
-fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize) -> bool {
+fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize, now: Moment) -> bool {
     if durable {
         return true;
     }
-    match store.commit_frame(job, f as u32) {
+    match store.commit_frame(job, f as u32, now) {
         Ok(()) => true,
         Err(e) => {
             tracing::error!(job = %job.id, frame = f, "writing a frame to the scratch store failed: {e:#}");
@@ -874,147 +481,4 @@ fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize) -> bool {
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
-    use super::*;
-    use common::{film::TileAccum, protocol::TaskResult};
-
-    /// A result with the counts `grant` asks for (values from `v`), as a worker would send.
-    pub(crate) fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
-        let spec = grant.task;
-        let mut tile = TileAccum::new(spec.rect);
-        for y in 0..spec.rect.height {
-            for x in 0..spec.rect.width {
-                for s in spec.samples.start..spec.samples.end {
-                    tile.add_sample(x, y, s, [v + s as f32 * 0.01; 3]);
-                }
-            }
-        }
-        TaskResult { spec, tile, rays: 0 }
-    }
-
-    /// A result accepted out of order survives a restart as pending: counted once, never
-    /// leased again, and added in task order once its predecessor arrives.
-    #[test]
-    fn pending_results_survive_a_restart_and_merge_in_order() {
-        let dir = tempfile::tempdir().unwrap();
-        let settings = RenderSettings {
-            width: 8,
-            height: 8,
-            tile_size: 8,
-            spp: 8,
-            samples_per_task: 4,
-            ..Default::default()
-        };
-        let hash = "ab".repeat(32);
-        let (id, first, second) = {
-            let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
-            farm.store.put_scene(&hash, "glb", b"scene").unwrap();
-            let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
-            let w = farm
-                .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
-                .unwrap()
-                .id;
-            let first = farm.lease(&w).unwrap().unwrap();
-            let second = farm.lease(&w).unwrap().unwrap();
-            assert_eq!((first.task.samples.start, second.task.samples.start), (0, 4));
-            farm.submit(&second.lease, &w, result_for(&second, 0.5), 0).unwrap();
-            let status = farm.status(&id).unwrap();
-            assert_eq!(status.samples_done, 64 * 4);
-            (id, first, second)
-        };
-        let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
-        assert_eq!(farm.status(&id).unwrap().samples_done, 64 * 4, "the pending result was lost");
-        let w = farm
-            .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
-            .unwrap()
-            .id;
-        let again = farm.lease(&w).unwrap().unwrap();
-        assert_eq!(again.task, first.task, "only the unanswered task is leased again");
-        assert!(farm.lease(&w).unwrap().is_none());
-        farm.submit(&again.lease, &w, result_for(&again, 0.5), 0).unwrap();
-        let status = farm.status(&id).unwrap();
-        assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 8));
-        // The same bits as merging in order without any restart.
-        let mut expected = TileAccum::new(first.task.rect);
-        expected.merge(&result_for(&first, 0.5).tile);
-        expected.merge(&result_for(&second, 0.5).tile);
-        let (film, _) = farm.film(&id, 0).unwrap();
-        assert_eq!(film.pixels, expected.pixels);
-    }
-
-    /// A scratch store writes nothing per result, yet the frames it evicts (each frame of a
-    /// multi-frame job as it finishes) read back with the same bits as a durable store's.
-    #[test]
-    fn a_scratch_store_keeps_evicted_frames_bit_for_bit() {
-        let settings = RenderSettings {
-            width: 16,
-            height: 8,
-            tile_size: 8,
-            spp: 8,
-            samples_per_task: 4,
-            frames: common::settings::Frames { start: 0, end: 1, fps: 24.0 },
-            ..Default::default()
-        };
-        let hash = "ef".repeat(32);
-        let films = [true, false].map(|durable| {
-            let dir = tempfile::tempdir().unwrap();
-            let mut config = FarmConfig::new(dir.path().into());
-            config.durable = durable;
-            let mut farm = Farm::open(config).unwrap();
-            farm.store.put_scene(&hash, "glb", b"scene").unwrap();
-            let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
-            let w = farm
-                .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
-                .unwrap()
-                .id;
-            let mut grants = Vec::new();
-            while let Some(g) = farm.lease(&w).unwrap() {
-                grants.push(g);
-            }
-            assert_eq!(grants.len(), 8, "2 frames x 2 tiles x 2 sample ranges");
-            // Later sample ranges first, so that results wait as pending before they merge.
-            for (i, g) in grants.iter().enumerate().rev() {
-                farm.submit(&g.lease, &w, result_for(g, i as f32 * 0.1), 0).unwrap();
-            }
-            let job = &farm.jobs[&id];
-            assert_eq!(job.state, JobState::Done);
-            // Each frame of a multi-frame job leaves memory as it finishes, in both modes.
-            assert!(job.frames.iter().all(|f| f.evicted), "durable {durable}");
-            [0, 1].map(|f| farm.film(&id, f).unwrap().0)
-        });
-        assert_eq!(films[0], films[1]);
-        assert!(films[1].iter().all(|f| f.pixels.iter().all(|p| p.n == 8)));
-    }
-
-    /// A worker whose render hangs keeps heartbeating; past the lease's maximum lifetime the
-    /// heartbeats are refused and the task goes back to the queue.
-    #[test]
-    fn leases_do_not_outlive_their_maximum_lifetime() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut config = FarmConfig::new(dir.path().into());
-        config.lease_timeout = Duration::from_millis(40);
-        config.max_lease_lifetime = Duration::from_millis(100);
-        let mut farm = Farm::open(config).unwrap();
-        let hash = "cd".repeat(32);
-        farm.store.put_scene(&hash, "glb", b"scene").unwrap();
-        let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
-        let id = farm.create_job(&hash, settings, 0).unwrap().id;
-        let w = farm
-            .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
-            .unwrap()
-            .id;
-        let grant = farm.lease(&w).unwrap().unwrap();
-        for _ in 0..4 {
-            std::thread::sleep(Duration::from_millis(20));
-            farm.heartbeat(&grant.lease, &w).unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(40));
-        let refused = farm.heartbeat(&grant.lease, &w).unwrap_err();
-        assert_eq!(refused.status, 409);
-        assert!(refused.message.contains("maximum lifetime"), "{}", refused.message);
-        std::thread::sleep(Duration::from_millis(60));
-        assert!(farm.tick(), "the lease expired");
-        assert_eq!(farm.status(&id).unwrap().tasks_in_flight, 0);
-        assert!(farm.lease(&w).unwrap().is_some(), "the task is leased again");
-    }
-}
+pub(crate) mod tests;

@@ -16,7 +16,10 @@ use anyhow::{Context, Result};
 use common::{film::TileAccum, settings::RenderSettings};
 use rusqlite::{params, Connection, OptionalExtension};
 
-use super::job::{Job, JobState};
+use super::{
+    clock::{unix_now, Moment},
+    job::{Job, JobState},
+};
 
 /// The database and the scene folder.
 pub struct Store {
@@ -110,11 +113,17 @@ fn put_pending(
 }
 
 /// Updates the job's row: state, error, elapsed time, adaptive scales.
-fn put_job_state(tx: &rusqlite::Transaction<'_>, job: &Job) -> Result<()> {
+fn put_job_state(tx: &rusqlite::Transaction<'_>, job: &Job, now: Moment) -> Result<()> {
     tx.prepare_cached(
         "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
     )?
-    .execute(params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)])?;
+    .execute(params![
+        job.id,
+        job.state.name(),
+        job.error,
+        job.elapsed(now),
+        scales_json(job)
+    ])?;
     Ok(())
 }
 
@@ -186,13 +195,13 @@ impl Store {
         }
         self.db.execute(
             "INSERT OR IGNORE INTO scenes (hash, format, bytes, created) VALUES (?1, ?2, ?3, ?4)",
-            params![hash, format, bytes.len() as i64, super::now_unix()],
+            params![hash, format, bytes.len() as i64, unix_now()],
         )?;
         Ok(())
     }
 
-    /// Inserts a new job.
-    pub fn insert_job(&self, job: &Job) -> Result<()> {
+    /// Inserts a new job, as it is at `now`.
+    pub fn insert_job(&self, job: &Job, now: Moment) -> Result<()> {
         self.db.execute(
             "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created, elapsed_s)
              VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
@@ -205,17 +214,17 @@ impl Store {
                 job.state.name(),
                 job.error,
                 job.created_unix,
-                job.elapsed(),
+                job.elapsed(now),
             ],
         )?;
         Ok(())
     }
 
-    /// Updates a job's state, error and elapsed time.
-    pub fn update_job(&self, job: &Job) -> Result<()> {
+    /// Updates a job's state, error and elapsed time, as they are at `now`.
+    pub fn update_job(&self, job: &Job, now: Moment) -> Result<()> {
         self.db.execute(
             "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
-            params![job.id, job.state.name(), job.error, job.elapsed(), scales_json(job)],
+            params![job.id, job.state.name(), job.error, job.elapsed(now), scales_json(job)],
         )?;
         Ok(())
     }
@@ -223,7 +232,14 @@ impl Store {
     /// Writes what accepting task `k` of a tile changed, and the job's row, in one transaction:
     /// the result itself when it is pending, else the tile's new prefix and sums (and the pending
     /// rows they absorbed).
-    pub fn commit_task(&mut self, job: &Job, frame: u32, tile: u32, k: u32) -> Result<()> {
+    pub fn commit_task(
+        &mut self,
+        job: &Job,
+        frame: u32,
+        tile: u32,
+        k: u32,
+        now: Moment,
+    ) -> Result<()> {
         let t = &job.frames[frame as usize].tiles[tile as usize];
         let tx = self.db.transaction()?;
         if let Some(acc) = t.pending.get(&k) {
@@ -235,7 +251,7 @@ impl Store {
             )?
             .execute(params![job.id, frame, tile, t.prefix])?;
         }
-        put_job_state(&tx, job)?;
+        put_job_state(&tx, job, now)?;
         tx.commit()?;
         Ok(())
     }
@@ -243,7 +259,7 @@ impl Store {
     /// Writes every tile of frame `frame` (its prefix sums and pending results) and the job's
     /// row in one transaction: what a scratch store, which skips `commit_task`, keeps of a frame
     /// before it leaves memory.
-    pub fn commit_frame(&mut self, job: &Job, frame: u32) -> Result<()> {
+    pub fn commit_frame(&mut self, job: &Job, frame: u32, now: Moment) -> Result<()> {
         let tx = self.db.transaction()?;
         for (i, t) in job.frames[frame as usize].tiles.iter().enumerate() {
             let tile = i as u32;
@@ -254,7 +270,7 @@ impl Store {
                 put_pending(&tx, job, frame, tile, k, acc)?;
             }
         }
-        put_job_state(&tx, job)?;
+        put_job_state(&tx, job, now)?;
         tx.commit()?;
         Ok(())
     }

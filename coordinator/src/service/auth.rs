@@ -10,7 +10,7 @@ use axum::{
 };
 
 use super::AppState;
-use crate::farm::FarmError;
+use crate::farm::{ErrorKind, FarmError};
 
 /// Which token a route needs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -53,7 +53,7 @@ pub(super) async fn check(State(state): State<AppState>, req: Request, next: Nex
     match refusal(&state, &req) {
         None => next.run(req).await,
         Some(message) => {
-            let mut resp = FarmError::new(401, message).into_response();
+            let mut resp = FarmError::new(ErrorKind::Unauthorized, message).into_response();
             resp.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
             resp
         }

@@ -11,7 +11,10 @@ use std::{
     time::{Duration, Instant},
 };
 
-use common::protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult};
+use common::{
+    error::ErrorKind,
+    protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult},
+};
 use tokio::sync::Notify;
 use worker::link::{CallError, Link};
 
@@ -97,9 +100,9 @@ impl LocalLink {
     }
 }
 
-/// The farm's refusal as the HTTP API would answer it.
+/// The farm's refusal, of the kind the HTTP API would answer with.
 fn refused(e: FarmError) -> CallError {
-    CallError::Status(e.status, e.message)
+    CallError::Refused(e.kind, e.message)
 }
 
 impl Link for LocalLink {
@@ -133,7 +136,8 @@ impl Link for LocalLink {
     fn scene(&self, hash: &str) -> Result<Vec<u8>, CallError> {
         let path = self.lock().scene_file(hash).map_err(refused)?;
         std::fs::read(&path).map_err(|e| {
-            CallError::Status(500, format!("reading scene {hash} ({}): {e}", path.display()))
+            let message = format!("reading scene {hash} ({}): {e}", path.display());
+            CallError::Refused(ErrorKind::Internal, message)
         })
     }
 
@@ -230,9 +234,9 @@ mod tests {
         assert_eq!(handins.wait_past(2, Duration::from_millis(50)), 3);
     }
 
-    fn status(e: Result<impl std::fmt::Debug, CallError>) -> u16 {
+    fn kind(e: Result<impl std::fmt::Debug, CallError>) -> ErrorKind {
         match e {
-            Err(CallError::Status(code, _)) => code,
+            Err(CallError::Refused(kind, _)) => kind,
             other => panic!("expected a refusal, got {other:?}"),
         }
     }
@@ -264,28 +268,34 @@ mod tests {
         };
         let link = service.local_link();
         assert_eq!(link.scene(&info.scene).unwrap(), bundle);
-        assert_eq!(status(link.scene(&"0".repeat(64))), 404);
+        assert_eq!(kind(link.scene(&"0".repeat(64))), ErrorKind::NotFound);
 
         let bad = JoinRequest { name: "w".into(), threads: 0, version: String::new() };
-        assert_eq!(status(link.join(&bad)), 422);
+        assert_eq!(kind(link.join(&bad)), ErrorKind::Invalid);
         let w = link.join(&JoinRequest { threads: 1, ..bad }).unwrap().id;
         let grant = link.lease(&w, 0.0).unwrap().expect("the job's one task");
         link.heartbeat(&w, &grant.lease).unwrap();
-        assert_eq!(status(link.heartbeat("nobody", &grant.lease)), 404);
+        assert_eq!(kind(link.heartbeat("nobody", &grant.lease)), ErrorKind::NotFound);
         let other =
             link.join(&JoinRequest { name: "other".into(), threads: 1, version: String::new() });
         let other = other.unwrap().id;
-        assert_eq!(status(link.heartbeat(&other, &grant.lease)), 403);
-        assert_eq!(status(link.submit(&other, &grant.lease, result_for(&grant, 0.5))), 403);
+        assert_eq!(kind(link.heartbeat(&other, &grant.lease)), ErrorKind::Forbidden);
+        assert_eq!(
+            kind(link.submit(&other, &grant.lease, result_for(&grant, 0.5))),
+            ErrorKind::Forbidden
+        );
 
         // A result for other samples than the lease's is refused and counted; the task stays
         // leased, and the true result is merged once.
         let mut forged = result_for(&grant, 0.5);
         forged.spec.samples.end += 1;
-        assert_eq!(status(link.submit(&w, &grant.lease, forged)), 422);
+        assert_eq!(kind(link.submit(&w, &grant.lease, forged)), ErrorKind::Invalid);
         link.submit(&w, &grant.lease, result_for(&grant, 0.5)).unwrap();
         let again = link.submit(&w, &grant.lease, result_for(&grant, 0.5));
-        assert!(matches!(again, Err(CallError::Status(404 | 409, _))), "{again:?}");
+        assert!(
+            matches!(again, Err(CallError::Refused(ErrorKind::NotFound | ErrorKind::Conflict, _))),
+            "{again:?}"
+        );
         {
             let farm = service.farm();
             let farm = farm.lock().unwrap();
@@ -302,6 +312,6 @@ mod tests {
         assert!(link.lease(&w, 30.0).unwrap().is_none());
         assert!(asked.elapsed() < Duration::from_secs(5), "a draining service made it wait");
         link.leave(&w).unwrap();
-        assert_eq!(status(link.leave(&w)), 404);
+        assert_eq!(kind(link.leave(&w)), ErrorKind::NotFound);
     }
 }

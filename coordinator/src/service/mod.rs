@@ -2,14 +2,31 @@
 //! worker protocol, both under `/api/v1` and described by `/api/v1/openapi.json`; `/healthz`,
 //! `/metrics` (Prometheus text) and a dashboard at `/`.
 //!
-//! Every error is a 4xx/5xx with a JSON body `{"error": "..."}` naming the problem. The farm
+//! Every error is a 4xx/5xx with a JSON body `{"error": "..."}` naming the problem: the farm's
+//! refusals ([`FarmError`]) get their status here, from their kind, and nowhere else. The farm
 //! state sits behind one mutex; slow work (validating an upload, decoding a result, encoding an
 //! image) runs outside it on blocking threads, and a merge holds it only for the in-memory
 //! addition and the database commit.
+//!
+//! # Routes, by the file that handles them
+//! - here: `GET /`, `GET /healthz`, `GET /api/v1/openapi.json`; `metrics.rs`: `GET /metrics`.
+//! - `scenes.rs`: `POST /api/v1/scenes`, `GET /api/v1/scenes/{hash}`.
+//! - `jobs.rs`: `POST|GET /api/v1/jobs`, `GET|DELETE /api/v1/jobs/{id}`,
+//!   `GET /api/v1/jobs/{id}/frames/{n}.exr|png`.
+//! - `workers.rs`: `GET|POST /api/v1/workers`, `DELETE /api/v1/workers/{id}`,
+//!   `POST /api/v1/workers/{id}/lease`.
+//! - `leases.rs`: `POST /api/v1/leases/{lease}/heartbeat|result|fail`.
+//!
+//! `auth.rs` checks tokens before any of them; `local_link.rs` is the worker protocol without
+//! HTTP, for the local workers of `coordinator render`.
 
 mod auth;
+mod jobs;
+mod leases;
 mod local_link;
 mod metrics;
+mod scenes;
+mod workers;
 
 pub use local_link::LocalLink;
 
@@ -25,25 +42,16 @@ use std::{
 use anyhow::{Context, Result};
 use axum::{
     body::Body,
-    extract::{Path, State},
     http::{header, HeaderMap, HeaderValue, StatusCode},
     response::{Html, IntoResponse, Response},
-    routing::{get, post},
+    routing::get,
     Json, Router,
 };
-use common::{
-    bundle::Format,
-    protocol::{decode_result, FailReport, JoinRequest, WORKER_HEADER},
-    settings::RenderSettings,
-};
-use serde::Deserialize;
+use common::settings::RenderSettings;
 use serde_json::json;
 use tokio::sync::Notify;
 
-use crate::{
-    farm::{validate_job_scene, validate_upload, Farm, FarmConfig, FarmError},
-    output::{exr_bytes, png_bytes, FrameInfo},
-};
+use crate::farm::{ErrorKind, Farm, FarmConfig, FarmError};
 
 /// The service's settings.
 #[derive(Clone, Debug)]
@@ -92,40 +100,15 @@ fn lock_farm(farm: &Mutex<Farm>) -> MutexGuard<'_, Farm> {
     farm.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// `POST /scenes` after the body is read: checks the upload and stores it. Slow (it loads the
-/// scene): call it off the async threads.
-fn store_upload(
-    farm: &Mutex<Farm>,
-    bytes: &[u8],
-    declared: Option<Format>,
-) -> ApiResult<crate::farm::SceneInfo> {
-    let mut info = validate_upload(bytes, declared)?;
-    lock_farm(farm).put_scene(bytes, &mut info)?;
-    Ok(info)
-}
-
-/// `POST /jobs` after the body is parsed: checks the settings against the farm and the stored
-/// scene, and creates the job. Slow (it may load the scene): call it off the async threads.
-fn create_checked_job(
-    farm: &Mutex<Farm>,
-    scene: &str,
-    settings: RenderSettings,
-    priority: i32,
-) -> ApiResult<crate::farm::job::JobStatus> {
-    lock_farm(farm).check_settings(&settings)?;
-    let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.status {
-        404 => FarmError::new(404, format!("{}: upload it to /api/v1/scenes first", e.message)),
-        _ => e,
-    })?;
-    let bytes = std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene: {e}")))?;
-    validate_job_scene(&bytes, &settings)?;
-    lock_farm(farm).create_job(scene, settings, priority)
+/// The HTTP status of each kind of refusal (the table is `common::error`'s, which the worker's
+/// HTTP link reads back).
+fn status_of(kind: ErrorKind) -> StatusCode {
+    StatusCode::from_u16(kind.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR)
 }
 
 impl IntoResponse for FarmError {
     fn into_response(self) -> Response {
-        let status = StatusCode::from_u16(self.status).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
-        (status, Json(json!({ "error": self.message }))).into_response()
+        (status_of(self.kind), Json(json!({ "error": self.message }))).into_response()
     }
 }
 
@@ -137,7 +120,7 @@ async fn blocking<T: Send + 'static>(
 ) -> ApiResult<T> {
     tokio::task::spawn_blocking(f)
         .await
-        .map_err(|e| FarmError::new(500, format!("internal error: {e}")))?
+        .map_err(|e| FarmError::internal(format!("internal error: {e}")))?
 }
 
 /// Reads a whole body, with clear errors for oversize and truncated ones.
@@ -153,7 +136,7 @@ async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
         let frame = frame.map_err(|e| {
             let source =
                 std::error::Error::source(&e).map(|s| format!(": {s}")).unwrap_or_default();
-            FarmError::new(400, format!("the body was cut short or unreadable: {e}{source}"))
+            FarmError::malformed(format!("the body was cut short or unreadable: {e}{source}"))
         })?;
         if let Ok(data) = frame.into_data() {
             total = total.saturating_add(data.len());
@@ -166,7 +149,7 @@ async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
     }
     if total > limit {
         return Err(FarmError::new(
-            413,
+            ErrorKind::TooLarge,
             format!("the body is larger than the limit of {limit} bytes"),
         ));
     }
@@ -192,7 +175,7 @@ async fn json_body<T: serde::de::DeserializeOwned>(
         Some("application/json") => {}
         other => {
             return Err(FarmError::new(
-                415,
+                ErrorKind::UnsupportedMediaType,
                 format!("expected Content-Type application/json, got {}", other.unwrap_or("none")),
             ))
         }
@@ -201,34 +184,31 @@ async fn json_body<T: serde::de::DeserializeOwned>(
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
         let at = if path == "." { String::new() } else { format!("{path}: ") };
-        FarmError::new(422, format!("request body: {at}{}", e.into_inner()))
+        FarmError::invalid(format!("request body: {at}{}", e.into_inner()))
     })
 }
 
-/// The router of the whole service.
+/// The router of the whole service: each resource's routes, merged.
 fn router(state: AppState) -> Router {
     Router::new()
         .route("/", get(dashboard))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics::metrics))
         .route("/api/v1/openapi.json", get(openapi))
-        .route("/api/v1/scenes", post(upload_scene))
-        .route("/api/v1/scenes/{hash}", get(download_scene))
-        .route("/api/v1/jobs", post(create_job).get(list_jobs))
-        .route("/api/v1/jobs/{id}", get(job_status).delete(cancel_job))
-        .route("/api/v1/jobs/{id}/frames/{file}", get(frame_image))
-        .route("/api/v1/workers", get(list_workers).post(join))
-        .route("/api/v1/workers/{id}", axum::routing::delete(leave))
-        .route("/api/v1/workers/{id}/lease", post(lease))
-        .route("/api/v1/leases/{lease}/heartbeat", post(heartbeat))
-        .route("/api/v1/leases/{lease}/result", post(submit_result))
-        .route("/api/v1/leases/{lease}/fail", post(fail_task))
+        .merge(scenes::routes())
+        .merge(jobs::routes())
+        .merge(workers::routes())
+        .merge(leases::routes())
         .fallback(|uri: axum::http::Uri| async move {
-            FarmError::new(404, format!("no such endpoint: {uri} (see /api/v1/openapi.json)"))
+            FarmError::not_found(format!("no such endpoint: {uri} (see /api/v1/openapi.json)"))
         })
+        // After the merges: it applies to the routes added so far.
         .method_not_allowed_fallback(
             |method: axum::http::Method, uri: axum::http::Uri| async move {
-                FarmError::new(405, format!("{method} is not allowed on {uri}"))
+                FarmError::new(
+                    ErrorKind::MethodNotAllowed,
+                    format!("{method} is not allowed on {uri}"),
+                )
             },
         )
         .layer(axum::middleware::from_fn_with_state(state.clone(), auth::check))
@@ -278,8 +258,8 @@ impl Running {
         settings: RenderSettings,
         priority: i32,
     ) -> Result<(String, String), FarmError> {
-        let info = store_upload(&self.farm, bundle, None)?;
-        let status = create_checked_job(&self.farm, &info.scene, settings, priority)?;
+        let info = scenes::store_upload(&self.farm, bundle, None)?;
+        let status = jobs::create_checked_job(&self.farm, &info.scene, settings, priority)?;
         self.work.notify_waiters();
         Ok((info.scene, status.id))
     }
@@ -420,261 +400,4 @@ async fn openapi() -> Response {
         include_str!("openapi.json"),
     )
         .into_response()
-}
-
-async fn upload_scene(
-    State(state): State<AppState>,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    let bytes = read_body(body, state.config.max_upload_bytes).await?;
-    let declared = match content_type(&headers).as_deref() {
-        Some("model/gltf-binary") => Some(Format::Glb),
-        Some("model/gltf+json") => Some(Format::Gltf),
-        Some("application/zip") | Some("application/x-zip-compressed") => Some(Format::Zip),
-        Some("application/octet-stream") | None => None,
-        Some(other) => {
-            return Err(FarmError::new(
-                415,
-                format!("Content-Type {other} is not a scene: use model/gltf-binary, model/gltf+json, application/zip or application/octet-stream"),
-            ))
-        }
-    };
-    let farm = state.farm.clone();
-    let info = blocking(move || store_upload(&farm, &bytes, declared)).await?;
-    let status = if info.created { StatusCode::CREATED } else { StatusCode::OK };
-    Ok((status, Json(info)).into_response())
-}
-
-async fn download_scene(
-    State(state): State<AppState>,
-    Path(hash): Path<String>,
-) -> ApiResult<Response> {
-    let bytes = blocking(move || {
-        let path = state.lock().scene_file(&hash)?;
-        std::fs::read(path).map_err(|e| FarmError::new(500, format!("scene {hash}: {e}")))
-    })
-    .await?;
-    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))], bytes)
-        .into_response())
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CreateJob {
-    scene: String,
-    #[serde(default)]
-    settings: serde_json::Value,
-    #[serde(default)]
-    priority: i32,
-}
-
-async fn create_job(
-    State(state): State<AppState>,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    let req: CreateJob = json_body(&headers, body).await?;
-    let settings_value = if req.settings.is_null() { json!({}) } else { req.settings };
-    let settings: RenderSettings =
-        serde_path_to_error::deserialize(settings_value).map_err(|e| {
-            let path = e.path().to_string();
-            let at = if path == "." { String::new() } else { format!(".{path}") };
-            FarmError::new(422, format!("settings{at}: {}", e.into_inner()))
-        })?;
-    let farm = state.farm.clone();
-    let status =
-        blocking(move || create_checked_job(&farm, &req.scene, settings, req.priority)).await?;
-    state.work.notify_waiters();
-    Ok((StatusCode::CREATED, Json(status)).into_response())
-}
-
-async fn list_jobs(State(state): State<AppState>) -> Json<serde_json::Value> {
-    Json(json!({ "jobs": state.lock().list() }))
-}
-
-async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
-    Ok(Json(state.lock().status(&id)?).into_response())
-}
-
-async fn cancel_job(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
-    let status = state.lock().cancel(&id)?;
-    Ok(Json(status).into_response())
-}
-
-async fn frame_image(
-    State(state): State<AppState>,
-    Path((id, file)): Path<(String, String)>,
-) -> ApiResult<Response> {
-    let (number, ext) = file
-        .rsplit_once('.')
-        .and_then(|(n, e)| Some((n.parse::<i64>().ok()?, e.to_ascii_lowercase())))
-        .ok_or_else(|| {
-            FarmError::new(404, format!("'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"))
-        })?;
-    if ext != "exr" && ext != "png" {
-        return Err(FarmError::new(404, format!("'{file}': frames are served as .exr or .png")));
-    }
-    let st = state.clone();
-    blocking(move || {
-        let (image, status) = st.lock().image(&id, number)?;
-        if ext == "exr" {
-            let info = FrameInfo {
-                settings_json: serde_json::to_string(&status.settings).unwrap_or_default(),
-                scene_hash: status.scene.clone(),
-                render_seconds: status.elapsed_s,
-                frame: number,
-            };
-            let bytes = exr_bytes(image, &info)?;
-            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"))], bytes)
-                .into_response())
-        } else {
-            let bytes = png_bytes(&image, 0.0)?;
-            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], bytes)
-                .into_response())
-        }
-    })
-    .await
-}
-
-async fn list_workers(State(state): State<AppState>) -> Json<serde_json::Value> {
-    Json(json!({ "workers": state.lock().workers() }))
-}
-
-async fn join(
-    State(state): State<AppState>,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    let req: JoinRequest = json_body(&headers, body).await?;
-    let resp = state.lock().join(req)?;
-    Ok((StatusCode::CREATED, Json(resp)).into_response())
-}
-
-async fn leave(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
-    state.lock().leave(&id)?;
-    state.work.notify_waiters();
-    Ok(Json(json!({ "left": id })).into_response())
-}
-
-async fn lease(
-    State(state): State<AppState>,
-    Path(worker): Path<String>,
-    uri: axum::http::Uri,
-    body: Body,
-) -> ApiResult<Response> {
-    // Any body is read (and ignored): one left unread makes the server drop the connection,
-    // which a client that keeps connections alive sees as a failure of its next request.
-    read_body(body, 1 << 16).await?;
-    let mut wait_s = 0.0;
-    for pair in uri.query().unwrap_or("").split('&').filter(|p| !p.is_empty()) {
-        match pair.split_once('=') {
-            Some(("wait_s", v)) => {
-                wait_s = v.parse::<f64>().ok().filter(|w| w.is_finite()).ok_or_else(|| {
-                    FarmError::new(400, format!("wait_s: '{v}' is not a number of seconds"))
-                })?;
-            }
-            _ => {
-                return Err(FarmError::new(
-                    400,
-                    format!("unknown query parameter '{pair}' (only wait_s)"),
-                ))
-            }
-        }
-    }
-    let max = state.config.max_lease_wait.as_secs_f64();
-    let wait = Duration::from_secs_f64(wait_s.clamp(0.0, max));
-    let deadline = tokio::time::Instant::now() + wait;
-    loop {
-        let notified = state.work.notified();
-        tokio::pin!(notified);
-        notified.as_mut().enable();
-        if state.draining.load(Ordering::Relaxed) {
-            return Ok(StatusCode::NO_CONTENT.into_response());
-        }
-        if let Some(grant) = state.lock().lease(&worker)? {
-            return Ok(Json(grant).into_response());
-        }
-        if tokio::time::timeout_at(deadline, notified).await.is_err() {
-            state.lock().seen(&worker);
-            return Ok(StatusCode::NO_CONTENT.into_response());
-        }
-    }
-}
-
-fn worker_id(headers: &HeaderMap) -> ApiResult<String> {
-    headers
-        .get(WORKER_HEADER)
-        .and_then(|v| v.to_str().ok())
-        .map(str::to_string)
-        .ok_or_else(|| FarmError::new(400, format!("missing the {WORKER_HEADER} header")))
-}
-
-async fn heartbeat(
-    State(state): State<AppState>,
-    Path(lease): Path<String>,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    read_body(body, 1 << 16).await?;
-    let worker = worker_id(&headers)?;
-    let left = state.lock().heartbeat(&lease, &worker)?;
-    Ok(Json(json!({ "lease_timeout_s": left })).into_response())
-}
-
-async fn submit_result(
-    State(state): State<AppState>,
-    Path(lease): Path<String>,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    let answer = merge_result(state.clone(), lease, headers, body).await;
-    if answer.is_err() {
-        state.lock().counters.results_refused += 1;
-    }
-    answer
-}
-
-async fn merge_result(
-    state: AppState,
-    lease: String,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    let bytes = read_body(body, state.config.max_upload_bytes).await?;
-    let worker = worker_id(&headers)?;
-    match content_type(&headers).as_deref() {
-        Some("application/octet-stream") => {}
-        other => {
-            return Err(FarmError::new(
-                415,
-                format!(
-                    "a result is a bincode body with Content-Type application/octet-stream, got {}",
-                    other.unwrap_or("none")
-                ),
-            ))
-        }
-    }
-    let st = state.clone();
-    blocking(move || {
-        let result = decode_result(&bytes)
-            .map_err(|e| FarmError::new(400, format!("result refused: {e}")))?;
-        st.lock().submit(&lease, &worker, result, bytes.len() as u64)
-    })
-    .await?;
-    state.work.notify_waiters();
-    Ok(Json(json!({ "merged": true })).into_response())
-}
-
-async fn fail_task(
-    State(state): State<AppState>,
-    Path(lease): Path<String>,
-    headers: HeaderMap,
-    body: Body,
-) -> ApiResult<Response> {
-    let report: FailReport = json_body(&headers, body).await?;
-    let worker = worker_id(&headers)?;
-    state.lock().fail(&lease, &worker, &report.error)?;
-    state.work.notify_waiters();
-    Ok(Json(json!({ "released": true })).into_response())
 }

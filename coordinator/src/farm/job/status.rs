@@ -1,0 +1,121 @@
+//! What the API shows of a job: progress, samples saved by adaptive sampling, estimated error,
+//! running time and time left, per frame.
+
+use common::settings::RenderSettings;
+use serde::Serialize;
+
+use super::{Job, JobState, Tile};
+use crate::farm::clock::Moment;
+
+/// A job's public status.
+#[derive(Clone, Debug, Serialize)]
+pub struct JobStatus {
+    /// The job id.
+    pub id: String,
+    /// The scene hash.
+    pub scene: String,
+    /// Scheduling priority.
+    pub priority: i32,
+    /// `queued`, `running`, `done`, `failed` or `cancelled`.
+    pub state: JobState,
+    /// Fraction of the planned samples merged (tiles stopped by adaptivity count as complete).
+    pub progress: f64,
+    /// Pixel samples merged.
+    pub samples_done: u64,
+    /// Pixel samples a uniform render would take.
+    pub samples_planned: u64,
+    /// Pixel samples adaptive sampling did not need to take (so far: tiles already stopped).
+    pub samples_saved: u64,
+    /// Estimated relative RMSE (sqrt of the estimated relative MSE) of the merged image.
+    pub est_rel_error: Option<f64>,
+    /// Seconds spent running.
+    pub elapsed_s: f64,
+    /// Estimated seconds left.
+    pub eta_s: Option<f64>,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// The frame numbers.
+    pub frames: Vec<i64>,
+    /// Tasks leased now.
+    pub tasks_in_flight: u32,
+    /// Progress of each frame, in frame order.
+    pub frame_progress: Vec<FrameProgress>,
+    /// The render settings.
+    pub settings: RenderSettings,
+    /// Creation time, seconds since the Unix epoch.
+    pub created_unix: f64,
+}
+
+/// One frame's progress in a job's status.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameProgress {
+    /// The frame number.
+    pub frame: i64,
+    /// Pixel samples accepted.
+    pub samples_done: u64,
+    /// Every tile of the frame is complete.
+    pub done: bool,
+}
+
+impl Job {
+    /// The job's status at `now`.
+    pub fn status(&self, now: Moment) -> JobStatus {
+        let pixels = self.settings.width as u64 * self.settings.height as u64;
+        let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
+        let mut saved = 0u64;
+        let mut rel_sum = 0.0;
+        let mut rel_known = true;
+        for frame in &self.frames {
+            for tile in &frame.tiles {
+                let area = tile.sums.rect.area() as u64;
+                if tile.converged {
+                    let taken: u64 = (tile.prefix * self.settings.samples_per_task)
+                        .min(self.settings.spp) as u64;
+                    saved += area * (self.settings.spp as u64 - taken);
+                }
+                rel_known &= tile.rel_mse.is_finite();
+                rel_sum += tile.rel_mse * area as f64;
+            }
+        }
+        let effective = planned - saved;
+        let progress =
+            if effective == 0 { 1.0 } else { self.samples_done as f64 / effective as f64 };
+        let elapsed = self.elapsed(now);
+        let eta = match self.state {
+            JobState::Running if self.samples_done > 0 => Some(
+                elapsed * (effective - self.samples_done.min(effective)) as f64
+                    / self.samples_done as f64,
+            ),
+            s if s.is_final() => Some(0.0),
+            _ => None,
+        };
+        let total_pixels = (pixels * self.frames.len() as u64).max(1) as f64;
+        JobStatus {
+            id: self.id.clone(),
+            scene: self.scene.clone(),
+            priority: self.priority,
+            state: self.state,
+            progress: progress.clamp(0.0, 1.0),
+            samples_done: self.samples_done,
+            samples_planned: planned,
+            samples_saved: saved,
+            est_rel_error: rel_known.then(|| (rel_sum / total_pixels).sqrt()),
+            elapsed_s: elapsed,
+            eta_s: eta,
+            error: self.error.clone(),
+            frames: self.frames.iter().map(|f| f.number).collect(),
+            tasks_in_flight: self.in_flight,
+            frame_progress: self
+                .frames
+                .iter()
+                .map(|f| FrameProgress {
+                    frame: f.number,
+                    samples_done: f.samples_done,
+                    done: f.tiles.iter().all(Tile::is_complete),
+                })
+                .collect(),
+            settings: self.settings.clone(),
+            created_unix: self.created_unix,
+        }
+    }
+}

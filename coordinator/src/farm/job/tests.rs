@@ -1,0 +1,122 @@
+//! A job's scheduling, merging and ending, without a farm around it.
+
+use super::*;
+
+/// Every test runs at one moment except where time matters.
+const NOW: Moment = Moment::ZERO;
+
+fn job(spp: u32, spt: u32, target: Option<f64>) -> Job {
+    let settings = RenderSettings {
+        width: 64,
+        height: 32,
+        tile_size: 32,
+        spp,
+        samples_per_task: spt,
+        target_rel_error: target,
+        ..Default::default()
+    };
+    Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap()
+}
+
+fn fake_result(job: &Job, key: TaskKey, value: f32) -> TileAccum {
+    let spec = job.spec(key);
+    let mut acc = TileAccum::new(spec.rect);
+    for y in 0..spec.rect.height {
+        for x in 0..spec.rect.width {
+            for s in spec.samples.start..spec.samples.end {
+                acc.add_sample(x, y, s, [value; 3]);
+            }
+        }
+    }
+    acc
+}
+
+#[test]
+fn tasks_are_issued_progressively_and_complete_the_job() {
+    let mut j = job(100, 32, None);
+    let mut order = Vec::new();
+    while let Some(key) = j.next_task() {
+        j.lease(key, NOW);
+        order.push(key);
+    }
+    assert_eq!(order.len(), 2 * 4);
+    assert!(order.windows(2).all(|w| w[0].k <= w[1].k), "progressive order: {order:?}");
+    for key in order {
+        let r = fake_result(&j, key, 0.5);
+        let n = r.pixels.iter().map(|p| p.n as u64).sum();
+        j.merge(key, r, n, NOW);
+    }
+    assert_eq!(j.state, JobState::Done);
+    assert_eq!(j.samples_done, 64 * 32 * 100);
+    assert!(j.film(0).pixels.iter().all(|p| p.n == 100));
+}
+
+#[test]
+fn released_tasks_are_leased_again() {
+    let mut j = job(64, 32, None);
+    let a = j.next_task().unwrap();
+    j.lease(a, NOW);
+    j.give_back(a, NOW);
+    assert_eq!(j.next_task(), Some(a));
+    assert_eq!(j.in_flight, 0);
+}
+
+#[test]
+fn adaptive_stops_converged_tiles_from_merged_data_only() {
+    // A constant image has zero estimated error: every tile stops at the minimum.
+    let mut j = job(256, 8, Some(0.01));
+    let mut leased = Vec::new();
+    while let Some(key) = j.next_task() {
+        j.lease(key, NOW);
+        leased.push(key);
+    }
+    // Without merged data only the first MIN_ADAPTIVE_SAMPLES are issued.
+    assert_eq!(leased.len(), 2 * 2);
+    for key in leased {
+        let r = fake_result(&j, key, 0.25);
+        let n = r.pixels.iter().map(|p| p.n as u64).sum();
+        j.merge(key, r, n, NOW);
+    }
+    assert_eq!(j.state, JobState::Done);
+    let status = j.status(NOW);
+    assert_eq!(status.samples_saved, 64 * 32 * (256 - 16));
+    assert_eq!(status.progress, 1.0);
+}
+
+#[test]
+fn results_in_any_order_give_the_same_bits() {
+    let run = |order: &[usize]| {
+        let mut j = job(96, 32, None);
+        let mut keys = Vec::new();
+        while let Some(key) = j.next_task() {
+            j.lease(key, NOW);
+            keys.push(key);
+        }
+        for &i in order {
+            let key = keys[i];
+            // Values that differ per task so that the order of addition shows in the bits.
+            let r = fake_result(&j, key, 0.1 + 0.37 * key.k as f32 + 0.011 * key.tile as f32);
+            let n = r.pixels.iter().map(|p| p.n as u64).sum();
+            j.merge(key, r, n, NOW);
+        }
+        assert_eq!(j.state, JobState::Done);
+        assert!(j.frames[0].tiles.iter().all(|t| t.pending.is_empty()));
+        j.film(0)
+    };
+    let forward = run(&[0, 1, 2, 3, 4, 5]);
+    assert_eq!(forward, run(&[5, 4, 3, 2, 1, 0]));
+    assert_eq!(forward, run(&[3, 0, 5, 1, 4, 2]));
+}
+
+#[test]
+fn past_the_time_limit_the_last_lease_to_lapse_ends_the_job() {
+    let mut j = job(64, 32, None);
+    j.settings.time_limit_s = Some(1e-9);
+    let key = j.next_task().unwrap();
+    j.lease(key, NOW);
+    assert!(j.check_time_limit(NOW + std::time::Duration::from_micros(1)));
+    assert_eq!(j.state, JobState::Running, "a lease is still out");
+    assert_eq!(j.next_task(), None, "nothing more is issued");
+    j.give_back(key, NOW);
+    assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
+}

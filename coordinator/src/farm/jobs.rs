@@ -1,0 +1,166 @@
+//! The farm's user side: scenes in, jobs created, listed, cancelled, and their images out. The
+//! worker side (leases and results) is in `mod.rs`.
+
+use std::{collections::BTreeMap, path::PathBuf};
+
+use common::{film::TileAccum, settings::RenderSettings};
+
+use super::{
+    error::{FarmError, FarmResult},
+    job::{Job, JobState, JobStatus},
+    lease::Event,
+    random_id,
+    validate::{check_settings, is_hash, SceneInfo},
+    Farm,
+};
+use crate::output::FrameImage;
+
+impl Farm {
+    /// Checks and stores an upload (call [`super::validate_upload`] first, outside any lock).
+    pub fn put_scene(&mut self, bytes: &[u8], info: &mut SceneInfo) -> FarmResult<()> {
+        info.created = self.store.scene_format(&info.scene)?.is_none();
+        self.store.put_scene(&info.scene, &info.format, bytes)?;
+        Ok(())
+    }
+
+    /// Where a stored scene's bytes are (read them outside the farm lock: the file never
+    /// changes, it is named by its content).
+    pub fn scene_file(&self, hash: &str) -> FarmResult<PathBuf> {
+        if !is_hash(hash) || self.store.scene_format(hash)?.is_none() {
+            return Err(FarmError::not_found(format!("no scene {hash}")));
+        }
+        Ok(self.store.scene_path(hash))
+    }
+
+    /// Checks settings against the farm's limits (the scene-dependent checks are
+    /// [`super::validate_job_scene`]).
+    pub fn check_settings(&self, settings: &RenderSettings) -> FarmResult<()> {
+        check_settings(settings, self.config.max_spp, self.config.max_pixels)
+    }
+
+    /// Creates a job on a stored scene.
+    pub fn create_job(
+        &mut self,
+        scene: &str,
+        settings: RenderSettings,
+        priority: i32,
+    ) -> FarmResult<JobStatus> {
+        self.check_settings(&settings)?;
+        if !is_hash(scene) || self.store.scene_format(scene)?.is_none() {
+            return Err(FarmError::not_found(format!(
+                "no scene {scene}: upload it to /api/v1/scenes first"
+            )));
+        }
+        let id = random_id();
+        let now = self.clock.now();
+        let created = self.clock.unix();
+        let job =
+            Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, created)
+                .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+        self.store.insert_job(&job, now)?;
+        self.next_seq += 1;
+        let status = job.status(now);
+        tracing::info!(job = %id, scene, priority, "job created");
+        self.jobs.insert(id, job);
+        Ok(status)
+    }
+
+    fn job(&self, id: &str) -> FarmResult<&Job> {
+        self.jobs.get(id).ok_or_else(|| FarmError::not_found(format!("no job {id}")))
+    }
+
+    /// Whether job `id` has ended (done, failed or cancelled) or is unknown.
+    pub fn job_ended(&self, id: &str) -> bool {
+        self.jobs.get(id).is_none_or(|j| j.state.is_final())
+    }
+
+    /// A job's status.
+    pub fn status(&self, id: &str) -> FarmResult<JobStatus> {
+        Ok(self.job(id)?.status(self.clock.now()))
+    }
+
+    /// Every job's status, oldest first.
+    pub fn list(&self) -> Vec<JobStatus> {
+        let now = self.clock.now();
+        let mut jobs: Vec<&Job> = self.jobs.values().collect();
+        jobs.sort_by_key(|j| j.seq);
+        jobs.into_iter().map(|j| j.status(now)).collect()
+    }
+
+    /// Counts of jobs by state.
+    pub fn job_counts(&self) -> BTreeMap<&'static str, u64> {
+        let mut out = BTreeMap::new();
+        for s in ["queued", "running", "done", "failed", "cancelled"] {
+            out.insert(s, 0);
+        }
+        for j in self.jobs.values() {
+            *out.entry(j.state.name()).or_default() += 1;
+        }
+        out
+    }
+
+    /// Cancels a job: its leases are dropped and results for them refused.
+    pub fn cancel(&mut self, id: &str) -> FarmResult<JobStatus> {
+        let now = self.clock.now();
+        let job =
+            self.jobs.get_mut(id).ok_or_else(|| FarmError::not_found(format!("no job {id}")))?;
+        if job.state.is_final() {
+            return Err(FarmError::conflict(format!("job {id} is already {}", job.state.name())));
+        }
+        job.set_final(JobState::Cancelled, None, now);
+        job.in_flight = 0;
+        self.store.update_job(job, now)?;
+        let status = job.status(now);
+        self.leases.step(Event::Cancel { job: id }, now)?;
+        self.evict_if_final(id);
+        tracing::info!(job = %id, "job cancelled");
+        Ok(status)
+    }
+
+    /// The merged film of frame `number` of job `id` (also while it runs), with its job's
+    /// settings and scene hash.
+    /// (Tests compare whole statistics with it; files are written from `image`.)
+    #[cfg(test)]
+    pub fn film(&self, id: &str, number: i64) -> FarmResult<(common::film::Film, JobStatus)> {
+        let job = self.job(id)?;
+        let f = Self::frame_index(job, number)?;
+        let status = job.status(self.clock.now());
+        if !job.frames[f].evicted {
+            return Ok((job.film(f), status));
+        }
+        let mut film = common::film::Film::new(job.settings.width, job.settings.height);
+        for tile in self.stored_tiles(job, f)? {
+            film.merge_tile(&tile);
+        }
+        Ok((film, status))
+    }
+
+    /// The image of frame `number` of job `id` (also while it runs), with the job's status.
+    pub fn image(&self, id: &str, number: i64) -> FarmResult<(FrameImage, JobStatus)> {
+        let job = self.job(id)?;
+        let f = Self::frame_index(job, number)?;
+        let status = job.status(self.clock.now());
+        if !job.frames[f].evicted {
+            return Ok((job.image(f), status));
+        }
+        let mut image = FrameImage::new(job.settings.width, job.settings.height);
+        for tile in self.stored_tiles(job, f)? {
+            image.put_tile(&tile);
+        }
+        Ok((image, status))
+    }
+
+    /// The summed tiles of frame index `f` of an evicted job, from the database.
+    fn stored_tiles(&self, job: &Job, f: usize) -> FarmResult<Vec<TileAccum>> {
+        Ok(self.store.frame_sums(&job.id, f as u32)?)
+    }
+
+    fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
+        job.frames.iter().position(|f| f.number == number).ok_or_else(|| {
+            FarmError::not_found(format!(
+                "job {} has frames {}..={}, not {number}",
+                job.id, job.settings.frames.start, job.settings.frames.end
+            ))
+        })
+    }
+}

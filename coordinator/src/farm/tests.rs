@@ -1,0 +1,188 @@
+//! The farm as a whole, on a temporary store: restarts, scratch stores, and time passing on a
+//! manual clock.
+
+use super::*;
+use clock::ManualClock;
+use common::{film::TileAccum, protocol::TaskResult, settings::RenderSettings};
+
+/// A result with the counts `grant` asks for (values from `v`), as a worker would send.
+pub(crate) fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
+    let spec = grant.task;
+    let mut tile = TileAccum::new(spec.rect);
+    for y in 0..spec.rect.height {
+        for x in 0..spec.rect.width {
+            for s in spec.samples.start..spec.samples.end {
+                tile.add_sample(x, y, s, [v + s as f32 * 0.01; 3]);
+            }
+        }
+    }
+    TaskResult { spec, tile, rays: 0 }
+}
+
+/// A result accepted out of order survives a restart as pending: counted once, never
+/// leased again, and added in task order once its predecessor arrives.
+#[test]
+fn pending_results_survive_a_restart_and_merge_in_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp: 8,
+        samples_per_task: 4,
+        ..Default::default()
+    };
+    let hash = "ab".repeat(32);
+    let (id, first, second) = {
+        let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+        farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+        let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+        let w = farm
+            .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
+            .unwrap()
+            .id;
+        let first = farm.lease(&w).unwrap().unwrap();
+        let second = farm.lease(&w).unwrap().unwrap();
+        assert_eq!((first.task.samples.start, second.task.samples.start), (0, 4));
+        farm.submit(&second.lease, &w, result_for(&second, 0.5), 0).unwrap();
+        let status = farm.status(&id).unwrap();
+        assert_eq!(status.samples_done, 64 * 4);
+        (id, first, second)
+    };
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    assert_eq!(farm.status(&id).unwrap().samples_done, 64 * 4, "the pending result was lost");
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let again = farm.lease(&w).unwrap().unwrap();
+    assert_eq!(again.task, first.task, "only the unanswered task is leased again");
+    assert!(farm.lease(&w).unwrap().is_none());
+    farm.submit(&again.lease, &w, result_for(&again, 0.5), 0).unwrap();
+    let status = farm.status(&id).unwrap();
+    assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 8));
+    // The same bits as merging in order without any restart.
+    let mut expected = TileAccum::new(first.task.rect);
+    expected.merge(&result_for(&first, 0.5).tile);
+    expected.merge(&result_for(&second, 0.5).tile);
+    let (film, _) = farm.film(&id, 0).unwrap();
+    assert_eq!(film.pixels, expected.pixels);
+}
+
+/// A scratch store writes nothing per result, yet the frames it evicts (each frame of a
+/// multi-frame job as it finishes) read back with the same bits as a durable store's.
+#[test]
+fn a_scratch_store_keeps_evicted_frames_bit_for_bit() {
+    let settings = RenderSettings {
+        width: 16,
+        height: 8,
+        tile_size: 8,
+        spp: 8,
+        samples_per_task: 4,
+        frames: common::settings::Frames { start: 0, end: 1, fps: 24.0 },
+        ..Default::default()
+    };
+    let hash = "ef".repeat(32);
+    let films = [true, false].map(|durable| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = FarmConfig::new(dir.path().into());
+        config.durable = durable;
+        let mut farm = Farm::open(config).unwrap();
+        farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+        let id = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+        let w = farm
+            .join(JoinRequest { name: "w".into(), threads: 1, version: String::new() })
+            .unwrap()
+            .id;
+        let mut grants = Vec::new();
+        while let Some(g) = farm.lease(&w).unwrap() {
+            grants.push(g);
+        }
+        assert_eq!(grants.len(), 8, "2 frames x 2 tiles x 2 sample ranges");
+        // Later sample ranges first, so that results wait as pending before they merge.
+        for (i, g) in grants.iter().enumerate().rev() {
+            farm.submit(&g.lease, &w, result_for(g, i as f32 * 0.1), 0).unwrap();
+        }
+        let job = &farm.jobs[&id];
+        assert_eq!(job.state, JobState::Done);
+        // Each frame of a multi-frame job leaves memory as it finishes, in both modes.
+        assert!(job.frames.iter().all(|f| f.evicted), "durable {durable}");
+        [0, 1].map(|f| farm.film(&id, f).unwrap().0)
+    });
+    assert_eq!(films[0], films[1]);
+    assert!(films[1].iter().all(|f| f.pixels.iter().all(|p| p.n == 8)));
+}
+
+/// A farm on a manual clock, with a stored scene and one joined worker.
+fn farm_on(clock: &ManualClock, config: FarmConfig) -> (Farm, String, String) {
+    let mut farm = Farm::open_with_clock(config, Arc::new(clock.clone())).unwrap();
+    let hash = "cd".repeat(32);
+    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    (farm, hash, w)
+}
+
+/// A worker whose render hangs keeps heartbeating; at the lease's maximum lifetime the
+/// heartbeats are refused, and at its last deadline the task goes back to the queue.
+#[test]
+fn a_hung_worker_loses_its_lease_at_the_maximum_lifetime() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = FarmConfig::new(dir.path().into());
+    config.lease_timeout = Duration::from_millis(40);
+    config.max_lease_lifetime = Duration::from_millis(100);
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, config);
+    let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    let grant = farm.lease(&w).unwrap().unwrap();
+    for _ in 0..4 {
+        clock.advance(Duration::from_millis(20));
+        farm.heartbeat(&grant.lease, &w).unwrap();
+    }
+    // At 100 ms, renewed last at 80 ms until 120 ms.
+    clock.advance(Duration::from_millis(20));
+    let refused = farm.heartbeat(&grant.lease, &w).unwrap_err();
+    assert_eq!(refused.kind, ErrorKind::Conflict);
+    assert!(refused.message.contains("maximum lifetime"), "{}", refused.message);
+    clock.advance(Duration::from_millis(19));
+    assert!(!farm.tick(), "the lease expired before its deadline");
+    clock.advance(Duration::from_millis(1));
+    assert!(farm.tick(), "the lease did not expire at its deadline");
+    assert_eq!(farm.status(&id).unwrap().tasks_in_flight, 0);
+    assert_eq!(farm.counters.tasks_expired, 1);
+    assert!(farm.lease(&w).unwrap().is_some(), "the task is leased again");
+}
+
+/// Past a job's time limit no task is leased; the job ends when its last lease lapses, and
+/// its running time is the clock's.
+#[test]
+fn a_time_limit_stops_leasing_and_the_last_lease_out_ends_the_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp: 12,
+        samples_per_task: 4,
+        time_limit_s: Some(1.0),
+        ..Default::default()
+    };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    let first = farm.lease(&w).unwrap().unwrap();
+    clock.advance(Duration::from_millis(999));
+    farm.tick();
+    let second = farm.lease(&w).unwrap().expect("leased before the time limit");
+    clock.advance(Duration::from_millis(1));
+    farm.tick();
+    assert!(farm.lease(&w).unwrap().is_none(), "leased past the time limit");
+    farm.submit(&first.lease, &w, result_for(&first, 0.5), 0).unwrap();
+    assert_eq!(farm.status(&id).unwrap().state, JobState::Running, "a lease is still out");
+    // The second lease, granted at 0.999 s, lapses at 30.999 s.
+    clock.advance(Duration::from_millis(29_999));
+    assert!(farm.tick());
+    let status = farm.status(&id).unwrap();
+    assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 4));
+    assert_eq!(status.elapsed_s, Duration::from_millis(30_999).as_secs_f64());
+    assert!(farm.heartbeat(&second.lease, &w).is_err());
+}

@@ -1,0 +1,117 @@
+//! The checks of what users send before the farm keeps it: uploads (a known format, a scene
+//! that loads), job settings (the farm's limits) and the scene-dependent settings (the camera,
+//! the environment map, animation). Pure functions of their inputs; the scene checks are slow
+//! and run outside the farm lock.
+
+use common::{
+    bundle::{Bundle, Format, Limits},
+    settings::{Environment, RenderSettings},
+};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use super::error::{ErrorKind, FarmError, FarmResult};
+
+/// What an upload became.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneInfo {
+    /// SHA-256 of the bytes, hex.
+    pub scene: String,
+    /// `glb`, `gltf` or `zip`.
+    pub format: String,
+    /// Size of the upload.
+    pub bytes: u64,
+    /// Triangles after loading.
+    pub triangles: u64,
+    /// Camera names.
+    pub cameras: Vec<String>,
+    /// False when the same bytes were already stored.
+    pub created: bool,
+}
+
+/// Lower-case hex of `bytes`.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// True for 64 lower-case hex digits.
+pub fn is_hash(s: &str) -> bool {
+    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
+/// Checks settings against their own rules and the farm's limits (the scene-dependent checks
+/// are [`validate_job_scene`]).
+pub fn check_settings(settings: &RenderSettings, max_spp: u32, max_pixels: u64) -> FarmResult<()> {
+    settings.validate().map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+    if settings.spp > max_spp {
+        return Err(FarmError::invalid(format!(
+            "settings: spp: {} is over this coordinator's limit of {max_spp}",
+            settings.spp
+        )));
+    }
+    let pixels = settings.width as u64 * settings.height as u64;
+    if pixels > max_pixels {
+        return Err(FarmError::invalid(format!(
+            "settings: width x height = {pixels} pixels is over the limit of {max_pixels}"
+        )));
+    }
+    Ok(())
+}
+
+/// Checks an upload: a known format, a loadable scene with something to render. Slow for large
+/// scenes: call it outside the farm lock.
+pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<SceneInfo> {
+    let format = Format::detect(bytes).map_err(|e| FarmError::invalid(e.0))?;
+    if let Some(d) = declared {
+        if d != format {
+            return Err(FarmError::new(
+                ErrorKind::UnsupportedMediaType,
+                format!(
+                    "the Content-Type says {} but the body is a {} file",
+                    d.name(),
+                    format.name()
+                ),
+            ));
+        }
+    }
+    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
+    let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+    let triangles = scene.triangle_count() as u64;
+    Ok(SceneInfo {
+        scene: hex(&Sha256::digest(bytes)),
+        format: format.name().to_string(),
+        bytes: bytes.len() as u64,
+        triangles,
+        cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
+        created: true,
+    })
+}
+
+/// The scene-dependent checks of a job: the named camera exists and the environment map, if
+/// any, is in the bundle and decodes. Slow: call it outside the farm lock.
+pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
+    let bundle =
+        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
+    let shows_time = settings.frames.end > settings.frames.start
+        || settings.shutter.open < settings.shutter.close;
+    if shows_time {
+        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        scene.check_time(settings).map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+    }
+    if let Some(name) = &settings.camera {
+        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        if !scene.cameras.iter().any(|c| &c.name == name) {
+            let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
+            return Err(FarmError::invalid(format!(
+                "settings: camera: no camera named '{name}' (the scene has: {})",
+                names.join(", ")
+            )));
+        }
+    }
+    if let Some(Environment::Map { map, .. }) = &settings.environment {
+        bundle
+            .load_envmap(map)
+            .map_err(|e| FarmError::invalid(format!("settings: environment.map: {e}")))?;
+    }
+    Ok(())
+}

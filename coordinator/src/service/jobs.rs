@@ -1,0 +1,130 @@
+//! Jobs: `POST /api/v1/jobs` creates one on a stored scene, `GET /api/v1/jobs` lists them,
+//! `GET|DELETE /api/v1/jobs/{id}` shows or cancels one, and `GET /api/v1/jobs/{id}/frames/{n}.exr`
+//! (or `.png`) serves a frame's image, also while the job runs.
+
+use std::sync::Mutex;
+
+use axum::{
+    body::Body,
+    extract::{Path, State},
+    http::{header, HeaderMap, HeaderValue, StatusCode},
+    response::{IntoResponse, Response},
+    routing::{get, post},
+    Json, Router,
+};
+use common::settings::RenderSettings;
+use serde::Deserialize;
+use serde_json::json;
+
+use super::{blocking, json_body, lock_farm, ApiResult, AppState};
+use crate::{
+    farm::{job::JobStatus, validate_job_scene, ErrorKind, Farm, FarmError},
+    output::{exr_bytes, png_bytes, FrameInfo},
+};
+
+pub(super) fn routes() -> Router<AppState> {
+    Router::new()
+        .route("/api/v1/jobs", post(create_job).get(list_jobs))
+        .route("/api/v1/jobs/{id}", get(job_status).delete(cancel_job))
+        .route("/api/v1/jobs/{id}/frames/{file}", get(frame_image))
+}
+
+/// `POST /jobs` after the body is parsed: checks the settings against the farm and the stored
+/// scene, and creates the job. Slow (it may load the scene): call it off the async threads.
+pub(super) fn create_checked_job(
+    farm: &Mutex<Farm>,
+    scene: &str,
+    settings: RenderSettings,
+    priority: i32,
+) -> ApiResult<JobStatus> {
+    lock_farm(farm).check_settings(&settings)?;
+    let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.kind {
+        ErrorKind::NotFound => {
+            FarmError::not_found(format!("{}: upload it to /api/v1/scenes first", e.message))
+        }
+        _ => e,
+    })?;
+    let bytes = std::fs::read(path).map_err(|e| FarmError::internal(format!("scene: {e}")))?;
+    validate_job_scene(&bytes, &settings)?;
+    lock_farm(farm).create_job(scene, settings, priority)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CreateJob {
+    scene: String,
+    #[serde(default)]
+    settings: serde_json::Value,
+    #[serde(default)]
+    priority: i32,
+}
+
+async fn create_job(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let req: CreateJob = json_body(&headers, body).await?;
+    let settings_value = if req.settings.is_null() { json!({}) } else { req.settings };
+    let settings: RenderSettings =
+        serde_path_to_error::deserialize(settings_value).map_err(|e| {
+            let path = e.path().to_string();
+            let at = if path == "." { String::new() } else { format!(".{path}") };
+            FarmError::invalid(format!("settings{at}: {}", e.into_inner()))
+        })?;
+    let farm = state.farm.clone();
+    let status =
+        blocking(move || create_checked_job(&farm, &req.scene, settings, req.priority)).await?;
+    state.work.notify_waiters();
+    Ok((StatusCode::CREATED, Json(status)).into_response())
+}
+
+async fn list_jobs(State(state): State<AppState>) -> Json<serde_json::Value> {
+    Json(json!({ "jobs": state.lock().list() }))
+}
+
+async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    Ok(Json(state.lock().status(&id)?).into_response())
+}
+
+async fn cancel_job(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    let status = state.lock().cancel(&id)?;
+    Ok(Json(status).into_response())
+}
+
+async fn frame_image(
+    State(state): State<AppState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let (number, ext) = file
+        .rsplit_once('.')
+        .and_then(|(n, e)| Some((n.parse::<i64>().ok()?, e.to_ascii_lowercase())))
+        .ok_or_else(|| {
+            FarmError::not_found(format!(
+                "'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"
+            ))
+        })?;
+    if ext != "exr" && ext != "png" {
+        return Err(FarmError::not_found(format!("'{file}': frames are served as .exr or .png")));
+    }
+    let st = state.clone();
+    blocking(move || {
+        let (image, status) = st.lock().image(&id, number)?;
+        if ext == "exr" {
+            let info = FrameInfo {
+                settings_json: serde_json::to_string(&status.settings).unwrap_or_default(),
+                scene_hash: status.scene.clone(),
+                render_seconds: status.elapsed_s,
+                frame: number,
+            };
+            let bytes = exr_bytes(image, &info)?;
+            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"))], bytes)
+                .into_response())
+        } else {
+            let bytes = png_bytes(&image, 0.0)?;
+            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], bytes)
+                .into_response())
+        }
+    })
+    .await
+}

@@ -1,0 +1,102 @@
+//! A lease's life after the grant, for the worker holding it (named by the `x-worker-id`
+//! header): `POST /api/v1/leases/{lease}/heartbeat` renews it, `.../result` hands in the task's
+//! partial sums (bincode) to be merged exactly once, `.../fail` reports that the task cannot be
+//! rendered. Every refused result is counted in `/metrics`.
+
+use axum::{
+    body::Body,
+    extract::{Path, State},
+    http::HeaderMap,
+    response::{IntoResponse, Response},
+    routing::post,
+    Json, Router,
+};
+use common::protocol::{decode_result, FailReport, WORKER_HEADER};
+use serde_json::json;
+
+use super::{blocking, content_type, json_body, read_body, ApiResult, AppState};
+use crate::farm::{ErrorKind, FarmError};
+
+pub(super) fn routes() -> Router<AppState> {
+    Router::new()
+        .route("/api/v1/leases/{lease}/heartbeat", post(heartbeat))
+        .route("/api/v1/leases/{lease}/result", post(submit_result))
+        .route("/api/v1/leases/{lease}/fail", post(fail_task))
+}
+
+fn worker_id(headers: &HeaderMap) -> ApiResult<String> {
+    headers
+        .get(WORKER_HEADER)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string)
+        .ok_or_else(|| FarmError::malformed(format!("missing the {WORKER_HEADER} header")))
+}
+
+async fn heartbeat(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    read_body(body, 1 << 16).await?;
+    let worker = worker_id(&headers)?;
+    let left = state.lock().heartbeat(&lease, &worker)?;
+    Ok(Json(json!({ "lease_timeout_s": left })).into_response())
+}
+
+async fn submit_result(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let answer = merge_result(state.clone(), lease, headers, body).await;
+    if answer.is_err() {
+        state.lock().counters.results_refused += 1;
+    }
+    answer
+}
+
+async fn merge_result(
+    state: AppState,
+    lease: String,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let bytes = read_body(body, state.config.max_upload_bytes).await?;
+    let worker = worker_id(&headers)?;
+    match content_type(&headers).as_deref() {
+        Some("application/octet-stream") => {}
+        other => {
+            return Err(FarmError::new(
+                ErrorKind::UnsupportedMediaType,
+                format!(
+                    "a result is a bincode body with Content-Type application/octet-stream, got {}",
+                    other.unwrap_or("none")
+                ),
+            ))
+        }
+    }
+    let st = state.clone();
+    blocking(move || {
+        let result = decode_result(&bytes)
+            .map_err(|e| FarmError::malformed(format!("result refused: {e}")))?;
+        st.lock().submit(&lease, &worker, result, bytes.len() as u64)
+    })
+    .await?;
+    state.work.notify_waiters();
+    Ok(Json(json!({ "merged": true })).into_response())
+}
+
+async fn fail_task(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let report: FailReport = json_body(&headers, body).await?;
+    let worker = worker_id(&headers)?;
+    state.lock().fail(&lease, &worker, &report.error)?;
+    state.work.notify_waiters();
+    Ok(Json(json!({ "released": true })).into_response())
+}

@@ -1,0 +1,72 @@
+//! Scene bundles: `POST /api/v1/scenes` checks and stores an upload (content-addressed, so the
+//! same bytes give the same hash), `GET /api/v1/scenes/{hash}` serves it back (to workers).
+
+use std::sync::Mutex;
+
+use axum::{
+    body::Body,
+    extract::{Path, State},
+    http::{header, HeaderMap, HeaderValue, StatusCode},
+    response::{IntoResponse, Response},
+    routing::{get, post},
+    Json, Router,
+};
+use common::bundle::Format;
+
+use super::{blocking, content_type, lock_farm, read_body, ApiResult, AppState};
+use crate::farm::{validate_upload, ErrorKind, Farm, FarmError, SceneInfo};
+
+pub(super) fn routes() -> Router<AppState> {
+    Router::new()
+        .route("/api/v1/scenes", post(upload_scene))
+        .route("/api/v1/scenes/{hash}", get(download_scene))
+}
+
+/// `POST /scenes` after the body is read: checks the upload and stores it. Slow (it loads the
+/// scene): call it off the async threads.
+pub(super) fn store_upload(
+    farm: &Mutex<Farm>,
+    bytes: &[u8],
+    declared: Option<Format>,
+) -> ApiResult<SceneInfo> {
+    let mut info = validate_upload(bytes, declared)?;
+    lock_farm(farm).put_scene(bytes, &mut info)?;
+    Ok(info)
+}
+
+async fn upload_scene(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Body,
+) -> ApiResult<Response> {
+    let bytes = read_body(body, state.config.max_upload_bytes).await?;
+    let declared = match content_type(&headers).as_deref() {
+        Some("model/gltf-binary") => Some(Format::Glb),
+        Some("model/gltf+json") => Some(Format::Gltf),
+        Some("application/zip") | Some("application/x-zip-compressed") => Some(Format::Zip),
+        Some("application/octet-stream") | None => None,
+        Some(other) => {
+            return Err(FarmError::new(
+                ErrorKind::UnsupportedMediaType,
+                format!("Content-Type {other} is not a scene: use model/gltf-binary, model/gltf+json, application/zip or application/octet-stream"),
+            ))
+        }
+    };
+    let farm = state.farm.clone();
+    let info = blocking(move || store_upload(&farm, &bytes, declared)).await?;
+    let status = if info.created { StatusCode::CREATED } else { StatusCode::OK };
+    Ok((status, Json(info)).into_response())
+}
+
+async fn download_scene(
+    State(state): State<AppState>,
+    Path(hash): Path<String>,
+) -> ApiResult<Response> {
+    let bytes = blocking(move || {
+        let path = state.lock().scene_file(&hash)?;
+        std::fs::read(path).map_err(|e| FarmError::internal(format!("scene {hash}: {e}")))
+    })
+    .await?;
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))], bytes)
+        .into_response())
+}
