@@ -167,6 +167,12 @@ fn run_render(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// The Cornell box at 16x16 and 2 spp into `out`.
+fn tiny_cornell(out: &std::path::Path) -> std::process::Output {
+    let args = ["--spp", "2", "--width", "16", "--height", "16"];
+    run_render(&[&["scenes/cornell-box.gltf", "-o", out.to_str().unwrap()], &args[..]].concat())
+}
+
 fn shared(path: &str) -> String {
     repo().join("../shared/scenes").join(path).to_string_lossy().into_owned()
 }
@@ -208,17 +214,7 @@ fn an_unlit_scene_is_reported_and_an_environment_lights_it() {
     assert!(!coordinator::output::is_black(&rgb));
 
     // A scene with an emitter of its own (the Cornell box) gets no warning.
-    let output = run_render(&[
-        "scenes/cornell-box.gltf",
-        "-o",
-        temp("cb.exr").to_str().unwrap(),
-        "--spp",
-        "2",
-        "--width",
-        "16",
-        "--height",
-        "16",
-    ]);
+    let output = tiny_cornell(&temp("cb.exr"));
     assert!(output.status.success());
     assert!(!String::from_utf8_lossy(&output.stderr).contains("nothing lights"));
 }
@@ -293,17 +289,7 @@ fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
 fn output_paths_are_checked_before_rendering() {
     let png = temp("preview-named.png");
     let _ = std::fs::remove_file(png.with_extension("exr"));
-    let output = run_render(&[
-        "scenes/cornell-box.gltf",
-        "-o",
-        png.to_str().unwrap(),
-        "--spp",
-        "2",
-        "--width",
-        "16",
-        "--height",
-        "16",
-    ]);
+    let output = tiny_cornell(&png);
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n", "the .png is a PNG");
     assert_eq!(channels(&png.with_extension("exr")).len(), 7, "the EXR is beside it");
