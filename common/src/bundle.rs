@@ -13,8 +13,9 @@ use std::{
 };
 
 use crate::{
+    budget::{over_budget, Line, SceneBudget},
     envmap::EnvMap,
-    gltf::{check_renderable, load_slice, NoFiles, Resolver, SceneError},
+    gltf::{check_renderable, load_slice_within, NoFiles, Resolver, SceneError},
     scene::Scene,
 };
 
@@ -60,21 +61,6 @@ impl Format {
     }
 }
 
-/// Limits applied while opening an archive.
-#[derive(Clone, Copy, Debug)]
-pub struct Limits {
-    /// Largest total size of the inflated files.
-    pub max_unpacked_bytes: u64,
-    /// Most entries.
-    pub max_entries: usize,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Limits { max_unpacked_bytes: 4 << 30, max_entries: 10_000 }
-    }
-}
-
 /// An opened bundle: the scene file's bytes and, for an archive, the other files by path.
 #[derive(Clone, Debug)]
 pub struct Bundle {
@@ -86,11 +72,16 @@ pub struct Bundle {
     /// Folder of the scene file inside the archive, with a trailing `/` (or empty).
     dir: String,
     files: HashMap<String, Vec<u8>>,
+    /// What loading the scene may cost.
+    budget: SceneBudget,
 }
 
 impl Bundle {
-    /// Opens the bytes of an upload.
-    pub fn open(bytes: &[u8], limits: Limits) -> Result<Bundle, SceneError> {
+    /// Opens the bytes of an upload within `budget`: an archive is inflated entry by entry,
+    /// never past the budget's bytes, and the scene it holds is loaded within its texels and
+    /// triangles ([`Bundle::load_scene`]).
+    pub fn open(bytes: &[u8], budget: &SceneBudget) -> Result<Bundle, SceneError> {
+        let budget = *budget;
         let format = Format::detect(bytes)?;
         if format != Format::Zip {
             return Ok(Bundle {
@@ -99,16 +90,18 @@ impl Bundle {
                 main: bytes.to_vec(),
                 dir: String::new(),
                 files: HashMap::new(),
+                budget,
             });
         }
         let zip_err = |e: zip::result::ZipError| SceneError(format!("zip: {e}"));
         let mut archive = zip::ZipArchive::new(Cursor::new(bytes)).map_err(zip_err)?;
-        if archive.len() > limits.max_entries {
-            return Err(SceneError(format!(
-                "zip: {} entries, more than the limit of {}",
-                archive.len(),
-                limits.max_entries
-            )));
+        if archive.len() as u64 > budget.entries {
+            return Err(over_budget(
+                Line::Entries,
+                archive.len() as u64,
+                budget.entries,
+                "the zip's directory",
+            ));
         }
         let mut files = HashMap::new();
         let mut total = 0u64;
@@ -129,18 +122,31 @@ impl Bundle {
             if name.starts_with("__MACOSX/") {
                 continue;
             }
-            let budget = limits.max_unpacked_bytes.saturating_sub(total);
-            let mut data = Vec::with_capacity(entry.size().min(budget) as usize);
+            // The size the entry declares is checked first; the bytes are then read, never more
+            // than the budget has left, since a declared size can lie.
+            let left = budget.inflated_bytes.saturating_sub(total);
+            if entry.size() > left {
+                let needed = total.saturating_add(entry.size());
+                return Err(over_budget(
+                    Line::InflatedBytes,
+                    needed,
+                    budget.inflated_bytes,
+                    &format!("zip entry '{name}' declares {} bytes", entry.size()),
+                ));
+            }
+            let mut data = Vec::with_capacity(entry.size() as usize);
             (&mut entry)
-                .take(budget + 1)
+                .take(left + 1)
                 .read_to_end(&mut data)
                 .map_err(|e| SceneError(format!("zip: entry '{name}': {e}")))?;
             total += data.len() as u64;
-            if total > limits.max_unpacked_bytes {
-                return Err(SceneError(format!(
-                    "zip: unpacks to more than the limit of {} bytes",
-                    limits.max_unpacked_bytes
-                )));
+            if total > budget.inflated_bytes {
+                return Err(over_budget(
+                    Line::InflatedBytes,
+                    total,
+                    budget.inflated_bytes,
+                    &format!("zip entry '{name}'"),
+                ));
             }
             files.insert(name, data);
         }
@@ -169,15 +175,15 @@ impl Bundle {
             Some(i) => main_path[..=i].to_string(),
             None => String::new(),
         };
-        Ok(Bundle { format, main_path, main, dir, files })
+        Ok(Bundle { format, main_path, main, dir, files, budget })
     }
 
     /// Loads the scene and checks that it has something to render.
     pub fn load_scene(&self) -> Result<Scene, SceneError> {
         let scene = if self.format == Format::Zip {
-            load_slice(&self.main, self)
+            load_slice_within(&self.main, self, &self.budget)
         } else {
-            load_slice(&self.main, &NoFiles)
+            load_slice_within(&self.main, &NoFiles, &self.budget)
         }
         .map_err(|e| match self.main_path.as_str() {
             "" => e,
@@ -263,7 +269,7 @@ mod tests {
             ("top.bin".into(), vec![9]),
         ])
         .unwrap();
-        let bundle = Bundle::open(&packed, Limits::default()).unwrap();
+        let bundle = Bundle::open(&packed, &SceneBudget::default()).unwrap();
         assert_eq!(bundle.main_path, "scene/a.gltf");
         assert_eq!(bundle.read("buf/b.bin").unwrap(), vec![1, 2, 3]);
         assert_eq!(bundle.read("../top.bin").unwrap(), vec![9]);
@@ -271,17 +277,46 @@ mod tests {
         assert!(bundle.read("missing.bin").unwrap_err().contains("not in the uploaded bundle"));
     }
 
+    /// A small zip that inflates to far more than the budget is refused from the size its entry
+    /// declares, before anything is inflated.
+    #[test]
+    fn a_zip_bomb_is_refused_before_inflating() {
+        use std::io::Write as _;
+        let mut writer = zip::ZipWriter::new(Cursor::new(Vec::new()));
+        let deflated = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Deflated);
+        writer.start_file("scene.gltf", deflated).unwrap();
+        let zeros = vec![b' '; 1 << 20];
+        for _ in 0..64 {
+            writer.write_all(&zeros).unwrap();
+        }
+        let bomb = writer.finish().unwrap().into_inner();
+        assert!(bomb.len() < 200_000, "64 MiB of spaces deflate to {} bytes", bomb.len());
+        let budget = SceneBudget { inflated_bytes: 1 << 20, ..SceneBudget::default() };
+        let e = Bundle::open(&bomb, &budget).unwrap_err().0;
+        assert!(e.contains("67.1 M bytes unpacked") && e.contains("declares 67108864"), "{e}");
+    }
+
     #[test]
     fn zip_limits_and_ambiguity_are_refused() {
         let two =
             Bundle::pack(&[("a.gltf".into(), b"{}".to_vec()), ("b.glb".into(), vec![])]).unwrap();
-        assert!(Bundle::open(&two, Limits::default()).unwrap_err().0.contains("several"));
+        assert!(Bundle::open(&two, &SceneBudget::default()).unwrap_err().0.contains("several"));
         let big = Bundle::pack(&[("a.gltf".into(), vec![b' '; 1000])]).unwrap();
-        let limits = Limits { max_unpacked_bytes: 100, max_entries: 10 };
-        assert!(Bundle::open(&big, limits).unwrap_err().0.contains("limit"));
+        let budget = SceneBudget { inflated_bytes: 100, ..SceneBudget::default() };
+        let e = Bundle::open(&big, &budget).unwrap_err().0;
+        assert!(e.contains("1000 bytes unpacked") && e.contains("--max-scene-mib"), "{e}");
+        let many: Vec<(String, Vec<u8>)> =
+            (0..11).map(|i| (format!("{i}.gltf"), b"{}".to_vec())).collect();
+        let budget = SceneBudget { entries: 10, ..SceneBudget::default() };
+        let e = Bundle::open(&Bundle::pack(&many).unwrap(), &budget).unwrap_err().0;
+        assert!(e.contains("11 files"), "{e}");
         let none = Bundle::pack(&[("readme.txt".into(), vec![])]).unwrap();
-        assert!(Bundle::open(&none, Limits::default()).unwrap_err().0.contains("no .gltf"));
+        assert!(Bundle::open(&none, &SceneBudget::default()).unwrap_err().0.contains("no .gltf"));
         let truncated = &two[..two.len() / 2];
-        assert!(Bundle::open(truncated, Limits::default()).unwrap_err().0.starts_with("zip:"));
+        assert!(Bundle::open(truncated, &SceneBudget::default())
+            .unwrap_err()
+            .0
+            .starts_with("zip:"));
     }
 }

@@ -5,6 +5,7 @@
 //! - [`gltf`]: glTF 2.0 loading and validation into a [`scene::Scene`].
 //! - [`animation`]: node animation curves and world transforms at any time.
 //! - [`bundle`]: uploaded scene bundles (`.glb`, `.gltf`, `.zip`) resolved only inside themselves.
+//! - [`budget`]: what loading one scene may cost (inflated bytes, texels, triangles).
 //! - [`settings`]: render settings (the JSON of PRODUCT.md) with validation.
 //! - [`envmap`]: equirectangular environment maps (HDR, EXR) and their direction convention.
 //! - [`film`]: per-pixel partial sums that merge exactly, variance and error estimates.
@@ -16,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod animation;
+pub mod budget;
 pub mod bundle;
 pub mod envmap;
 pub mod error;

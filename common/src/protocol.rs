@@ -151,6 +151,11 @@ pub struct LeaseGrant {
     pub task: TaskSpec,
     /// Seconds until the lease expires unless renewed.
     pub lease_timeout_s: f64,
+    /// The budgets the coordinator checked the scene against: the worker loads it within the
+    /// same, so that what the coordinator accepted every worker can load (a coordinator that
+    /// sends none: the defaults).
+    #[serde(default)]
+    pub scene_budget: crate::budget::SceneBudget,
 }
 
 /// `POST /api/v1/leases/{lease}/fail`: the worker could not render the task.

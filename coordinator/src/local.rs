@@ -16,7 +16,7 @@ use std::{
 
 use anyhow::{bail, Context, Result};
 use common::{
-    bundle::{Bundle, Format, Limits},
+    bundle::{Bundle, Format},
     envmap::EnvMap,
     gltf::{DirResolver, Resolver},
     settings::{Environment, RenderSettings},
@@ -120,7 +120,7 @@ pub fn bundle_scene(scene_path: &Path, settings: &RenderSettings) -> Result<Scen
         .with_context(|| format!("reading scene {}", scene_path.display()))?;
     let at = || scene_path.display().to_string();
     let (scene, mut files, scene_dir) = if Format::detect(&bytes).ok() == Some(Format::Zip) {
-        let bundle = Bundle::open(&bytes, Limits::default()).with_context(at)?;
+        let bundle = Bundle::open(&bytes, &Default::default()).with_context(at)?;
         let scene = bundle.load_scene().with_context(at)?;
         let dir = bundle.main_path.rfind('/').map_or("", |i| &bundle.main_path[..=i]).to_string();
         (scene, Some(Files::Zip(bundle)), dir)

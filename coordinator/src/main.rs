@@ -9,7 +9,10 @@ use std::{
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
-use common::settings::{Environment, RenderSettings};
+use common::{
+    budget::SceneBudget,
+    settings::{Environment, RenderSettings},
+};
 use coordinator::{
     client::{healthcheck, submit, Remote},
     local::{render_file, Stage},
@@ -163,6 +166,16 @@ enum Command {
         /// Largest upload (scene or result) in MiB.
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
+        /// Most bytes a scene's .zip may unpack to, in MiB (checked while unpacking).
+        #[arg(long, default_value_t = SceneBudget::default().inflated_bytes >> 20)]
+        max_scene_mib: u64,
+        /// Most decoded texels of a scene's images, in millions (counted from their headers,
+        /// before decoding; 4 bytes each).
+        #[arg(long, default_value_t = SceneBudget::default().texels as f64 / 1e6)]
+        max_megatexels: f64,
+        /// Most triangles of a scene after instancing, in millions.
+        #[arg(long, default_value_t = SceneBudget::default().triangles as f64 / 1e6)]
+        max_megatriangles: f64,
     },
     /// Submit a scene to a running farm, wait, and write OUT.exr (+ OUT.png).
     Submit {
@@ -279,7 +292,18 @@ fn main() -> Result<()> {
             max_spp,
             max_lease_hours,
             max_upload_mib,
+            max_scene_mib,
+            max_megatexels,
+            max_megatriangles,
         } => {
+            for (flag, value) in
+                [("--max-megatexels", max_megatexels), ("--max-megatriangles", max_megatriangles)]
+            {
+                anyhow::ensure!(
+                    value.is_finite() && value > 0.0,
+                    "{flag} must be a positive number of millions"
+                );
+            }
             anyhow::ensure!(
                 lease_timeout.is_finite() && lease_timeout > 0.0,
                 "--lease-timeout must be a positive number of seconds"
@@ -309,6 +333,12 @@ fn main() -> Result<()> {
             config.farm.max_spp = max_spp;
             config.farm.max_lease_lifetime = Duration::from_secs_f64(max_lease_hours * 3600.0);
             config.max_upload_bytes = max_upload_mib << 20;
+            config.farm.scene_budget = SceneBudget {
+                inflated_bytes: max_scene_mib.saturating_mul(1 << 20),
+                texels: (max_megatexels * 1e6) as u64,
+                triangles: (max_megatriangles * 1e6) as u64,
+                ..SceneBudget::default()
+            };
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {
                 let listener = tokio::net::TcpListener::bind(addr)

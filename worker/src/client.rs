@@ -20,7 +20,7 @@ use std::{
 
 use anyhow::{bail, Result};
 use common::{
-    bundle::{Bundle, Limits},
+    bundle::Bundle,
     envmap::EnvMap,
     error::ErrorKind,
     protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult},
@@ -127,7 +127,7 @@ impl SceneCache {
             ),
             message: format!("fetching scene {}: {e}", grant.scene),
         })?;
-        let bundle = Bundle::open(&bytes, Limits::default())
+        let bundle = Bundle::open(&bytes, &grant.scene_budget)
             .map_err(|e| Failure::permanent(format!("scene {}: {e}", grant.scene)))?;
         let scene = bundle
             .load_scene()

@@ -11,6 +11,7 @@ use json::validation::Checked;
 use serde_json::Value;
 
 use super::{fail, Context, Image, Loader, SceneError};
+use crate::budget;
 use crate::scene::{AlphaMode, Material, TexTransform, Texture, TextureRef, Wrap};
 
 impl Loader<'_> {
@@ -260,11 +261,9 @@ impl Loader<'_> {
         if width == 0 || height == 0 {
             return fail(format!("image {index}: has no texels"));
         }
-        self.charge(
-            width as u64 * height as u64,
-            |b| &mut b.texels,
-            || format!("image {index} ({width}x{height})"),
-        )?;
+        self.charge_scene(budget::Line::Texels, width as u64 * height as u64, || {
+            format!("image {index}, {width}x{height}")
+        })?;
         let decoded =
             decode(&bytes, format, (width, height)).context(|| format!("image {index}"))?;
         self.images.insert(index, decoded);

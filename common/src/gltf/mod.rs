@@ -27,7 +27,10 @@ use std::cell::{Cell, OnceCell};
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
 
-use crate::scene::{Camera, Instance, Mesh, PunctualLight, Scene, Texture};
+use crate::{
+    budget::{self, SceneBudget},
+    scene::{Camera, Instance, Mesh, PunctualLight, Scene, Texture},
+};
 
 /// Why a scene could not be loaded. The message names the glTF object at fault.
 #[derive(Debug, thiserror::Error)]
@@ -130,6 +133,16 @@ pub fn load_path(path: &Path) -> Result<Scene, SceneError> {
 /// [`Scene::textures`] holds the textures those materials use. A file without a camera gets a
 /// default perspective camera named "default" (40 degrees, seeing the whole scene from +z).
 pub fn load_slice(bytes: &[u8], files: &dyn Resolver) -> Result<Scene, SceneError> {
+    load_slice_within(bytes, files, &SceneBudget::default())
+}
+
+/// [`load_slice`] within `budget`: decoded texels are counted from the images' headers before
+/// they are decoded, and triangles as meshes are placed, before their instances are made.
+pub fn load_slice_within(
+    bytes: &[u8],
+    files: &dyn Resolver,
+    budget: &SceneBudget,
+) -> Result<Scene, SceneError> {
     let (json_bytes, bin) = if glb::is_glb(bytes) {
         let g = glb::parse(bytes)?;
         (g.json, g.bin)
@@ -137,7 +150,9 @@ pub fn load_slice(bytes: &[u8], files: &dyn Resolver) -> Result<Scene, SceneErro
         (bytes, None)
     };
     let doc = json::parse(json_bytes)?;
-    Loader::new(&doc, bin, files).load()
+    let mut loader = Loader::new(&doc, bin, files);
+    loader.scene_budget = *budget;
+    loader.load()
 }
 
 /// Checks that a loaded scene has something to render.
@@ -194,6 +209,10 @@ struct Loader<'a> {
     texture_map: HashMap<usize, Option<usize>>,
     /// What is left of the [`Budget`] for this file.
     budget: Cell<Budget>,
+    /// The scene's budgets (texels, triangles), and what the file has used of them so far.
+    scene_budget: SceneBudget,
+    texels_used: Cell<u64>,
+    triangles_used: Cell<u64>,
     /// The `animations` array of the JSON, as written.
     animations: Option<&'a serde_json::Value>,
     /// Nodes whose meshes deform (skins, morph targets), for messages.
@@ -201,23 +220,43 @@ struct Loader<'a> {
 }
 
 /// Limits on what one file may make the loader allocate, far above any real scene, so that a
-/// small malicious file (thousands of primitives sharing one big accessor, textures sharing one
-/// huge image, millions of GPU instances) gives an error instead of exhausting memory.
+/// small malicious file (thousands of primitives sharing one big accessor, millions of GPU
+/// instances) gives an error instead of exhausting memory. Texels and triangles have the scene's
+/// own budgets ([`SceneBudget`]), set by the farm.
 #[derive(Clone, Copy, Debug)]
 struct Budget {
     /// Accessor components read (4 bytes each), over all accessors.
     components: u64,
-    /// Texels of scene textures (4 bytes each).
-    texels: u64,
     /// Mesh instances.
     instances: u64,
 }
 
 impl Budget {
-    const FULL: Budget = Budget { components: 1 << 28, texels: 1 << 29, instances: 1 << 24 };
+    const FULL: Budget = Budget { components: 1 << 28, instances: 1 << 24 };
 }
 
 impl Loader<'_> {
+    /// Counts `amount` texels or triangles against the scene's budget; `at` names the object
+    /// that takes the count over.
+    fn charge_scene(
+        &self,
+        line: budget::Line,
+        amount: u64,
+        at: impl FnOnce() -> String,
+    ) -> Result<(), SceneError> {
+        let (used, limit) = match line {
+            budget::Line::Texels => (&self.texels_used, self.scene_budget.texels),
+            budget::Line::Triangles => (&self.triangles_used, self.scene_budget.triangles),
+            _ => unreachable!("the loader charges texels and triangles only"),
+        };
+        let total = used.get().saturating_add(amount);
+        if total > limit {
+            return Err(budget::over_budget(line, total, limit, &at()));
+        }
+        used.set(total);
+        Ok(())
+    }
+
     /// Takes `amount` from one budget line; `what` names the object for the error.
     fn charge(
         &self,
@@ -254,6 +293,9 @@ impl<'a> Loader<'a> {
             textures: Vec::new(),
             texture_map: HashMap::new(),
             budget: Cell::new(Budget::FULL),
+            scene_budget: SceneBudget::default(),
+            texels_used: Cell::new(0),
+            triangles_used: Cell::new(0),
             animations: doc.animations.as_ref(),
             deforming: Vec::new(),
         }

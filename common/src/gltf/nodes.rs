@@ -10,6 +10,7 @@ use json::validation::Checked;
 
 use super::json::raw_numbers;
 use super::{fail, Context, Loader, SceneError};
+use crate::budget;
 use crate::scene::{Camera, Instance, Projection, PunctualKind, PunctualLight, Scene};
 
 /// Vertical field of view of the camera added to files without one.
@@ -115,31 +116,46 @@ impl Loader<'_> {
                 self.deforming.push(format!("{} (mesh {mesh} with morph targets)", node_name()));
             }
             // Each placement relative to the node (EXT_mesh_gpu_instancing), so that an animated
-            // node can be placed again at any time.
-            let offsets = match node
-                .extensions
-                .as_ref()
-                .and_then(|e| e.others.get("EXT_mesh_gpu_instancing"))
-            {
+            // node can be placed again at any time. The placements are counted (from their
+            // accessor) and charged before they are read.
+            let instancing =
+                node.extensions.as_ref().and_then(|e| e.others.get("EXT_mesh_gpu_instancing"));
+            let placements = match instancing {
+                Some(ext) => self
+                    .gpu_instance_count(ext)
+                    .context(|| format!("node {index}: EXT_mesh_gpu_instancing"))?,
+                None => 1,
+            };
+            let mut placed = Vec::new();
+            for prim in 0..gltf_mesh.primitives.len() {
+                if let Some(scene_mesh) = self.mesh_index(mesh, prim)? {
+                    self.charge(
+                        placements as u64,
+                        |b| &mut b.instances,
+                        || format!("node {index}"),
+                    )?;
+                    let triangles = self.meshes[scene_mesh].indices.len() as u64;
+                    self.charge_scene(
+                        budget::Line::Triangles,
+                        placements as u64 * triangles,
+                        || format!("node {index}, {placements} placements of {triangles}"),
+                    )?;
+                    placed.push(scene_mesh);
+                }
+            }
+            let offsets = match instancing {
                 Some(ext) => self
                     .gpu_instances(ext, DMat4::IDENTITY)
                     .context(|| format!("node {index}: EXT_mesh_gpu_instancing"))?,
                 None => vec![DMat4::IDENTITY],
             };
-            for prim in 0..gltf_mesh.primitives.len() {
-                if let Some(scene_mesh) = self.mesh_index(mesh, prim)? {
-                    self.charge(
-                        offsets.len() as u64,
-                        |b| &mut b.instances,
-                        || format!("node {index}"),
-                    )?;
-                    self.instances.extend(offsets.iter().map(|&offset| Instance {
-                        mesh: scene_mesh,
-                        node: index,
-                        transform: world * offset,
-                        offset,
-                    }));
-                }
+            for scene_mesh in placed {
+                self.instances.extend(offsets.iter().map(|&offset| Instance {
+                    mesh: scene_mesh,
+                    node: index,
+                    transform: world * offset,
+                    offset,
+                }));
             }
         } else if node.skin.is_some() {
             tracing::warn!("{}: has a skin but no mesh; ignored", node_name());
@@ -203,6 +219,20 @@ impl Loader<'_> {
 impl Loader<'_> {
     /// World transforms of the instances `EXT_mesh_gpu_instancing` asks for: the node's world
     /// transform times each instance's TRS.
+    /// How many placements an `EXT_mesh_gpu_instancing` object declares: the count of its first
+    /// attribute's accessor (`gpu_instances` checks that the others agree).
+    fn gpu_instance_count(&self, ext: &serde_json::Value) -> Result<usize, SceneError> {
+        let attributes = ext.get("attributes").and_then(|a| a.as_object());
+        let first = ["TRANSLATION", "ROTATION", "SCALE"]
+            .iter()
+            .find_map(|name| attributes.and_then(|a| a.get(*name)));
+        match first.and_then(|a| a.as_u64()).and_then(|a| usize::try_from(a).ok()) {
+            Some(acc) => Ok(self.accessor_info(acc)?.count),
+            // Reading them gives the precise error.
+            None => Ok(self.gpu_instances(ext, DMat4::IDENTITY)?.len()),
+        }
+    }
+
     fn gpu_instances(
         &self,
         ext: &serde_json::Value,

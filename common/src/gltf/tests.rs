@@ -727,8 +727,8 @@ fn one_image_is_decoded_once_and_charged_from_its_header() {
     doc["images"] = json!([{ "uri": uri }]);
     let parsed = json::parse(doc.to_string().as_bytes()).expect("parses");
     // A budget of exactly one image's texels takes eight textures of it.
-    let loader = Loader::new(&parsed, None, &NoFiles);
-    loader.budget.set(Budget { texels: 64 * 64, ..Budget::FULL });
+    let mut loader = Loader::new(&parsed, None, &NoFiles);
+    loader.scene_budget.texels = 64 * 64;
     let scene = loader.load().expect("one image, charged once");
     assert_eq!(scene.textures.len(), 8);
     assert!(scene
@@ -736,9 +736,13 @@ fn one_image_is_decoded_once_and_charged_from_its_header() {
         .iter()
         .all(|t| std::sync::Arc::ptr_eq(&t.texels, &scene.textures[0].texels)));
     // One texel less refuses it, naming the image and its size.
-    let loader = Loader::new(&parsed, None, &NoFiles);
-    loader.budget.set(Budget { texels: 64 * 64 - 1, ..Budget::FULL });
-    assert_names(&loader.load().expect_err("over budget").0, &["image 0 (64x64)", "too large"]);
+    let mut loader = Loader::new(&parsed, None, &NoFiles);
+    loader.scene_budget.texels = 64 * 64 - 1;
+    let msg = loader.load().expect_err("over budget").0;
+    assert_names(
+        &msg,
+        &["4096 decoded texels (image 0, 64x64)", "budget of 4095", "--max-megatexels"],
+    );
     // A header that claims 100000x100000 texels over a few bytes is refused from the header.
     let mut huge = png.clone();
     huge[16..20].copy_from_slice(&100_000u32.to_be_bytes());
@@ -757,5 +761,5 @@ fn one_image_is_decoded_once_and_charged_from_its_header() {
         base64::engine::general_purpose::STANDARD.encode(&huge)
     );
     doc["images"] = json!([{ "uri": uri }]);
-    assert_names(&load_err(&doc), &["image 0 (100000x100000)", "too large"]);
+    assert_names(&load_err(&doc), &["10.00 G decoded texels (image 0, 100000x100000)"]);
 }

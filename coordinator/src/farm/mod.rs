@@ -70,6 +70,8 @@ pub struct FarmConfig {
     pub max_spp: u32,
     /// Largest accepted width x height.
     pub max_pixels: u64,
+    /// What loading a scene may cost (inflated bytes, texels, triangles); workers are told.
+    pub scene_budget: common::budget::SceneBudget,
     /// Whether committed results must survive a crash (write-ahead log, synced). Only the
     /// one-shot local render, whose data folder is temporary, turns this off.
     pub durable: bool,
@@ -86,6 +88,7 @@ impl FarmConfig {
             max_task_expiries: 5,
             max_spp: 65536,
             max_pixels: 16384 * 16384,
+            scene_budget: Default::default(),
             durable: true,
         }
     }
@@ -273,6 +276,7 @@ impl Farm {
             settings: job.settings.clone(),
             task: job.spec(key),
             lease_timeout_s: self.config.lease_timeout.as_secs_f64(),
+            scene_budget: self.config.scene_budget,
         };
         let recorded = if was_queued { self.store.update_job(job, now) } else { Ok(()) };
         if let Err(e) = recorded {

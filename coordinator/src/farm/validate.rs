@@ -4,7 +4,8 @@
 //! and run outside the farm lock.
 
 use common::{
-    bundle::{Bundle, Format, Limits},
+    budget::SceneBudget,
+    bundle::{Bundle, Format},
     settings::{Environment, RenderSettings},
 };
 use serde::Serialize;
@@ -58,9 +59,13 @@ pub fn check_settings(settings: &RenderSettings, max_spp: u32, max_pixels: u64) 
     Ok(())
 }
 
-/// Checks an upload: a known format, a loadable scene with something to render. Slow for large
-/// scenes: call it outside the farm lock.
-pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<SceneInfo> {
+/// Checks an upload: a known format, a loadable scene with something to render, within the
+/// farm's scene budget. Slow for large scenes: call it outside the farm lock.
+pub fn validate_upload(
+    bytes: &[u8],
+    declared: Option<Format>,
+    budget: &SceneBudget,
+) -> FarmResult<SceneInfo> {
     let format = Format::detect(bytes).map_err(|e| FarmError::invalid(e.0))?;
     if let Some(d) = declared {
         if d != format {
@@ -74,7 +79,7 @@ pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<Sce
             ));
         }
     }
-    let bundle = Bundle::open(bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
+    let bundle = Bundle::open(bytes, budget).map_err(|e| FarmError::invalid(e.0))?;
     let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
     let triangles = scene.triangle_count() as u64;
     Ok(SceneInfo {
@@ -89,9 +94,12 @@ pub fn validate_upload(bytes: &[u8], declared: Option<Format>) -> FarmResult<Sce
 
 /// The scene-dependent checks of a job: the named camera exists and the environment map, if
 /// any, is in the bundle and decodes. Slow: call it outside the farm lock.
-pub fn validate_job_scene(bundle_bytes: &[u8], settings: &RenderSettings) -> FarmResult<()> {
-    let bundle =
-        Bundle::open(bundle_bytes, Limits::default()).map_err(|e| FarmError::invalid(e.0))?;
+pub fn validate_job_scene(
+    bundle_bytes: &[u8],
+    settings: &RenderSettings,
+    budget: &SceneBudget,
+) -> FarmResult<()> {
+    let bundle = Bundle::open(bundle_bytes, budget).map_err(|e| FarmError::invalid(e.0))?;
     let shows_time = settings.frames.end > settings.frames.start
         || settings.shutter.open < settings.shutter.close;
     if shows_time {

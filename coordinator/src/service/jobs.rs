@@ -45,7 +45,8 @@ pub(super) fn create_checked_job(
         _ => e,
     })?;
     let bytes = std::fs::read(path).map_err(|e| FarmError::internal(format!("scene: {e}")))?;
-    validate_job_scene(&bytes, &settings)?;
+    let budget = lock_farm(farm).config().scene_budget;
+    validate_job_scene(&bytes, &settings, &budget)?;
     lock_farm(farm).create_job(scene, settings, priority)
 }
 

@@ -29,7 +29,8 @@ pub(super) fn store_upload(
     bytes: &[u8],
     declared: Option<Format>,
 ) -> ApiResult<SceneInfo> {
-    let mut info = validate_upload(bytes, declared)?;
+    let budget = lock_farm(farm).config().scene_budget;
+    let mut info = validate_upload(bytes, declared, &budget)?;
     lock_farm(farm).put_scene(bytes, &mut info)?;
     Ok(info)
 }
