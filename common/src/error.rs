@@ -34,10 +34,13 @@ pub enum ErrorKind {
     /// The coordinator failed (a database write, a file read): not the request's fault, so
     /// asking again later may work.
     Internal,
+    /// The coordinator is at a limit it sets itself (uploads being received at once): asking
+    /// again later will work.
+    Busy,
 }
 
 /// Every kind with its HTTP status: the one table both HTTP ends read.
-pub const HTTP_STATUSES: [(ErrorKind, u16); 10] = [
+pub const HTTP_STATUSES: [(ErrorKind, u16); 11] = [
     (ErrorKind::Malformed, 400),
     (ErrorKind::Unauthorized, 401),
     (ErrorKind::Forbidden, 403),
@@ -48,6 +51,7 @@ pub const HTTP_STATUSES: [(ErrorKind, u16); 10] = [
     (ErrorKind::UnsupportedMediaType, 415),
     (ErrorKind::Invalid, 422),
     (ErrorKind::Internal, 500),
+    (ErrorKind::Busy, 503),
 ];
 
 impl ErrorKind {
@@ -64,6 +68,7 @@ impl ErrorKind {
             ErrorKind::UnsupportedMediaType => "unsupported media type",
             ErrorKind::MethodNotAllowed => "method not allowed",
             ErrorKind::Internal => "internal error",
+            ErrorKind::Busy => "busy",
         }
     }
 
@@ -74,7 +79,7 @@ impl ErrorKind {
 
     /// The kind an HTTP error status carries. A 4xx status of no kind (a proxy's 408 or 429,
     /// say) is a [`ErrorKind::Malformed`] request; anything else is [`ErrorKind::Internal`], so
-    /// that a proxy's 502 or 503 reads as the coordinator's trouble, not the request's.
+    /// that a proxy's 502 or 504 reads as the coordinator's trouble, not the request's.
     pub fn from_http_status(status: u16) -> ErrorKind {
         match HTTP_STATUSES.iter().find(|&&(_, s)| s == status) {
             Some(&(kind, _)) => kind,
@@ -111,6 +116,6 @@ mod tests {
         assert_eq!(ErrorKind::from_http_status(429), ErrorKind::Malformed);
         assert_eq!(ErrorKind::from_http_status(408), ErrorKind::Malformed);
         assert_eq!(ErrorKind::from_http_status(502), ErrorKind::Internal);
-        assert_eq!(ErrorKind::from_http_status(503), ErrorKind::Internal);
+        assert_eq!(ErrorKind::from_http_status(504), ErrorKind::Internal);
     }
 }

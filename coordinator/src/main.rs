@@ -176,6 +176,18 @@ enum Command {
         /// Most triangles of a scene after instancing, in millions.
         #[arg(long, default_value_t = SceneBudget::default().triangles as f64 / 1e6)]
         max_megatriangles: f64,
+        /// Seconds a client has to send a request's headers.
+        #[arg(long, default_value_t = 10.0)]
+        header_timeout: f64,
+        /// Seconds a request body may send nothing before it is refused.
+        #[arg(long, default_value_t = 30.0)]
+        body_timeout: f64,
+        /// Connections open at once; more are closed as they arrive.
+        #[arg(long, default_value_t = 4096)]
+        max_connections: usize,
+        /// Scene uploads received at once; more are refused as busy (503).
+        #[arg(long, default_value_t = 4)]
+        max_concurrent_uploads: usize,
     },
     /// Submit a scene to a running farm, wait, and write OUT.exr (+ OUT.png).
     Submit {
@@ -295,7 +307,24 @@ fn main() -> Result<()> {
             max_scene_mib,
             max_megatexels,
             max_megatriangles,
+            header_timeout,
+            body_timeout,
+            max_connections,
+            max_concurrent_uploads,
         } => {
+            for (flag, value) in
+                [("--header-timeout", header_timeout), ("--body-timeout", body_timeout)]
+            {
+                anyhow::ensure!(
+                    value.is_finite() && value > 0.0,
+                    "{flag} must be a positive number of seconds"
+                );
+            }
+            anyhow::ensure!(max_connections > 0, "--max-connections must be at least 1");
+            anyhow::ensure!(
+                max_concurrent_uploads > 0,
+                "--max-concurrent-uploads must be at least 1"
+            );
             for (flag, value) in
                 [("--max-megatexels", max_megatexels), ("--max-megatriangles", max_megatriangles)]
             {
@@ -333,6 +362,10 @@ fn main() -> Result<()> {
             config.farm.max_spp = max_spp;
             config.farm.max_lease_lifetime = Duration::from_secs_f64(max_lease_hours * 3600.0);
             config.max_upload_bytes = max_upload_mib << 20;
+            config.connections.header_timeout = Duration::from_secs_f64(header_timeout);
+            config.connections.max_connections = max_connections;
+            config.body_stall = Duration::from_secs_f64(body_timeout);
+            config.max_concurrent_uploads = max_concurrent_uploads;
             config.farm.scene_budget = SceneBudget {
                 inflated_bytes: max_scene_mib.saturating_mul(1 << 20),
                 texels: (max_megatexels * 1e6) as u64,

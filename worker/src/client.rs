@@ -123,7 +123,8 @@ impl SceneCache {
             // Only the scene itself is worth reporting: a network error is not the task's.
             transient: matches!(
                 e,
-                CallError::Transport(_) | CallError::Refused(ErrorKind::Internal, _)
+                CallError::Transport(_)
+                    | CallError::Refused(ErrorKind::Internal | ErrorKind::Busy, _)
             ),
             message: format!("fetching scene {}: {e}", grant.scene),
         })?;
@@ -329,7 +330,9 @@ fn lease_loop<'a>(
                     me = Some(j);
                     backoff = Duration::from_millis(200);
                 }
-                Err(CallError::Refused(kind, msg)) if kind != ErrorKind::Internal => {
+                Err(CallError::Refused(kind, msg))
+                    if !matches!(kind, ErrorKind::Internal | ErrorKind::Busy) =>
+                {
                     bail!("the coordinator refused to let this worker join ({kind}): {msg}");
                 }
                 Err(e) => {

@@ -65,7 +65,7 @@ async fn create_job(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let req: CreateJob = json_body(&headers, body).await?;
+    let req: CreateJob = json_body(&state, &headers, body).await?;
     let settings_value = if req.settings.is_null() { json!({}) } else { req.settings };
     let settings: RenderSettings =
         serde_path_to_error::deserialize(settings_value).map_err(|e| {

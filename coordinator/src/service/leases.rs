@@ -38,7 +38,7 @@ async fn heartbeat(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    read_body(body, 1 << 16).await?;
+    read_body(body, 1 << 16, state.config.body_stall).await?;
     let worker = worker_id(&headers)?;
     let left = state.lock().heartbeat(&lease, &worker)?;
     Ok(Json(json!({ "lease_timeout_s": left })).into_response())
@@ -63,7 +63,7 @@ async fn merge_result(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let bytes = read_body(body, state.config.max_upload_bytes).await?;
+    let bytes = read_body(body, state.config.max_upload_bytes, state.config.body_stall).await?;
     let worker = worker_id(&headers)?;
     match content_type(&headers).as_deref() {
         Some("application/octet-stream") => {}
@@ -94,7 +94,7 @@ async fn fail_task(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let report: FailReport = json_body(&headers, body).await?;
+    let report: FailReport = json_body(&state, &headers, body).await?;
     let worker = worker_id(&headers)?;
     state.lock().fail(&lease, &worker, &report.error)?;
     state.work.notify_waiters();

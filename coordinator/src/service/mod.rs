@@ -23,11 +23,13 @@
 mod auth;
 mod jobs;
 mod leases;
+mod listen;
 mod local_link;
 mod metrics;
 mod scenes;
 mod workers;
 
+pub use listen::ConnectionLimits;
 pub use local_link::LocalLink;
 
 use std::{
@@ -66,6 +68,12 @@ pub struct ServiceConfig {
     pub join_token: Option<String>,
     /// Users must present this bearer token to the user API (when set).
     pub api_token: Option<String>,
+    /// Connection limits: header read time, connections open at once.
+    pub connections: listen::ConnectionLimits,
+    /// A request body that sends nothing for this long is refused.
+    pub body_stall: Duration,
+    /// Scene uploads received at once; more are refused as busy (503).
+    pub max_concurrent_uploads: usize,
 }
 
 impl ServiceConfig {
@@ -77,6 +85,12 @@ impl ServiceConfig {
             max_lease_wait: Duration::from_secs(30),
             join_token: None,
             api_token: None,
+            connections: listen::ConnectionLimits {
+                header_timeout: Duration::from_secs(10),
+                max_connections: 4096,
+            },
+            body_stall: Duration::from_secs(30),
+            max_concurrent_uploads: 4,
         }
     }
 }
@@ -88,6 +102,8 @@ struct AppState {
     config: Arc<ServiceConfig>,
     /// Set when the embedding process is about to stop: lease requests answer at once.
     draining: Arc<AtomicBool>,
+    /// One permit per scene upload being received.
+    uploads: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -124,7 +140,7 @@ async fn blocking<T: Send + 'static>(
 }
 
 /// Reads a whole body, with clear errors for oversize and truncated ones.
-async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
+async fn read_body(body: Body, limit: usize, stall: Duration) -> ApiResult<axum::body::Bytes> {
     use http_body_util::BodyExt;
     // Past the limit the rest is still read (and dropped), up to a cap, so that a client that is
     // still sending hears the 413 instead of a broken connection.
@@ -132,7 +148,15 @@ async fn read_body(body: Body, limit: usize) -> ApiResult<axum::body::Bytes> {
     let mut body = body;
     let mut kept: Vec<u8> = Vec::new();
     let mut total = 0usize;
-    while let Some(frame) = body.frame().await {
+    loop {
+        // A client that stops sending does not hold its connection and buffer for ever.
+        let Ok(frame) = tokio::time::timeout(stall, body.frame()).await else {
+            return Err(FarmError::malformed(format!(
+                "the body stalled: nothing arrived for {} s after {total} bytes (--body-timeout)",
+                stall.as_secs_f64()
+            )));
+        };
+        let Some(frame) = frame else { break };
         let frame = frame.map_err(|e| {
             let source =
                 std::error::Error::source(&e).map(|s| format!(": {s}")).unwrap_or_default();
@@ -167,10 +191,11 @@ fn content_type(headers: &HeaderMap) -> Option<String> {
 /// The body is read before any header is judged, so that a client still sending it hears the
 /// answer instead of a broken connection.
 async fn json_body<T: serde::de::DeserializeOwned>(
+    state: &AppState,
     headers: &HeaderMap,
     body: Body,
 ) -> ApiResult<T> {
-    let bytes = read_body(body, 1 << 20).await?;
+    let bytes = read_body(body, 1 << 20, state.config.body_stall).await?;
     match content_type(headers).as_deref() {
         Some("application/json") => {}
         other => {
@@ -358,7 +383,8 @@ async fn serve_farm(
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<()> {
     let (draining, work) = embedded.unwrap_or_default();
-    let state = AppState { farm, work, config: Arc::new(config), draining };
+    let uploads = Arc::new(tokio::sync::Semaphore::new(config.max_concurrent_uploads.max(1)));
+    let state = AppState { farm, work, config: Arc::new(config), draining, uploads };
     let ticker = {
         let state = state.clone();
         tokio::spawn(async move {
@@ -376,14 +402,15 @@ async fn serve_farm(
     };
     let app = router(state.clone());
     // On shutdown, long polls answer "no work" at once instead of holding the server open.
+    let (draining, work) = (state.draining.clone(), state.work.clone());
     let shutdown = async move {
         shutdown.await;
-        state.draining.store(true, Ordering::Relaxed);
-        state.work.notify_waiters();
+        draining.store(true, Ordering::Relaxed);
+        work.notify_waiters();
     };
-    let result = axum::serve(listener, app).with_graceful_shutdown(shutdown).await;
+    listen::serve(listener, app, state.config.connections, shutdown).await;
     ticker.abort();
-    result.context("serving HTTP")
+    Ok(())
 }
 
 async fn dashboard() -> Html<&'static str> {

@@ -40,7 +40,18 @@ async fn upload_scene(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let bytes = read_body(body, state.config.max_upload_bytes).await?;
+    // Each upload being received holds up to its size in memory: a few at once, and the others
+    // told to come back, rather than many buffered together.
+    let Ok(_receiving) = state.uploads.clone().try_acquire_owned() else {
+        return Err(FarmError::new(
+            ErrorKind::Busy,
+            format!(
+                "{} scene uploads are being received, the most this coordinator takes at once (--max-concurrent-uploads); try again shortly",
+                state.config.max_concurrent_uploads
+            ),
+        ));
+    };
+    let bytes = read_body(body, state.config.max_upload_bytes, state.config.body_stall).await?;
     let declared = match content_type(&headers).as_deref() {
         Some("model/gltf-binary") => Some(Format::Glb),
         Some("model/gltf+json") => Some(Format::Gltf),

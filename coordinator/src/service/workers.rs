@@ -35,7 +35,7 @@ async fn join(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let req: JoinRequest = json_body(&headers, body).await?;
+    let req: JoinRequest = json_body(&state, &headers, body).await?;
     let resp = state.lock().join(req)?;
     Ok((StatusCode::CREATED, Json(resp)).into_response())
 }
@@ -54,7 +54,7 @@ async fn lease(
 ) -> ApiResult<Response> {
     // Any body is read (and ignored): one left unread makes the server drop the connection,
     // which a client that keeps connections alive sees as a failure of its next request.
-    read_body(body, 1 << 16).await?;
+    read_body(body, 1 << 16, state.config.body_stall).await?;
     let mut wait_s = 0.0;
     for pair in uri.query().unwrap_or("").split('&').filter(|p| !p.is_empty()) {
         match pair.split_once('=') {
