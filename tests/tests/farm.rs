@@ -116,7 +116,7 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let dir = temp_dir("bad-results");
     let port = free_port();
     let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let coordinator = start_coordinator(&dir.join("data"), port, &[]);
     let scene = upload(&url, &cornell_zip());
     let single =
         json!({"width": 32, "height": 32, "spp": 32, "samples_per_task": 32, "tile_size": 32});
@@ -127,9 +127,18 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
         a.json()["id"].as_str().unwrap().to_string()
     };
     let (w1, w2) = (join("w1"), join("w2"));
-    let grant = post_json(&format!("{url}/api/v1/workers/{w1}/lease?wait_s=5"), &json!({})).json();
+    let lease_for = |worker: &str| {
+        post_json(&format!("{url}/api/v1/workers/{worker}/lease?wait_s=5"), &json!({})).json()
+    };
+    let grant = lease_for(&w1);
     let lease = grant["lease"].as_str().unwrap().to_string();
     let spec: TaskSpec = serde_json::from_value(grant["task"].clone()).unwrap();
+    // A second job's task takes the honest and the duplicate result below, so that the first
+    // job is rendered by a real worker in the end.
+    let scratch = create_job(&url, &scene, &single, 1);
+    let scratch_grant = lease_for(&w1);
+    assert_eq!(scratch_grant["job"].as_str(), Some(scratch.as_str()));
+    let scratch_lease = scratch_grant["lease"].as_str().unwrap().to_string();
     // Another job runs on a real worker meanwhile, undisturbed by what follows.
     let _worker = start_worker(&url, 1, dir.join("worker.log"));
     let other = create_job(&url, &scene, &settings(64, 32), 0);
@@ -166,6 +175,23 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let a = send(&w1, "application/octet-stream", &encode_result(&not_a_number));
     assert_eq!((a.status, a.error().contains("not finite")), (422, true), "NaN: {}", a.error());
 
+    // Radiance is never negative: a mean of -100 (consistent counts, finite, within every
+    // other bound) is refused, naming the pixel and the value.
+    let mut negative = result_for(&spec, 0.5);
+    negative.tile.pixels[32 * 3 + 7].mean[2] = -100.0;
+    let a = send(&w1, "application/octet-stream", &encode_result(&negative));
+    assert_eq!(a.status, 422, "a negative mean: {}", a.error());
+    assert!(
+        a.error().contains("pixel (7, 3)") && a.error().contains("mean -100 is negative"),
+        "{}",
+        a.error()
+    );
+
+    let mut blinding = result_for(&spec, 0.5);
+    blinding.tile.pixels[1].mean[0] = 1e15;
+    let a = send(&w1, "application/octet-stream", &encode_result(&blinding));
+    assert_eq!((a.status, a.error().contains("beyond")), (422, true), "{}", a.error());
+
     let mut short = result_for(&spec, 0.5);
     short.tile.pixels[3].n -= 1;
     let a = send(&w1, "application/octet-stream", &encode_result(&short));
@@ -190,14 +216,32 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
 
     assert_eq!(job_status(&url, &job)["samples_done"], 0, "a refused result was merged");
 
-    let a = send(&w1, "application/octet-stream", &good);
+    let scratch_spec: TaskSpec = serde_json::from_value(scratch_grant["task"].clone()).unwrap();
+    let honest = encode_result(&result_for(&scratch_spec, 0.5));
+    let scratch_url = format!("{url}/api/v1/leases/{scratch_lease}/result");
+    let a = post_bytes(&scratch_url, "application/octet-stream", &[("x-worker-id", &w1)], &honest);
     assert_eq!(a.status, 200, "the honest result: {}", a.error());
-    let a = send(&w1, "application/octet-stream", &good);
+    let a = post_bytes(&scratch_url, "application/octet-stream", &[("x-worker-id", &w1)], &honest);
     assert_eq!((a.status, a.error().contains("not live")), (409, true), "duplicate: {}", a.error());
-    let done = job_status(&url, &job);
+    let done = job_status(&url, &scratch);
     assert_eq!(done["samples_done"], 32 * 32 * 32, "{done:#}");
     assert_eq!(done["state"], "done");
-    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 10.0);
+    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 12.0);
+    // Each refusal is logged with the worker, the lease and the reason.
+    let log = coordinator.log_text();
+    let line = log.lines().find(|l| l.contains("mean -100 is negative")).expect("no log line");
+    assert!(line.contains("WARN") && line.contains(&w1) && line.contains(&lease), "{line}");
+    let refusals = log.lines().filter(|l| l.contains("result refused")).count();
+    assert_eq!(refusals, 12, "{log}");
+
+    // The forger leaves; its lease goes back, and a real worker renders the job: its image is
+    // bit for bit `coordinator render`'s, nothing forged in it.
+    let a = delete(&format!("{url}/api/v1/workers/{w1}"));
+    assert_eq!(a.status, 200, "{}", a.error());
+    let status = wait_done(&url, &job, TIMEOUT);
+    assert_eq!(status["samples_done"], 32 * 32 * 32);
+    let reference = render_reference(&dir, &single, 1);
+    assert_same_image(&reference, &fetch_exr(&url, &job, 0), "after forged results");
     wait_done(&url, &other, TIMEOUT);
 }
 

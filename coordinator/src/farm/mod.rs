@@ -363,6 +363,16 @@ impl Farm {
         Ok(())
     }
 
+    /// Counts and logs a refused result (from the farm's checks, or from the service's before
+    /// them: an unreadable body, a missing header): every refusal is on `/metrics` and in the
+    /// log with the worker, the lease and the reason.
+    pub fn result_refused(&mut self, lease: &str, worker: Option<&str>, why: &FarmError) {
+        self.counters.results_refused += 1;
+        let reason = why.message.strip_prefix("result refused: ").unwrap_or(&why.message);
+        let worker = worker.unwrap_or("(not named)");
+        tracing::warn!(worker, lease, kind = %why.kind, "result refused: {reason}");
+    }
+
     /// A worker could not render its task: the task is leased again, or after
     /// `max_task_failures` reports its job fails with the reason.
     pub fn fail(&mut self, lease: &str, worker: &str, error: &str) -> FarmResult<()> {

@@ -186,3 +186,65 @@ fn a_time_limit_stops_leasing_and_the_last_lease_out_ends_the_job() {
     assert_eq!(status.elapsed_s, Duration::from_millis(30_999).as_secs_f64());
     assert!(farm.heartbeat(&second.lease, &w).is_err());
 }
+
+/// A farm in `dir` with a stored scene, one joined worker and one job of a single task
+/// (8x8 pixels, 4 samples), that task leased: (farm, worker, job, grant).
+fn one_leased_task(dir: &std::path::Path) -> (Farm, String, String, LeaseGrant) {
+    let mut farm = Farm::open(FarmConfig::new(dir.into())).unwrap();
+    let hash = "aa".repeat(32);
+    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp: 4,
+        samples_per_task: 4,
+        ..Default::default()
+    };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let grant = farm.lease(&w).unwrap().unwrap();
+    (farm, w, id, grant)
+}
+
+/// Results no real samples could give (a negative or non-finite mean, negative squared
+/// deviations, radiance past the renderer's largest sample) are refused as invalid, naming the
+/// pixel and the value, and nothing is merged; the honest result is merged after them.
+#[test]
+fn physically_impossible_results_are_refused_and_nothing_is_merged() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut farm, w, id, grant) = one_leased_task(dir.path());
+    let max = common::film::MAX_SAMPLE_VALUE as f64;
+    type Forge = fn(&mut common::film::PixelSums, f64);
+    let forgeries: [(&str, Forge, &str); 7] = [
+        ("a mean of -100", |p, _| p.mean[0] = -100.0, "mean -100 is negative"),
+        ("a NaN mean", |p, _| p.mean[1] = f64::NAN, "mean NaN is not finite"),
+        ("an infinite mean", |p, _| p.mean[2] = f64::INFINITY, "mean inf is not finite"),
+        ("negative squared deviations", |p, _| p.m2[1] = -1.0, "deviations -1 is negative"),
+        ("a negative mean of odd samples", |p, _| p.mean_odd[0] = -0.5, "-0.5 is negative"),
+        ("a mean past the largest sample", |p, max| p.mean[0] = 2.0 * max, "beyond the largest"),
+        ("squared deviations no samples give", |p, max| p.m2[2] = 4.0 * max * max, "more than 4"),
+    ];
+    for (what, forge, needle) in forgeries {
+        let mut forged = result_for(&grant, 0.5);
+        // Pixel 11 of the tile: column 3, row 1.
+        forge(&mut forged.tile.pixels[11], max);
+        let refused = farm.submit(&grant.lease, &w, forged, 0).unwrap_err();
+        assert_eq!(refused.kind, ErrorKind::Invalid, "{what}: {}", refused.message);
+        assert!(
+            refused.message.contains("pixel (3, 1)") && refused.message.contains(needle),
+            "{what}: {}",
+            refused.message
+        );
+        assert_eq!(farm.status(&id).unwrap().samples_done, 0, "{what} was merged");
+    }
+    // A sample count that does not match the lease is refused too.
+    let mut short = result_for(&grant, 0.5);
+    short.tile.pixels[0].n -= 1;
+    assert_eq!(farm.submit(&grant.lease, &w, short, 0).unwrap_err().kind, ErrorKind::Invalid);
+    // The lease is still live: the honest result is merged once.
+    farm.submit(&grant.lease, &w, result_for(&grant, 0.5), 0).unwrap();
+    let status = farm.status(&id).unwrap();
+    assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 4));
+}
