@@ -234,9 +234,14 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let refusals = log.lines().filter(|l| l.contains("result refused")).count();
     assert_eq!(refusals, 12, "{log}");
 
-    // The forger leaves; its lease goes back, and a real worker renders the job: its image is
-    // bit for bit `coordinator render`'s, nothing forged in it.
-    let a = delete(&format!("{url}/api/v1/workers/{w1}"));
+    // The forger leaves (it may remove only itself); its lease goes back, and a real worker
+    // renders the job: its image is bit for bit `coordinator render`'s, nothing forged in it.
+    let leave = format!("{url}/api/v1/workers/{w1}");
+    let a = delete_with(&leave, &[]);
+    assert_eq!((a.status, a.error().contains("x-worker-id")), (400, true), "{}", a.error());
+    let a = delete_with(&leave, &[("x-worker-id", &w2)]);
+    assert_eq!((a.status, a.error().contains("only itself")), (403, true), "{}", a.error());
+    let a = delete_with(&leave, &[("x-worker-id", &w1)]);
     assert_eq!(a.status, 200, "{}", a.error());
     let status = wait_done(&url, &job, TIMEOUT);
     assert_eq!(status["samples_done"], 32 * 32 * 32);
@@ -523,6 +528,43 @@ fn tokens_guard_the_worker_protocol_and_the_user_api() {
     }
     let _ = child.kill();
     let _ = child.wait();
+
+    // A worker removes only itself (join token, its id in x-worker-id); an operator with the
+    // API token removes any worker.
+    let join_auth = ("authorization", "Bearer join-secret");
+    let join = |name: &str| {
+        let body = json!({"name": name, "threads": 1}).to_string();
+        let a = post_bytes(
+            &format!("{url}/api/v1/workers"),
+            "application/json",
+            &[join_auth],
+            body.as_bytes(),
+        );
+        assert_eq!(a.status, 201, "{}", a.error());
+        a.json()["id"].as_str().unwrap().to_string()
+    };
+    let (a_id, b_id) = (join("a"), join("b"));
+    let (a_url, b_url) =
+        (format!("{url}/api/v1/workers/{a_id}"), format!("{url}/api/v1/workers/{b_id}"));
+    let a = delete_with(&a_url, &[join_auth, ("x-worker-id", &b_id)]);
+    assert_eq!((a.status, a.error().contains("only itself")), (403, true), "{}", a.error());
+    let a = delete_with(&a_url, &[join_auth]);
+    assert_eq!((a.status, a.error().contains("x-worker-id")), (400, true), "{}", a.error());
+    let a = delete_with(&b_url, &[("x-worker-id", &b_id)]);
+    assert_eq!(a.status, 401, "{}", a.error());
+    let a = delete_with(&a_url, &[api[0]]);
+    assert_eq!(a.status, 200, "the operator: {}", a.error());
+    let a = delete_with(&b_url, &[join_auth, ("x-worker-id", &b_id)]);
+    assert_eq!(a.status, 200, "the worker itself: {}", a.error());
+    let listed = ureq::get(&format!("{url}/api/v1/workers"))
+        .set("authorization", "Bearer api-secret")
+        .call()
+        .unwrap()
+        .into_json::<Value>()
+        .unwrap();
+    let ids: Vec<&str> =
+        listed["workers"].as_array().unwrap().iter().filter_map(|w| w["id"].as_str()).collect();
+    assert!(!ids.contains(&a_id.as_str()) && !ids.contains(&b_id.as_str()), "{listed:#}");
 }
 
 #[test]
