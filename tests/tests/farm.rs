@@ -601,3 +601,63 @@ fn without_a_token_the_coordinator_serves_loopback_only_and_says_so() {
     );
     assert_ne!(reached_elsewhere, Some(true), "answered on a non-loopback address");
 }
+
+#[test]
+fn jobs_are_listed_by_pages() {
+    let dir = temp_dir("job-list");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let data = dir.join("data");
+    let _coordinator = start_coordinator(&data, port, &[]);
+    let scene = upload(&url, &cornell_zip());
+    // No worker: every job stays queued until it is cancelled.
+    let animation =
+        json!({"width": 16, "height": 16, "spp": 4, "frames": {"start": 5, "end": 104}});
+    let ids: Vec<String> = (0..3).map(|_| create_job(&url, &scene, &animation, 0)).collect();
+    let jobs = format!("{url}/api/v1/jobs");
+    let listed = |query: &str| {
+        let a = get(&format!("{jobs}{query}"));
+        assert_eq!(a.status, 200, "{query}: {}", a.error());
+        let page = a.json();
+        let ids: Vec<String> = page["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j["id"].as_str().unwrap().to_string())
+            .collect();
+        (ids, page)
+    };
+    let (all, page) = listed("");
+    assert_eq!((all, page["next"].clone()), (ids.clone(), Value::Null));
+    // A list item is compact: no per-frame lists, the frame count instead.
+    let item = &page["jobs"][0];
+    assert_eq!((item["frame_count"].as_u64(), item["first_frame"].as_i64()), (Some(100), Some(5)));
+    assert!(item.get("frame_progress").is_none() && item.get("frames").is_none(), "{item:#}");
+    assert_eq!(item["scene"], scene.as_str());
+
+    let (first, page) = listed("?limit=2");
+    assert_eq!(first, ids[..2]);
+    let next = page["next"].as_str().expect("a cursor to the next page").to_string();
+    let (rest, page) = listed(&format!("?limit=2&after={next}"));
+    assert_eq!((rest, page["next"].clone()), (ids[2..].to_vec(), Value::Null));
+    let (newest, _) = listed("?order=newest&limit=1");
+    assert_eq!(newest, ids[2..]);
+    for (query, needle) in [
+        ("?limit=0", "limit"),
+        ("?limit=1001", "limit"),
+        ("?state=sleeping", "sleeping"),
+        ("?order=random", "order"),
+        ("?after=x", "after"),
+        ("?colour=red", "colour"),
+    ] {
+        let a = get(&format!("{jobs}{query}"));
+        assert_eq!((a.status, a.error().contains(needle)), (400, true), "{query}: {}", a.error());
+    }
+
+    let a = delete(&format!("{jobs}/{}", ids[0]));
+    assert_eq!(a.status, 200, "{}", a.error());
+    let (cancelled, _) = listed("?state=cancelled");
+    assert_eq!(cancelled, ids[..1]);
+    let (active, _) = listed("?state=queued,running");
+    assert_eq!(active, ids[1..]);
+}

@@ -32,7 +32,7 @@ use serde::Serialize;
 use super::clock::Moment;
 use crate::{output::FrameImage, split::tiles};
 
-pub use status::{FrameProgress, JobStatus};
+pub use status::{FrameProgress, JobStatus, JobSummary};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
 pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;

@@ -248,3 +248,53 @@ fn physically_impossible_results_are_refused_and_nothing_is_merged() {
     let status = farm.status(&id).unwrap();
     assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 4));
 }
+
+/// Lists come a page at a time in either order, filtered by state, as summaries without the
+/// per-frame lists; a page's cursor leads to the next one, and the last has none.
+#[test]
+fn jobs_are_listed_a_page_at_a_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, _) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        spp: 4,
+        frames: common::settings::Frames { start: 3, end: 12, fps: 24.0 },
+        ..Default::default()
+    };
+    let ids: Vec<String> =
+        (0..5).map(|_| farm.create_job(&hash, settings.clone(), 0).unwrap().id).collect();
+    farm.cancel(&ids[1]).unwrap();
+    farm.cancel(&ids[3]).unwrap();
+    let listed = |page: &JobPage| page.jobs.iter().map(|j| j.id.clone()).collect::<Vec<_>>();
+
+    let all = farm.list(&JobQuery::default());
+    assert_eq!((listed(&all), all.next), (ids.clone(), None));
+    let summary = &all.jobs[0];
+    assert_eq!(
+        (summary.frame_count, summary.first_frame, summary.state),
+        (10, 3, JobState::Queued)
+    );
+    let json = serde_json::to_value(summary).unwrap();
+    assert!(json.get("frame_progress").is_none() && json.get("settings").is_none(), "{json}");
+
+    let mut query = JobQuery { limit: 2, ..Default::default() };
+    let mut pages = Vec::new();
+    loop {
+        let page = farm.list(&query);
+        pages.push(listed(&page));
+        let Some(next) = page.next else { break };
+        query.after = Some(next);
+    }
+    assert_eq!(pages, [&ids[0..2], &ids[2..4], &ids[4..5]]);
+
+    let newest = JobQuery { order: ListOrder::Newest, limit: 3, ..Default::default() };
+    let page = farm.list(&newest);
+    assert_eq!(listed(&page), [ids[4].clone(), ids[3].clone(), ids[2].clone()]);
+    let rest = farm.list(&JobQuery { after: page.next, ..newest });
+    assert_eq!((listed(&rest), rest.next), (vec![ids[1].clone(), ids[0].clone()], None));
+
+    let cancelled = JobQuery { states: Some(vec![JobState::Cancelled]), ..Default::default() };
+    assert_eq!(listed(&farm.list(&cancelled)), [ids[1].clone(), ids[3].clone()]);
+}
