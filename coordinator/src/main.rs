@@ -163,6 +163,11 @@ enum Command {
         /// Largest upload (scene or result) in MiB.
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
+        /// Remove finished jobs (done, failed, cancelled), with their images, this many hours
+        /// after they ended (default: keep them until removed with
+        /// `DELETE /api/v1/jobs/{id}?purge=true`).
+        #[arg(long)]
+        retain_finished_hours: Option<f64>,
     },
     /// Submit a scene to a running farm, wait, and write OUT.exr (+ OUT.png).
     Submit {
@@ -279,6 +284,7 @@ fn main() -> Result<()> {
             max_spp,
             max_lease_hours,
             max_upload_mib,
+            retain_finished_hours,
         } => {
             anyhow::ensure!(
                 lease_timeout.is_finite() && lease_timeout > 0.0,
@@ -288,6 +294,15 @@ fn main() -> Result<()> {
                 max_lease_hours.is_finite() && max_lease_hours > 0.0,
                 "--max-lease-hours must be a positive number"
             );
+            let retain_finished = retain_finished_hours
+                .map(|h| {
+                    Duration::try_from_secs_f64(h * 3600.0).map_err(|_| {
+                        anyhow::anyhow!(
+                            "--retain-finished-hours {h}: must be a number of hours, 0 or more"
+                        )
+                    })
+                })
+                .transpose()?;
             let mut addr: SocketAddr = listen.parse().with_context(|| {
                 format!("--listen {listen}: expected an address like 0.0.0.0:8080")
             })?;
@@ -309,6 +324,10 @@ fn main() -> Result<()> {
             config.farm.max_spp = max_spp;
             config.farm.max_lease_lifetime = Duration::from_secs_f64(max_lease_hours * 3600.0);
             config.max_upload_bytes = max_upload_mib << 20;
+            config.farm.retain_finished = retain_finished;
+            if let Some(h) = retain_finished_hours {
+                tracing::info!("finished jobs are removed {h} hours after they end");
+            }
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {
                 let listener = tokio::net::TcpListener::bind(addr)

@@ -603,12 +603,12 @@ fn without_a_token_the_coordinator_serves_loopback_only_and_says_so() {
 }
 
 #[test]
-fn jobs_are_listed_by_pages() {
+fn jobs_are_listed_by_pages_cancelled_and_removed_for_good() {
     let dir = temp_dir("job-list");
     let port = free_port();
     let url = format!("http://127.0.0.1:{port}");
     let data = dir.join("data");
-    let _coordinator = start_coordinator(&data, port, &[]);
+    let mut coordinator = start_coordinator(&data, port, &[]);
     let scene = upload(&url, &cornell_zip());
     // No worker: every job stays queued until it is cancelled.
     let animation =
@@ -654,10 +654,55 @@ fn jobs_are_listed_by_pages() {
         assert_eq!((a.status, a.error().contains(needle)), (400, true), "{query}: {}", a.error());
     }
 
-    let a = delete(&format!("{jobs}/{}", ids[0]));
-    assert_eq!(a.status, 200, "{}", a.error());
+    // Cancel: POST .../cancel, or DELETE as before.
+    let a = post_json(&format!("{jobs}/{}/cancel", ids[0]), &json!({}));
+    assert_eq!((a.status, a.json()["state"].as_str()), (200, Some("cancelled")), "{}", a.error());
+    let a = delete(&format!("{jobs}/{}", ids[1]));
+    assert_eq!((a.status, a.json()["state"].as_str()), (200, Some("cancelled")), "{}", a.error());
+    let a = delete(&format!("{jobs}/{}", ids[1]));
+    assert_eq!(a.status, 409, "{}", a.error());
     let (cancelled, _) = listed("?state=cancelled");
-    assert_eq!(cancelled, ids[..1]);
+    assert_eq!(cancelled, ids[..2]);
     let (active, _) = listed("?state=queued,running");
-    assert_eq!(active, ids[1..]);
+    assert_eq!(active, ids[2..]);
+
+    // Purge: a finished job and a queued one, both gone for good.
+    let a = delete(&format!("{jobs}/{}?purge=yes", ids[0]));
+    assert_eq!(a.status, 400, "{}", a.error());
+    for id in [&ids[0], &ids[2]] {
+        let a = delete(&format!("{jobs}/{id}?purge=true"));
+        assert_eq!((a.status, a.json()["removed"].as_str()), (200, Some(id.as_str())));
+        assert_eq!(get(&format!("{jobs}/{id}")).status, 404);
+        assert_eq!(get(&format!("{jobs}/{id}/frames/5.exr")).status, 404);
+    }
+    let a = delete(&format!("{jobs}/{}?purge=true", ids[0]));
+    assert_eq!(a.status, 404, "{}", a.error());
+    coordinator.kill9();
+    let _coordinator = start_coordinator(&data, port, &[]);
+    let (left, _) = listed("");
+    assert_eq!(left, ids[1..2], "a removed job came back after a restart");
+    // The scene stays for other jobs.
+    create_job(&url, &scene, &animation, 0);
+}
+
+#[test]
+fn finished_jobs_are_removed_after_the_retention_time() {
+    let dir = temp_dir("retention");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator =
+        start_coordinator(&dir.join("data"), port, &["--retain-finished-hours", "0"]);
+    let scene = upload(&url, &cornell_zip());
+    let kept = create_job(&url, &scene, &settings(8, 8), 0);
+    let gone = create_job(&url, &scene, &settings(8, 8), 0);
+    let a = post_json(&format!("{url}/api/v1/jobs/{gone}/cancel"), &json!({}));
+    assert_eq!(a.status, 200, "{}", a.error());
+    // A retention of zero hours: the next tick removes it.
+    let end = std::time::Instant::now() + TIMEOUT;
+    while get(&format!("{url}/api/v1/jobs/{gone}")).status != 404 {
+        assert!(std::time::Instant::now() < end, "the finished job was never removed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(job_status(&url, &kept)["state"], "queued", "a job that waits was removed");
+    assert_eq!(metric(&url, "renderfarm_jobs_removed_total"), 1.0);
 }

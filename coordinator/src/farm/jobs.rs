@@ -1,5 +1,5 @@
-//! The farm's user side: scenes in, jobs created, listed (a page at a time) and cancelled, and
-//! their images out. The worker side (leases and results) is in `mod.rs`.
+//! The farm's user side: scenes in, jobs created, listed (a page at a time), cancelled and
+//! removed, and their images out. The worker side (leases and results) is in `mod.rs`.
 
 use std::{collections::BTreeMap, path::PathBuf};
 
@@ -125,6 +125,7 @@ impl Farm {
             return Err(FarmError::conflict(format!("job {id} is already {}", job.state.name())));
         }
         job.set_final(JobState::Cancelled, None, now);
+        job.note_end(self.clock.unix());
         job.in_flight = 0;
         self.store.update_job(job, now)?;
         let status = job.status(now);
@@ -132,6 +133,23 @@ impl Farm {
         self.evict_if_final(id);
         tracing::info!(job = %id, "job cancelled");
         Ok(status)
+    }
+
+    /// Removes job `id` entirely: a job still running is cancelled first (its leases end and
+    /// results for them are refused), then its rows (job, tiles, pending results) leave the
+    /// database and the job leaves memory. Its scene stays: other jobs may use it.
+    pub fn remove_job(&mut self, id: &str) -> FarmResult<()> {
+        let now = self.clock.now();
+        let state = self.job(id)?.state;
+        // The database first: if it fails, nothing has changed.
+        self.store.delete_job(id)?;
+        if !state.is_final() {
+            self.leases.step(Event::Cancel { job: id }, now)?;
+        }
+        self.jobs.remove(id);
+        self.counters.jobs_removed += 1;
+        tracing::info!(job = %id, was = state.name(), "job removed");
+        Ok(())
     }
 
     /// The merged film of frame `number` of job `id` (also while it runs), with its job's

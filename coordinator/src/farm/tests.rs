@@ -249,6 +249,113 @@ fn physically_impossible_results_are_refused_and_nothing_is_merged() {
     assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 4));
 }
 
+/// A running job removed is gone at once (its lease with it) and after a restart, with every
+/// row it had; the other jobs and the scene stay.
+#[test]
+fn a_removed_job_is_gone_and_stays_gone_after_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut farm, w, id, grant) = one_leased_task(dir.path());
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp: 8,
+        samples_per_task: 4,
+        ..Default::default()
+    };
+    let hash = "aa".repeat(32);
+    let other = farm.create_job(&hash, settings, 0).unwrap().id;
+    // The other job gets a merged task and a pending one; the removed one a merged task.
+    let first = farm.lease(&w).unwrap().unwrap();
+    let second = farm.lease(&w).unwrap().unwrap();
+    assert_eq!((first.job.as_str(), second.job.as_str()), (other.as_str(), other.as_str()));
+    farm.submit(&second.lease, &w, result_for(&second, 0.5), 0).unwrap();
+    let rows = |farm: &Farm, job: &str| farm.store.rows_of(job);
+    assert_eq!(rows(&farm, &other), 2, "the other job's row and its pending result");
+
+    farm.remove_job(&id).unwrap();
+    assert_eq!(farm.status(&id).unwrap_err().kind, ErrorKind::NotFound);
+    assert_eq!(farm.remove_job(&id).unwrap_err().kind, ErrorKind::NotFound);
+    assert_eq!(farm.leases_out(), 1, "the removed job's lease is gone, the other's stays");
+    let late = farm.submit(&grant.lease, &w, result_for(&grant, 0.5), 0).unwrap_err();
+    assert_eq!(late.kind, ErrorKind::Conflict, "{}", late.message);
+    assert_eq!(rows(&farm, &id), 0);
+    assert_eq!(farm.counters.jobs_removed, 1);
+    drop(farm);
+
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    assert_eq!(farm.status(&id).unwrap_err().kind, ErrorKind::NotFound, "it came back");
+    assert_eq!(farm.status(&other).unwrap().samples_done, 64 * 4);
+    assert!(farm.scene_file(&hash).is_ok(), "the scene left with the job");
+    // A finished job is removed the same way, with its tiles.
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let again = farm.lease(&w).unwrap().unwrap();
+    farm.submit(&again.lease, &w, result_for(&again, 0.5), 0).unwrap();
+    assert_eq!(farm.status(&other).unwrap().state, JobState::Done);
+    farm.remove_job(&other).unwrap();
+    assert_eq!(rows(&farm, &other), 0);
+    assert!(farm.list(&JobQuery::default()).jobs.is_empty());
+}
+
+/// With a retention time, the tick removes finished jobs that long after they ended (by the
+/// farm's clock, also across a restart), and never a job that still runs.
+#[test]
+fn finished_jobs_are_removed_after_the_retention_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let hour = Duration::from_secs(3600);
+    let mut config = FarmConfig::new(dir.path().into());
+    config.retain_finished = Some(hour);
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, config.clone());
+    let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
+    let done = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+    let grant = farm.lease(&w).unwrap().unwrap();
+    clock.advance(Duration::from_secs(10));
+    farm.submit(&grant.lease, &w, result_for(&grant, 0.5), 0).unwrap();
+    let status = farm.status(&done).unwrap();
+    assert_eq!((status.state, status.finished_unix), (JobState::Done, Some(10.0)));
+    let running = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+    assert!(farm.lease(&w).unwrap().is_some());
+    clock.advance(Duration::from_secs(30 * 60));
+    let cancelled = farm.create_job(&hash, settings, 0).unwrap().id;
+    farm.cancel(&cancelled).unwrap();
+    assert_eq!(farm.status(&cancelled).unwrap().finished_unix, Some(1810.0));
+    drop(farm);
+
+    // The end time survives a restart.
+    let mut farm = Farm::open_with_clock(config, Arc::new(clock.clone())).unwrap();
+    clock.advance(hour - Duration::from_secs(30 * 60 + 1));
+    farm.tick();
+    assert!(farm.status(&done).is_ok(), "removed before its time");
+    clock.advance(Duration::from_secs(1));
+    farm.tick();
+    assert_eq!(farm.status(&done).unwrap_err().kind, ErrorKind::NotFound);
+    assert!(farm.status(&cancelled).is_ok());
+    assert_eq!(farm.status(&running).unwrap().finished_unix, None);
+    clock.advance(Duration::from_secs(30 * 60));
+    farm.tick();
+    assert_eq!(farm.status(&cancelled).unwrap_err().kind, ErrorKind::NotFound);
+    clock.advance(100 * hour);
+    farm.tick();
+    assert!(farm.status(&running).is_ok(), "a job that runs is never removed");
+    assert_eq!(farm.counters.jobs_removed, 2);
+}
+
+/// Without a retention time nothing is removed, however old.
+#[test]
+fn without_a_retention_time_finished_jobs_stay() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, _) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    farm.cancel(&id).unwrap();
+    clock.advance(Duration::from_secs(10 * 365 * 24 * 3600));
+    farm.tick();
+    assert!(farm.status(&id).is_ok());
+}
+
 /// Lists come a page at a time in either order, filtered by state, as summaries without the
 /// per-frame lists; a page's cursor leads to the next one, and the last has none.
 #[test]
@@ -297,4 +404,12 @@ fn jobs_are_listed_a_page_at_a_time() {
 
     let cancelled = JobQuery { states: Some(vec![JobState::Cancelled]), ..Default::default() };
     assert_eq!(listed(&farm.list(&cancelled)), [ids[1].clone(), ids[3].clone()]);
+    // A removed job leaves no hole a cursor could fall into.
+    farm.remove_job(&ids[2]).unwrap();
+    let page = farm.list(&JobQuery {
+        limit: 2,
+        after: Some(farm.jobs[&ids[1]].seq),
+        ..Default::default()
+    });
+    assert_eq!(listed(&page), [ids[3].clone(), ids[4].clone()]);
 }

@@ -1,7 +1,9 @@
 //! Jobs: `POST /api/v1/jobs` creates one on a stored scene, `GET /api/v1/jobs` lists them a page
-//! at a time (`?state=&order=&after=&limit=`), `GET|DELETE /api/v1/jobs/{id}` shows or cancels
-//! one, and `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`) serves a frame's image, also while
-//! the job runs.
+//! at a time (`?state=&order=&after=&limit=`), `GET /api/v1/jobs/{id}` shows one,
+//! `POST /api/v1/jobs/{id}/cancel` cancels one (and so does `DELETE /api/v1/jobs/{id}`, as it
+//! always did), `DELETE /api/v1/jobs/{id}?purge=true` removes one entirely, and
+//! `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`) serves a frame's image, also while the job
+//! runs.
 
 use std::sync::Mutex;
 
@@ -29,7 +31,8 @@ use crate::{
 pub(super) fn routes() -> Router<AppState> {
     Router::new()
         .route("/api/v1/jobs", post(create_job).get(list_jobs))
-        .route("/api/v1/jobs/{id}", get(job_status).delete(cancel_job))
+        .route("/api/v1/jobs/{id}", get(job_status).delete(delete_job))
+        .route("/api/v1/jobs/{id}/cancel", post(cancel_job))
         .route("/api/v1/jobs/{id}/frames/{file}", get(frame_image))
 }
 
@@ -161,6 +164,37 @@ async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> Ap
 async fn cancel_job(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
     let status = state.lock().cancel(&id)?;
     Ok(Json(status).into_response())
+}
+
+/// `DELETE /jobs/{id}` cancels, as it always has (a client written for that must not lose a
+/// job's images); `?purge=true` removes the job entirely, cancelling it first if it runs.
+async fn delete_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    query: QueryPairs,
+) -> ApiResult<Response> {
+    let mut purge = false;
+    for (key, value) in query_pairs(query)? {
+        match (key.as_str(), value.as_str()) {
+            ("purge", "true") => purge = true,
+            ("purge", "false") => purge = false,
+            ("purge", _) => {
+                return Err(FarmError::malformed(format!(
+                    "purge: '{value}' is neither true nor false"
+                )))
+            }
+            _ => {
+                return Err(FarmError::malformed(format!(
+                    "unknown query parameter '{key}' (only purge)"
+                )))
+            }
+        }
+    }
+    if !purge {
+        return cancel_job(State(state), Path(id)).await;
+    }
+    state.lock().remove_job(&id)?;
+    Ok(Json(json!({ "removed": id })).into_response())
 }
 
 async fn frame_image(

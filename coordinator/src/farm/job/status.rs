@@ -45,6 +45,8 @@ pub struct JobStatus {
     pub settings: RenderSettings,
     /// Creation time, seconds since the Unix epoch.
     pub created_unix: f64,
+    /// When it ended (done, failed or cancelled), seconds since the Unix epoch.
+    pub finished_unix: Option<f64>,
 }
 
 /// A job in a list: [`JobStatus`] without what grows with the frames (their numbers and
@@ -81,6 +83,8 @@ pub struct JobSummary {
     pub tasks_in_flight: u32,
     /// Creation time, seconds since the Unix epoch.
     pub created_unix: f64,
+    /// When it ended, seconds since the Unix epoch.
+    pub finished_unix: Option<f64>,
 }
 
 /// What both views compute from every tile.
@@ -175,6 +179,7 @@ impl Job {
                 .collect(),
             settings: self.settings.clone(),
             created_unix: self.created_unix,
+            finished_unix: self.finished_unix,
         }
     }
 
@@ -197,6 +202,7 @@ impl Job {
             first_frame: self.settings.frames.start,
             tasks_in_flight: self.in_flight,
             created_unix: self.created_unix,
+            finished_unix: self.finished_unix,
         }
     }
 }
