@@ -13,7 +13,9 @@
 //! fix), never of timing, worker count or arrival order.
 //!
 //! Values above `MAX_SAMPLE_VALUE` or non-finite are refused and counted as zero-valued samples
-//! instead (reported, never silently added).
+//! instead (reported, never silently added); a negative component (rounding) counts as zero.
+//! So the statistics of real samples always pass `PixelSums::check`, which the farm runs on
+//! every result before merging it.
 //!
 //! Even and odd sample indices come from two independently scrambled sequences (see the
 //! worker's sampler), so the means of the two halves are independent estimates. Their difference
@@ -22,8 +24,14 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Largest magnitude a single sample may have.
+/// Largest magnitude a single sample may have: the renderer refuses (and counts) a sample
+/// beyond it, and the farm refuses a result whose means or spread go beyond what samples within
+/// it can give ([`PixelSums::check`]).
 pub const MAX_SAMPLE_VALUE: f32 = 1.0e12;
+
+/// The relative margin the upper bounds of [`PixelSums::check`] leave for rounding, far above
+/// what Welford's and Chan's updates can accumulate (n ε for n samples).
+pub const ROUNDING_MARGIN: f64 = 1e-6;
 
 /// Running statistics of the samples of one pixel.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -42,11 +50,13 @@ pub struct PixelSums {
 
 impl PixelSums {
     /// Adds sample number `sample_idx`. Returns false (and counts a zero sample) when the value
-    /// is not finite or too large to be a radiance.
+    /// is not finite or too large to be a radiance. A negative component counts as zero: radiance
+    /// is never negative, and only rounding (a BSDF's `1 - F` a few ulps below zero) makes one,
+    /// so that the sums of an honest renderer always pass [`PixelSums::check`].
     #[inline]
     pub fn add(&mut self, sample_idx: u32, rgb: [f32; 3]) -> bool {
         let ok = rgb.iter().all(|v| v.is_finite() && v.abs() <= MAX_SAMPLE_VALUE);
-        let rgb = if ok { rgb } else { [0.0; 3] };
+        let rgb = if ok { rgb.map(|v| v.max(0.0)) } else { [0.0; 3] };
         self.n += 1;
         let inv_n = 1.0 / self.n as f64;
         let odd = sample_idx & 1 == 1;
@@ -92,8 +102,16 @@ impl PixelSums {
     }
 
     /// Checks that these statistics could come from `n` real samples of which `n_odd` have odd
-    /// indices: the counts match, every value is finite, means lie within
-    /// [`MAX_SAMPLE_VALUE`], and squared deviations are non-negative.
+    /// indices, each a radiance the renderer keeps (finite, not negative, at most
+    /// [`MAX_SAMPLE_VALUE`]): the counts match, every value is finite, means lie in
+    /// `[0, MAX_SAMPLE_VALUE]`, and squared deviations in `[0, n MAX_SAMPLE_VALUE² / 4]`.
+    /// The message names the channel, the quantity and its value.
+    ///
+    /// An honest renderer always passes: the scene's inputs (emission, lights, colours, the
+    /// environment) are refused when negative and its BSDFs are clamped, so samples are never
+    /// negative; Welford's and Chan's updates keep a mean between the smallest and largest value
+    /// merged (each step adds a fraction at most 1 of a difference) and squared deviations
+    /// non-negative; and the upper bounds carry a margin ([`ROUNDING_MARGIN`]) for rounding.
     pub fn check(&self, n: u32, n_odd: u32) -> Result<(), String> {
         if self.n != n || self.n_odd != n_odd {
             return Err(format!(
@@ -101,20 +119,43 @@ impl PixelSums {
                 self.n, self.n_odd
             ));
         }
-        let max = MAX_SAMPLE_VALUE as f64;
+        let max_mean = MAX_SAMPLE_VALUE as f64 * (1.0 + ROUNDING_MARGIN);
+        // n values in [0, M] deviate from their mean by at most n M² / 4 in all (half at 0,
+        // half at M).
+        let max_m2 = n as f64 * (MAX_SAMPLE_VALUE as f64).powi(2) / 4.0 * (1.0 + ROUNDING_MARGIN);
         for c in 0..3 {
-            let values = [self.mean[c], self.m2[c], self.mean_odd[c]];
-            if values.iter().any(|v| !v.is_finite()) {
-                return Err(format!("channel {c}: a value is not finite ({values:?})"));
+            let values = [("mean", self.mean[c]), ("mean of odd samples", self.mean_odd[c])];
+            for (what, v) in values {
+                if !v.is_finite() {
+                    return Err(format!("channel {c}: {what} {v} is not finite"));
+                }
+                if v < 0.0 {
+                    return Err(format!("channel {c}: {what} {v} is negative"));
+                }
+                if v > max_mean {
+                    return Err(format!(
+                        "channel {c}: {what} {v:e} is beyond the largest sample value {MAX_SAMPLE_VALUE:e}"
+                    ));
+                }
             }
-            if self.m2[c] < 0.0 {
-                return Err(format!("channel {c}: negative sum of squared deviations"));
+            let m2 = self.m2[c];
+            let what = "sum of squared deviations";
+            if !m2.is_finite() {
+                return Err(format!("channel {c}: {what} {m2} is not finite"));
             }
-            if self.mean[c].abs() > max || self.mean_odd[c].abs() > max {
-                return Err(format!("channel {c}: mean beyond the largest sample value {max:e}"));
+            if m2 < 0.0 {
+                return Err(format!("channel {c}: {what} {m2} is negative"));
+            }
+            if m2 > max_m2 {
+                return Err(format!(
+                    "channel {c}: {what} {m2:e} is more than {n} samples of at most {MAX_SAMPLE_VALUE:e} can have"
+                ));
             }
             if self.n_odd == 0 && self.mean_odd[c] != 0.0 {
-                return Err(format!("channel {c}: a mean of odd samples without odd samples"));
+                return Err(format!(
+                    "channel {c}: a mean of odd samples ({}) without odd samples",
+                    self.mean_odd[c]
+                ));
             }
         }
         Ok(())
@@ -396,6 +437,50 @@ mod tests {
         assert_eq!(tile.pixels[0].n, 2);
         assert_eq!(tile.pixels[0].mean(), [0.5, 1.0, 1.5]);
         assert_eq!(tile.pixels[1].mean(), [0.0; 3]);
+    }
+
+    /// Statistics of real samples pass the check; each impossible value is refused with its
+    /// channel, its name and the value.
+    #[test]
+    fn the_check_refuses_what_no_samples_give() {
+        let mut state = 5;
+        let mut honest = PixelSums::default();
+        for i in 0..64 {
+            // Some bright, some black, and a rounding-negative one (counted as zero).
+            let v = if i % 7 == 0 { -1e-9 } else { lcg(&mut state).powi(4) * 1e4 };
+            assert!(honest.add(i, [v, 0.0, MAX_SAMPLE_VALUE]));
+        }
+        assert_eq!(honest.check(64, 32), Ok(()));
+        let max = MAX_SAMPLE_VALUE as f64;
+        let cases: [(fn(&mut PixelSums, f64), &str); 8] = [
+            (|p, _| p.mean[0] = -100.0, "channel 0: mean -100 is negative"),
+            (|p, _| p.mean[1] = f64::NAN, "channel 1: mean NaN is not finite"),
+            (|p, _| p.mean_odd[2] = -1.0, "channel 2: mean of odd samples -1 is negative"),
+            (|p, _| p.m2[0] = -0.25, "channel 0: sum of squared deviations -0.25 is negative"),
+            (|p, _| p.m2[1] = f64::INFINITY, "channel 1: sum of squared deviations inf is not"),
+            (|p, _| p.mean[2] = 2e12, "channel 2: mean 2e12 is beyond the largest"),
+            (|p, max| p.m2[2] = 17.0 * max * max, "more than 64 samples of at most 1e12"),
+            (|p, _| p.n -= 1, "63 samples (32 odd), the task has 64 (32 odd)"),
+        ];
+        for (forge, message) in cases {
+            let mut p = honest;
+            forge(&mut p, max);
+            let refused = p.check(64, 32).unwrap_err();
+            assert!(refused.contains(message), "{refused}");
+        }
+        // Samples at the largest value pass (means and spread at their bounds).
+        let mut bright = PixelSums::default();
+        for i in 0..64 {
+            bright.add(i, [if i % 2 == 0 { 0.0 } else { MAX_SAMPLE_VALUE }; 3]);
+        }
+        assert_eq!(bright.check(64, 32), Ok(()));
+    }
+
+    #[test]
+    fn negative_samples_count_as_zero() {
+        let mut p = PixelSums::default();
+        assert!(p.add(0, [-0.5, 1.0, -1e-30]));
+        assert_eq!(p.mean(), [0.0, 1.0, 0.0]);
     }
 
     #[test]

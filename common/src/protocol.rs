@@ -53,7 +53,9 @@ pub struct TaskResult {
 impl TaskResult {
     /// Checks that this result really answers `spec`: same task, one pixel sum per pixel of the
     /// tile, every pixel holding exactly the task's samples, and sums that some set of real
-    /// sample values could have produced. The message names the first problem found.
+    /// sample values could have produced ([`crate::film::PixelSums::check`]: finite, means not
+    /// negative and within the renderer's largest sample value). The message names the first
+    /// problem found: the pixel (image coordinates), the channel and the value.
     pub fn check_answers(&self, spec: &TaskSpec) -> Result<(), String> {
         if self.spec != *spec {
             return Err(format!(
@@ -81,7 +83,9 @@ impl TaskResult {
         let n_odd = spec.samples.end / 2 - spec.samples.start / 2;
         for (i, p) in self.tile.pixels.iter().enumerate() {
             let (x, y) = (i as u32 % spec.rect.width, i as u32 / spec.rect.width);
-            p.check(n, n_odd).map_err(|e| format!("pixel ({x}, {y}) of the tile: {e}"))?;
+            let (x, y) = (spec.rect.x0 + x, spec.rect.y0 + y);
+            p.check(n, n_odd)
+                .map_err(|e| format!("pixel ({x}, {y}) of frame {}: {e}", spec.frame))?;
         }
         let max_rejected = n as u64 * spec.rect.area() as u64;
         if self.tile.rejected > max_rejected {

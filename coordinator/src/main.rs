@@ -188,6 +188,11 @@ enum Command {
         /// Scene uploads received at once; more are refused as busy (503).
         #[arg(long, default_value_t = 4)]
         max_concurrent_uploads: usize,
+        /// Remove finished jobs (done, failed, cancelled), with their images, this many hours
+        /// after they ended (default: keep them until removed with
+        /// `DELETE /api/v1/jobs/{id}?purge=true`).
+        #[arg(long)]
+        retain_finished_hours: Option<f64>,
     },
     /// Submit a scene to a running farm, wait, and write OUT.exr (+ OUT.png).
     Submit {
@@ -311,6 +316,7 @@ fn main() -> Result<()> {
             body_timeout,
             max_connections,
             max_concurrent_uploads,
+            retain_finished_hours,
         } => {
             for (flag, value) in
                 [("--header-timeout", header_timeout), ("--body-timeout", body_timeout)]
@@ -341,6 +347,15 @@ fn main() -> Result<()> {
                 max_lease_hours.is_finite() && max_lease_hours > 0.0,
                 "--max-lease-hours must be a positive number"
             );
+            let retain_finished = retain_finished_hours
+                .map(|h| {
+                    Duration::try_from_secs_f64(h * 3600.0).map_err(|_| {
+                        anyhow::anyhow!(
+                            "--retain-finished-hours {h}: must be a number of hours, 0 or more"
+                        )
+                    })
+                })
+                .transpose()?;
             let mut addr: SocketAddr = listen.parse().with_context(|| {
                 format!("--listen {listen}: expected an address like 0.0.0.0:8080")
             })?;
@@ -372,6 +387,10 @@ fn main() -> Result<()> {
                 triangles: (max_megatriangles * 1e6) as u64,
                 ..SceneBudget::default()
             };
+            config.farm.retain_finished = retain_finished;
+            if let Some(h) = retain_finished_hours {
+                tracing::info!("finished jobs are removed {h} hours after they end");
+            }
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {
                 let listener = tokio::net::TcpListener::bind(addr)

@@ -179,7 +179,16 @@ pub fn post_json(url: &str, body: &Value) -> Answer {
 
 /// DELETE.
 pub fn delete(url: &str) -> Answer {
-    answer(ureq::delete(url).call())
+    delete_with(url, &[])
+}
+
+/// DELETE with headers.
+pub fn delete_with(url: &str, headers: &[(&str, &str)]) -> Answer {
+    let mut req = ureq::delete(url);
+    for (k, v) in headers {
+        req = req.set(k, v);
+    }
+    answer(req.call())
 }
 
 /// The cornell box as a zip bundle (the .gltf and its .bin).

@@ -116,7 +116,7 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let dir = temp_dir("bad-results");
     let port = free_port();
     let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let coordinator = start_coordinator(&dir.join("data"), port, &[]);
     let scene = upload(&url, &cornell_zip());
     let single =
         json!({"width": 32, "height": 32, "spp": 32, "samples_per_task": 32, "tile_size": 32});
@@ -127,9 +127,18 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
         a.json()["id"].as_str().unwrap().to_string()
     };
     let (w1, w2) = (join("w1"), join("w2"));
-    let grant = post_json(&format!("{url}/api/v1/workers/{w1}/lease?wait_s=5"), &json!({})).json();
+    let lease_for = |worker: &str| {
+        post_json(&format!("{url}/api/v1/workers/{worker}/lease?wait_s=5"), &json!({})).json()
+    };
+    let grant = lease_for(&w1);
     let lease = grant["lease"].as_str().unwrap().to_string();
     let spec: TaskSpec = serde_json::from_value(grant["task"].clone()).unwrap();
+    // A second job's task takes the honest and the duplicate result below, so that the first
+    // job is rendered by a real worker in the end.
+    let scratch = create_job(&url, &scene, &single, 1);
+    let scratch_grant = lease_for(&w1);
+    assert_eq!(scratch_grant["job"].as_str(), Some(scratch.as_str()));
+    let scratch_lease = scratch_grant["lease"].as_str().unwrap().to_string();
     // Another job runs on a real worker meanwhile, undisturbed by what follows.
     let _worker = start_worker(&url, 1, dir.join("worker.log"));
     let other = create_job(&url, &scene, &settings(64, 32), 0);
@@ -166,6 +175,23 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let a = send(&w1, "application/octet-stream", &encode_result(&not_a_number));
     assert_eq!((a.status, a.error().contains("not finite")), (422, true), "NaN: {}", a.error());
 
+    // Radiance is never negative: a mean of -100 (consistent counts, finite, within every
+    // other bound) is refused, naming the pixel and the value.
+    let mut negative = result_for(&spec, 0.5);
+    negative.tile.pixels[32 * 3 + 7].mean[2] = -100.0;
+    let a = send(&w1, "application/octet-stream", &encode_result(&negative));
+    assert_eq!(a.status, 422, "a negative mean: {}", a.error());
+    assert!(
+        a.error().contains("pixel (7, 3)") && a.error().contains("mean -100 is negative"),
+        "{}",
+        a.error()
+    );
+
+    let mut blinding = result_for(&spec, 0.5);
+    blinding.tile.pixels[1].mean[0] = 1e15;
+    let a = send(&w1, "application/octet-stream", &encode_result(&blinding));
+    assert_eq!((a.status, a.error().contains("beyond")), (422, true), "{}", a.error());
+
     let mut short = result_for(&spec, 0.5);
     short.tile.pixels[3].n -= 1;
     let a = send(&w1, "application/octet-stream", &encode_result(&short));
@@ -190,14 +216,37 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
 
     assert_eq!(job_status(&url, &job)["samples_done"], 0, "a refused result was merged");
 
-    let a = send(&w1, "application/octet-stream", &good);
+    let scratch_spec: TaskSpec = serde_json::from_value(scratch_grant["task"].clone()).unwrap();
+    let honest = encode_result(&result_for(&scratch_spec, 0.5));
+    let scratch_url = format!("{url}/api/v1/leases/{scratch_lease}/result");
+    let a = post_bytes(&scratch_url, "application/octet-stream", &[("x-worker-id", &w1)], &honest);
     assert_eq!(a.status, 200, "the honest result: {}", a.error());
-    let a = send(&w1, "application/octet-stream", &good);
+    let a = post_bytes(&scratch_url, "application/octet-stream", &[("x-worker-id", &w1)], &honest);
     assert_eq!((a.status, a.error().contains("not live")), (409, true), "duplicate: {}", a.error());
-    let done = job_status(&url, &job);
+    let done = job_status(&url, &scratch);
     assert_eq!(done["samples_done"], 32 * 32 * 32, "{done:#}");
     assert_eq!(done["state"], "done");
-    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 10.0);
+    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 12.0);
+    // Each refusal is logged with the worker, the lease and the reason.
+    let log = coordinator.log_text();
+    let line = log.lines().find(|l| l.contains("mean -100 is negative")).expect("no log line");
+    assert!(line.contains("WARN") && line.contains(&w1) && line.contains(&lease), "{line}");
+    let refusals = log.lines().filter(|l| l.contains("result refused")).count();
+    assert_eq!(refusals, 12, "{log}");
+
+    // The forger leaves (it may remove only itself); its lease goes back, and a real worker
+    // renders the job: its image is bit for bit `coordinator render`'s, nothing forged in it.
+    let leave = format!("{url}/api/v1/workers/{w1}");
+    let a = delete_with(&leave, &[]);
+    assert_eq!((a.status, a.error().contains("x-worker-id")), (400, true), "{}", a.error());
+    let a = delete_with(&leave, &[("x-worker-id", &w2)]);
+    assert_eq!((a.status, a.error().contains("only itself")), (403, true), "{}", a.error());
+    let a = delete_with(&leave, &[("x-worker-id", &w1)]);
+    assert_eq!(a.status, 200, "{}", a.error());
+    let status = wait_done(&url, &job, TIMEOUT);
+    assert_eq!(status["samples_done"], 32 * 32 * 32);
+    let reference = render_reference(&dir, &single, 1);
+    assert_same_image(&reference, &fetch_exr(&url, &job, 0), "after forged results");
     wait_done(&url, &other, TIMEOUT);
 }
 
@@ -479,6 +528,43 @@ fn tokens_guard_the_worker_protocol_and_the_user_api() {
     }
     let _ = child.kill();
     let _ = child.wait();
+
+    // A worker removes only itself (join token, its id in x-worker-id); an operator with the
+    // API token removes any worker.
+    let join_auth = ("authorization", "Bearer join-secret");
+    let join = |name: &str| {
+        let body = json!({"name": name, "threads": 1}).to_string();
+        let a = post_bytes(
+            &format!("{url}/api/v1/workers"),
+            "application/json",
+            &[join_auth],
+            body.as_bytes(),
+        );
+        assert_eq!(a.status, 201, "{}", a.error());
+        a.json()["id"].as_str().unwrap().to_string()
+    };
+    let (a_id, b_id) = (join("a"), join("b"));
+    let (a_url, b_url) =
+        (format!("{url}/api/v1/workers/{a_id}"), format!("{url}/api/v1/workers/{b_id}"));
+    let a = delete_with(&a_url, &[join_auth, ("x-worker-id", &b_id)]);
+    assert_eq!((a.status, a.error().contains("only itself")), (403, true), "{}", a.error());
+    let a = delete_with(&a_url, &[join_auth]);
+    assert_eq!((a.status, a.error().contains("x-worker-id")), (400, true), "{}", a.error());
+    let a = delete_with(&b_url, &[("x-worker-id", &b_id)]);
+    assert_eq!(a.status, 401, "{}", a.error());
+    let a = delete_with(&a_url, &[api[0]]);
+    assert_eq!(a.status, 200, "the operator: {}", a.error());
+    let a = delete_with(&b_url, &[join_auth, ("x-worker-id", &b_id)]);
+    assert_eq!(a.status, 200, "the worker itself: {}", a.error());
+    let listed = ureq::get(&format!("{url}/api/v1/workers"))
+        .set("authorization", "Bearer api-secret")
+        .call()
+        .unwrap()
+        .into_json::<Value>()
+        .unwrap();
+    let ids: Vec<&str> =
+        listed["workers"].as_array().unwrap().iter().filter_map(|w| w["id"].as_str()).collect();
+    assert!(!ids.contains(&a_id.as_str()) && !ids.contains(&b_id.as_str()), "{listed:#}");
 }
 
 #[test]
@@ -514,4 +600,109 @@ fn without_a_token_the_coordinator_serves_loopback_only_and_says_so() {
         "{text}"
     );
     assert_ne!(reached_elsewhere, Some(true), "answered on a non-loopback address");
+}
+
+#[test]
+fn jobs_are_listed_by_pages_cancelled_and_removed_for_good() {
+    let dir = temp_dir("job-list");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let data = dir.join("data");
+    let mut coordinator = start_coordinator(&data, port, &[]);
+    let scene = upload(&url, &cornell_zip());
+    // No worker: every job stays queued until it is cancelled.
+    let animation =
+        json!({"width": 16, "height": 16, "spp": 4, "frames": {"start": 5, "end": 104}});
+    let ids: Vec<String> = (0..3).map(|_| create_job(&url, &scene, &animation, 0)).collect();
+    let jobs = format!("{url}/api/v1/jobs");
+    let listed = |query: &str| {
+        let a = get(&format!("{jobs}{query}"));
+        assert_eq!(a.status, 200, "{query}: {}", a.error());
+        let page = a.json();
+        let ids: Vec<String> = page["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j["id"].as_str().unwrap().to_string())
+            .collect();
+        (ids, page)
+    };
+    let (all, page) = listed("");
+    assert_eq!((all, page["next"].clone()), (ids.clone(), Value::Null));
+    // A list item is compact: no per-frame lists, the frame count instead.
+    let item = &page["jobs"][0];
+    assert_eq!((item["frame_count"].as_u64(), item["first_frame"].as_i64()), (Some(100), Some(5)));
+    assert!(item.get("frame_progress").is_none() && item.get("frames").is_none(), "{item:#}");
+    assert_eq!(item["scene"], scene.as_str());
+
+    let (first, page) = listed("?limit=2");
+    assert_eq!(first, ids[..2]);
+    let next = page["next"].as_str().expect("a cursor to the next page").to_string();
+    let (rest, page) = listed(&format!("?limit=2&after={next}"));
+    assert_eq!((rest, page["next"].clone()), (ids[2..].to_vec(), Value::Null));
+    let (newest, _) = listed("?order=newest&limit=1");
+    assert_eq!(newest, ids[2..]);
+    for (query, needle) in [
+        ("?limit=0", "limit"),
+        ("?limit=1001", "limit"),
+        ("?state=sleeping", "sleeping"),
+        ("?order=random", "order"),
+        ("?after=x", "after"),
+        ("?colour=red", "colour"),
+    ] {
+        let a = get(&format!("{jobs}{query}"));
+        assert_eq!((a.status, a.error().contains(needle)), (400, true), "{query}: {}", a.error());
+    }
+
+    // Cancel: POST .../cancel, or DELETE as before.
+    let a = post_json(&format!("{jobs}/{}/cancel", ids[0]), &json!({}));
+    assert_eq!((a.status, a.json()["state"].as_str()), (200, Some("cancelled")), "{}", a.error());
+    let a = delete(&format!("{jobs}/{}", ids[1]));
+    assert_eq!((a.status, a.json()["state"].as_str()), (200, Some("cancelled")), "{}", a.error());
+    let a = delete(&format!("{jobs}/{}", ids[1]));
+    assert_eq!(a.status, 409, "{}", a.error());
+    let (cancelled, _) = listed("?state=cancelled");
+    assert_eq!(cancelled, ids[..2]);
+    let (active, _) = listed("?state=queued,running");
+    assert_eq!(active, ids[2..]);
+
+    // Purge: a finished job and a queued one, both gone for good.
+    let a = delete(&format!("{jobs}/{}?purge=yes", ids[0]));
+    assert_eq!(a.status, 400, "{}", a.error());
+    for id in [&ids[0], &ids[2]] {
+        let a = delete(&format!("{jobs}/{id}?purge=true"));
+        assert_eq!((a.status, a.json()["removed"].as_str()), (200, Some(id.as_str())));
+        assert_eq!(get(&format!("{jobs}/{id}")).status, 404);
+        assert_eq!(get(&format!("{jobs}/{id}/frames/5.exr")).status, 404);
+    }
+    let a = delete(&format!("{jobs}/{}?purge=true", ids[0]));
+    assert_eq!(a.status, 404, "{}", a.error());
+    coordinator.kill9();
+    let _coordinator = start_coordinator(&data, port, &[]);
+    let (left, _) = listed("");
+    assert_eq!(left, ids[1..2], "a removed job came back after a restart");
+    // The scene stays for other jobs.
+    create_job(&url, &scene, &animation, 0);
+}
+
+#[test]
+fn finished_jobs_are_removed_after_the_retention_time() {
+    let dir = temp_dir("retention");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator =
+        start_coordinator(&dir.join("data"), port, &["--retain-finished-hours", "0"]);
+    let scene = upload(&url, &cornell_zip());
+    let kept = create_job(&url, &scene, &settings(8, 8), 0);
+    let gone = create_job(&url, &scene, &settings(8, 8), 0);
+    let a = post_json(&format!("{url}/api/v1/jobs/{gone}/cancel"), &json!({}));
+    assert_eq!(a.status, 200, "{}", a.error());
+    // A retention of zero hours: the next tick removes it.
+    let end = std::time::Instant::now() + TIMEOUT;
+    while get(&format!("{url}/api/v1/jobs/{gone}")).status != 404 {
+        assert!(std::time::Instant::now() < end, "the finished job was never removed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(job_status(&url, &kept)["state"], "queued", "a job that waits was removed");
+    assert_eq!(metric(&url, "renderfarm_jobs_removed_total"), 1.0);
 }

@@ -229,6 +229,7 @@ impl Link for HttpLink {
 
     fn leave(&self, worker: &str) -> Result<(), CallError> {
         self.authorize(self.agent.delete(&self.url(&format!("/workers/{worker}"))))
+            .set(WORKER_HEADER, worker)
             .call()
             .map(|_| ())
             .map_err(call_error)

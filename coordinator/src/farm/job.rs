@@ -32,7 +32,7 @@ use serde::Serialize;
 use super::clock::Moment;
 use crate::{output::FrameImage, split::tiles};
 
-pub use status::{FrameProgress, JobStatus};
+pub use status::{FrameProgress, JobStatus, JobSummary};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
 pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;
@@ -180,6 +180,9 @@ pub struct Job {
     pub time_up: bool,
     /// A finished job's sums were dropped from memory (they stay in the database).
     pub evicted: bool,
+    /// When it ended (done, failed or cancelled), seconds since the Unix epoch: what
+    /// `--retain-finished-hours` counts from. Noted by the farm, which reads the clock.
+    pub finished_unix: Option<f64>,
 }
 
 /// A job refuses more than this many tasks (absurd settings would only fill memory).
@@ -247,6 +250,7 @@ impl Job {
             tiles_open,
             time_up: false,
             evicted: false,
+            finished_unix: None,
         })
     }
 
@@ -449,6 +453,17 @@ impl Job {
         }
         self.state = state;
         self.error = error;
+    }
+
+    /// Notes that the job ended at `unix` (seconds since the Unix epoch) if it has ended and no
+    /// end is noted yet; returns true when it noted one. Call it after anything that may end
+    /// the job.
+    pub fn note_end(&mut self, unix: f64) -> bool {
+        let noted = self.state.is_final() && self.finished_unix.is_none();
+        if noted {
+            self.finished_unix = Some(unix);
+        }
+        noted
     }
 
     /// Checks the time limit at `now`; returns true when it has just passed.

@@ -1,5 +1,5 @@
-//! The farm's user side: scenes in, jobs created, listed, cancelled, and their images out. The
-//! worker side (leases and results) is in `mod.rs`.
+//! The farm's user side: scenes in, jobs created, listed (a page at a time), cancelled and
+//! removed, and their images out. The worker side (leases and results) is in `mod.rs`.
 
 use std::{collections::BTreeMap, path::PathBuf};
 
@@ -7,7 +7,7 @@ use common::{film::TileAccum, settings::RenderSettings};
 
 use super::{
     error::{FarmError, FarmResult},
-    job::{Job, JobState, JobStatus},
+    job::{Job, JobState, JobStatus, JobSummary},
     lease::Event,
     random_id,
     validate::{check_settings, is_hash, SceneInfo},
@@ -79,12 +79,29 @@ impl Farm {
         Ok(self.job(id)?.status(self.clock.now()))
     }
 
-    /// Every job's status, oldest first.
-    pub fn list(&self) -> Vec<JobStatus> {
+    /// One page of the jobs `query` selects, in its order, as summaries.
+    pub fn list(&self, query: &JobQuery) -> JobPage {
         let now = self.clock.now();
-        let mut jobs: Vec<&Job> = self.jobs.values().collect();
-        jobs.sort_by_key(|j| j.seq);
-        jobs.into_iter().map(|j| j.status(now)).collect()
+        let newest_first = query.order == ListOrder::Newest;
+        let mut jobs: Vec<&Job> = self
+            .jobs
+            .values()
+            .filter(|j| query.states.as_ref().is_none_or(|s| s.contains(&j.state)))
+            .filter(|j| match query.after {
+                None => true,
+                Some(after) if newest_first => j.seq < after,
+                Some(after) => j.seq > after,
+            })
+            .collect();
+        if newest_first {
+            jobs.sort_by_key(|j| std::cmp::Reverse(j.seq));
+        } else {
+            jobs.sort_by_key(|j| j.seq);
+        }
+        let more = jobs.len() > query.limit;
+        jobs.truncate(query.limit);
+        let next = if more { jobs.last().map(|j| j.seq) } else { None };
+        JobPage { jobs: jobs.into_iter().map(|j| j.summary(now)).collect(), next }
     }
 
     /// Counts of jobs by state.
@@ -108,6 +125,7 @@ impl Farm {
             return Err(FarmError::conflict(format!("job {id} is already {}", job.state.name())));
         }
         job.set_final(JobState::Cancelled, None, now);
+        job.note_end(self.clock.unix());
         job.in_flight = 0;
         self.store.update_job(job, now)?;
         let status = job.status(now);
@@ -115,6 +133,23 @@ impl Farm {
         self.evict_if_final(id);
         tracing::info!(job = %id, "job cancelled");
         Ok(status)
+    }
+
+    /// Removes job `id` entirely: a job still running is cancelled first (its leases end and
+    /// results for them are refused), then its rows (job, tiles, pending results) leave the
+    /// database and the job leaves memory. Its scene stays: other jobs may use it.
+    pub fn remove_job(&mut self, id: &str) -> FarmResult<()> {
+        let now = self.clock.now();
+        let state = self.job(id)?.state;
+        // The database first: if it fails, nothing has changed.
+        self.store.delete_job(id)?;
+        if !state.is_final() {
+            self.leases.step(Event::Cancel { job: id }, now)?;
+        }
+        self.jobs.remove(id);
+        self.counters.jobs_removed += 1;
+        tracing::info!(job = %id, was = state.name(), "job removed");
+        Ok(())
     }
 
     /// The merged film of frame `number` of job `id` (also while it runs), with its job's
@@ -163,4 +198,48 @@ impl Farm {
             ))
         })
     }
+}
+
+/// The order of a job list.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ListOrder {
+    /// Oldest first (creation order).
+    #[default]
+    Oldest,
+    /// Newest first.
+    Newest,
+}
+
+/// Which jobs a list shows, and how many.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JobQuery {
+    /// Only jobs in these states (`None`: every state).
+    pub states: Option<Vec<JobState>>,
+    /// The order.
+    pub order: ListOrder,
+    /// Only jobs after this one in that order (a [`JobPage::next`] cursor: a creation number).
+    pub after: Option<u64>,
+    /// At most this many.
+    pub limit: usize,
+}
+
+impl Default for JobQuery {
+    fn default() -> Self {
+        JobQuery { states: None, order: ListOrder::Oldest, after: None, limit: DEFAULT_LIST_LIMIT }
+    }
+}
+
+/// Jobs a list shows when it does not say how many.
+pub const DEFAULT_LIST_LIMIT: usize = 100;
+
+/// The most jobs one list may show.
+pub const MAX_LIST_LIMIT: usize = 1000;
+
+/// One page of a job list.
+#[derive(Clone, Debug)]
+pub struct JobPage {
+    /// The jobs, in the query's order.
+    pub jobs: Vec<JobSummary>,
+    /// The cursor of the next page (pass it as `after`); `None` on the last page.
+    pub next: Option<u64>,
 }

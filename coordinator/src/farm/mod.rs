@@ -35,6 +35,7 @@ pub mod validate;
 pub mod workers;
 
 pub use error::{ErrorKind, FarmError, FarmResult};
+pub use jobs::{JobPage, JobQuery, ListOrder, DEFAULT_LIST_LIMIT, MAX_LIST_LIMIT};
 pub use validate::{hex, is_hash, validate_job_scene, validate_upload, SceneInfo};
 pub use workers::WorkerInfo;
 
@@ -75,6 +76,9 @@ pub struct FarmConfig {
     /// Whether committed results must survive a crash (write-ahead log, synced). Only the
     /// one-shot local render, whose data folder is temporary, turns this off.
     pub durable: bool,
+    /// Finished jobs (done, failed, cancelled) are removed this long after they ended, by the
+    /// tick; `None` keeps them forever.
+    pub retain_finished: Option<Duration>,
 }
 
 impl FarmConfig {
@@ -90,6 +94,7 @@ impl FarmConfig {
             max_pixels: 16384 * 16384,
             scene_budget: Default::default(),
             durable: true,
+            retain_finished: None,
         }
     }
 
@@ -114,6 +119,8 @@ pub struct Counters {
     pub tasks_expired: u64,
     /// Results refused.
     pub results_refused: u64,
+    /// Jobs removed (by a user, or past `retain_finished`).
+    pub jobs_removed: u64,
     /// Failures reported by workers.
     pub tasks_failed: u64,
     /// Pixel samples merged.
@@ -171,6 +178,7 @@ impl Farm {
                 }
             };
             job.elapsed_before = stored.elapsed_s;
+            job.finished_unix = stored.finished_unix;
             for tile in store.tiles(&stored.id)? {
                 job.restore_tile(tile.frame, tile.tile, tile.prefix, tile.sums, tile.pending)
                     .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;
@@ -190,6 +198,11 @@ impl Farm {
                 job.state = if job.samples_done > 0 { JobState::Running } else { JobState::Queued };
                 job.finish_if_complete(now);
                 tracing::info!(job = %job.id, samples = job.samples_done, "resuming job");
+            }
+            // A job that ended before its end was stored (an older database) counts from now,
+            // so that retention never removes it sooner than promised.
+            if job.note_end(clock.unix()) {
+                store.update_job(&job, now)?;
             }
             jobs.insert(stored.id, job);
         }
@@ -336,6 +349,7 @@ impl Farm {
         let rays = result.rays;
         let job = self.jobs.get_mut(job_id).expect("a live lease has a job");
         job.merge(key, result.tile, samples, now);
+        job.note_end(self.clock.unix());
         // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
         if self.config.durable {
             if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k, now) {
@@ -367,6 +381,16 @@ impl Farm {
         Ok(())
     }
 
+    /// Counts and logs a refused result (from the farm's checks, or from the service's before
+    /// them: an unreadable body, a missing header): every refusal is on `/metrics` and in the
+    /// log with the worker, the lease and the reason.
+    pub fn result_refused(&mut self, lease: &str, worker: Option<&str>, why: &FarmError) {
+        self.counters.results_refused += 1;
+        let reason = why.message.strip_prefix("result refused: ").unwrap_or(&why.message);
+        let worker = worker.unwrap_or("(not named)");
+        tracing::warn!(worker, lease, kind = %why.kind, "result refused: {reason}");
+    }
+
     /// A worker could not render its task: the task is leased again, or after
     /// `max_task_failures` reports its job fails with the reason.
     pub fn fail(&mut self, lease: &str, worker: &str, error: &str) -> FarmResult<()> {
@@ -383,16 +407,39 @@ impl Farm {
         let freed = !expired.is_empty();
         // Nobody waits on a tick: a job's end that cannot be recorded is logged by `settle`.
         let _ = self.apply_releases(expired, now);
+        let unix = self.clock.unix();
         for job in self.jobs.values_mut() {
             if job.check_time_limit(now) {
                 tracing::info!(job = %job.id, "time limit reached: no more tasks are issued");
+                job.note_end(unix);
                 let _ = self.store.update_job(job, now);
                 if job.state.is_final() {
                     job.evict();
                 }
             }
         }
+        self.remove_expired_jobs(unix);
         freed
+    }
+
+    /// Removes the finished jobs that ended `retain_finished` or longer before `unix`.
+    fn remove_expired_jobs(&mut self, unix: f64) {
+        let Some(keep) = self.config.retain_finished else { return };
+        let keep = keep.as_secs_f64();
+        let expired: Vec<String> = self
+            .jobs
+            .values()
+            .filter(|j| j.state.is_final() && j.finished_unix.is_some_and(|f| unix - f >= keep))
+            .map(|j| j.id.clone())
+            .collect();
+        for id in expired {
+            match self.remove_job(&id) {
+                Ok(()) => {
+                    tracing::info!(job = %id, hours = keep / 3600.0, "finished job removed after its retention time")
+                }
+                Err(e) => tracing::error!(job = %id, "removing a finished job failed: {e}"),
+            }
+        }
     }
 
     /// Carries out what a step decided about leases that ended without a result: their tasks
@@ -426,6 +473,7 @@ impl Farm {
                 Effect::JobFailed { job, reason } => {
                     if let Some(j) = self.jobs.get_mut(&job) {
                         j.set_final(JobState::Failed, Some(reason), now);
+                        j.note_end(self.clock.unix());
                         if let Err(e) = self.store.update_job(j, now) {
                             recorded = recorded.and(Err(e.into()));
                         }
@@ -443,7 +491,9 @@ impl Farm {
 
     /// Persists and evicts a job that a lease going back just finished (time limit reached).
     fn settle(&mut self, id: &str, now: Moment) {
-        if let Some(job) = self.jobs.get(id) {
+        let unix = self.clock.unix();
+        if let Some(job) = self.jobs.get_mut(id) {
+            job.note_end(unix);
             if job.state.is_final() && !job.evicted {
                 if let Err(e) = self.store.update_job(job, now) {
                     tracing::error!(job = id, "recording the job's end failed: {e:#}");

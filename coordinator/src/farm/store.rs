@@ -51,6 +51,9 @@ pub struct StoredJob {
     pub elapsed_s: f64,
     /// Adaptive stopping scale per frame (fixed from each frame's pilot).
     pub scales: Vec<Option<f64>>,
+    /// When it ended (Unix seconds); `None` while it runs, and for jobs that ended before the
+    /// column existed.
+    pub finished_unix: Option<f64>,
 }
 
 /// A tile row as stored.
@@ -112,17 +115,19 @@ fn put_pending(
     Ok(())
 }
 
-/// Updates the job's row: state, error, elapsed time, adaptive scales.
-fn put_job_state(tx: &rusqlite::Transaction<'_>, job: &Job, now: Moment) -> Result<()> {
-    tx.prepare_cached(
-        "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
+/// Updates the job's row: state, error, elapsed time, adaptive scales, end time.
+fn put_job_state(db: &Connection, job: &Job, now: Moment) -> Result<()> {
+    db.prepare_cached(
+        "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5, finished = ?6
+         WHERE id = ?1",
     )?
     .execute(params![
         job.id,
         job.state.name(),
         job.error,
         job.elapsed(now),
-        scales_json(job)
+        scales_json(job),
+        job.finished_unix
     ])?;
     Ok(())
 }
@@ -153,7 +158,7 @@ impl Store {
                  id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
                  settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
                  error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
-                 scales TEXT NOT NULL DEFAULT '[]');
+                 scales TEXT NOT NULL DEFAULT '[]', finished REAL);
              CREATE TABLE IF NOT EXISTS tiles (
                  job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
                  prefix INTEGER NOT NULL, sums BLOB NOT NULL,
@@ -164,6 +169,15 @@ impl Store {
                  PRIMARY KEY (job, frame, tile, task));",
         )
         .context("creating the schema")?;
+        // Databases from before jobs had an end time gain the column (empty: such a job's end
+        // is noted when the farm opens it).
+        let has_finished = db
+            .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'finished'")?
+            .exists([])?;
+        if !has_finished {
+            db.execute_batch("ALTER TABLE jobs ADD COLUMN finished REAL")
+                .context("adding the jobs' end time")?;
+        }
         Ok(Store { db, scenes_dir, durable })
     }
 
@@ -220,12 +234,19 @@ impl Store {
         Ok(())
     }
 
-    /// Updates a job's state, error and elapsed time, as they are at `now`.
+    /// Updates a job's state, error, elapsed time and end time, as they are at `now`.
     pub fn update_job(&self, job: &Job, now: Moment) -> Result<()> {
-        self.db.execute(
-            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5 WHERE id = ?1",
-            params![job.id, job.state.name(), job.error, job.elapsed(now), scales_json(job)],
-        )?;
+        put_job_state(&self.db, job, now)
+    }
+
+    /// Removes a job and everything stored for it (its tiles and pending results) in one
+    /// transaction. Its scene stays: other jobs may render it.
+    pub fn delete_job(&mut self, id: &str) -> Result<()> {
+        let tx = self.db.transaction()?;
+        tx.execute("DELETE FROM pending WHERE job = ?1", [id])?;
+        tx.execute("DELETE FROM tiles WHERE job = ?1", [id])?;
+        tx.execute("DELETE FROM jobs WHERE id = ?1", [id])?;
+        tx.commit()?;
         Ok(())
     }
 
@@ -278,7 +299,8 @@ impl Store {
     /// Every job, oldest first.
     pub fn jobs(&self) -> Result<Vec<StoredJob>> {
         let mut stmt = self.db.prepare(
-            "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s, scales
+            "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s, scales,
+                    finished
              FROM jobs ORDER BY seq",
         )?;
         let rows = stmt.query_map([], |r| {
@@ -293,12 +315,24 @@ impl Store {
                 r.get::<_, f64>(7)?,
                 r.get::<_, f64>(8)?,
                 r.get::<_, String>(9)?,
+                r.get::<_, Option<f64>>(10)?,
             ))
         })?;
         let mut out = Vec::new();
         for row in rows {
-            let (id, seq, scene, settings, priority, state, error, created_unix, elapsed_s, scales) =
-                row?;
+            let (
+                id,
+                seq,
+                scene,
+                settings,
+                priority,
+                state,
+                error,
+                created_unix,
+                elapsed_s,
+                scales,
+                finished_unix,
+            ) = row?;
             let bits: Vec<Option<u64>> = serde_json::from_str(&scales)
                 .with_context(|| format!("job {id}: stored adaptive scales"))?;
             let scales = bits.into_iter().map(|b| b.map(f64::from_bits)).collect();
@@ -317,9 +351,22 @@ impl Store {
                 created_unix,
                 elapsed_s,
                 scales,
+                finished_unix,
             });
         }
         Ok(out)
+    }
+
+    /// How many rows job `id` has, over its job row, tiles and pending results (tests).
+    #[cfg(test)]
+    pub fn rows_of(&self, id: &str) -> i64 {
+        ["jobs WHERE id", "tiles WHERE job", "pending WHERE job"]
+            .iter()
+            .map(|t| {
+                let sql = format!("SELECT COUNT(*) FROM {t} = ?1");
+                self.db.query_row(&sql, [id], |r| r.get::<_, i64>(0)).unwrap()
+            })
+            .sum()
     }
 
     /// The summed tiles of one frame of a job (pending results left out).
@@ -374,5 +421,36 @@ impl Store {
             out.push(StoredTile { frame, tile, prefix: 0, sums: None, pending });
         }
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A database from before jobs had an end time opens, gains the column, and keeps its rows.
+    #[test]
+    fn an_older_database_gains_the_end_time() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let db = Connection::open(dir.path().join("farm.sqlite")).unwrap();
+            db.execute_batch(
+                "CREATE TABLE jobs (
+                     id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
+                     settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
+                     error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
+                     scales TEXT NOT NULL DEFAULT '[]');
+                 INSERT INTO jobs (id, seq, scene, settings, priority, state, created, elapsed_s)
+                 VALUES ('j', 0, 's', '{}', 0, 'done', 1.0, 2.0);",
+            )
+            .unwrap();
+        }
+        let store = Store::open(dir.path(), true).unwrap();
+        let jobs = store.jobs().unwrap();
+        assert_eq!(jobs.len(), 1);
+        assert_eq!((jobs[0].state, jobs[0].finished_unix), (JobState::Done, None));
+        drop(store);
+        // Opening it again finds the column there.
+        assert_eq!(Store::open(dir.path(), true).unwrap().jobs().unwrap().len(), 1);
     }
 }

@@ -186,3 +186,230 @@ fn a_time_limit_stops_leasing_and_the_last_lease_out_ends_the_job() {
     assert_eq!(status.elapsed_s, Duration::from_millis(30_999).as_secs_f64());
     assert!(farm.heartbeat(&second.lease, &w).is_err());
 }
+
+/// A farm in `dir` with a stored scene, one joined worker and one job of a single task
+/// (8x8 pixels, 4 samples), that task leased: (farm, worker, job, grant).
+fn one_leased_task(dir: &std::path::Path) -> (Farm, String, String, LeaseGrant) {
+    let mut farm = Farm::open(FarmConfig::new(dir.into())).unwrap();
+    let hash = "aa".repeat(32);
+    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp: 4,
+        samples_per_task: 4,
+        ..Default::default()
+    };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let grant = farm.lease(&w).unwrap().unwrap();
+    (farm, w, id, grant)
+}
+
+/// Results no real samples could give (a negative or non-finite mean, negative squared
+/// deviations, radiance past the renderer's largest sample) are refused as invalid, naming the
+/// pixel and the value, and nothing is merged; the honest result is merged after them.
+#[test]
+fn physically_impossible_results_are_refused_and_nothing_is_merged() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut farm, w, id, grant) = one_leased_task(dir.path());
+    let max = common::film::MAX_SAMPLE_VALUE as f64;
+    type Forge = fn(&mut common::film::PixelSums, f64);
+    let forgeries: [(&str, Forge, &str); 7] = [
+        ("a mean of -100", |p, _| p.mean[0] = -100.0, "mean -100 is negative"),
+        ("a NaN mean", |p, _| p.mean[1] = f64::NAN, "mean NaN is not finite"),
+        ("an infinite mean", |p, _| p.mean[2] = f64::INFINITY, "mean inf is not finite"),
+        ("negative squared deviations", |p, _| p.m2[1] = -1.0, "deviations -1 is negative"),
+        ("a negative mean of odd samples", |p, _| p.mean_odd[0] = -0.5, "-0.5 is negative"),
+        ("a mean past the largest sample", |p, max| p.mean[0] = 2.0 * max, "beyond the largest"),
+        ("squared deviations no samples give", |p, max| p.m2[2] = 4.0 * max * max, "more than 4"),
+    ];
+    for (what, forge, needle) in forgeries {
+        let mut forged = result_for(&grant, 0.5);
+        // Pixel 11 of the tile: column 3, row 1.
+        forge(&mut forged.tile.pixels[11], max);
+        let refused = farm.submit(&grant.lease, &w, forged, 0).unwrap_err();
+        assert_eq!(refused.kind, ErrorKind::Invalid, "{what}: {}", refused.message);
+        assert!(
+            refused.message.contains("pixel (3, 1)") && refused.message.contains(needle),
+            "{what}: {}",
+            refused.message
+        );
+        assert_eq!(farm.status(&id).unwrap().samples_done, 0, "{what} was merged");
+    }
+    // A sample count that does not match the lease is refused too.
+    let mut short = result_for(&grant, 0.5);
+    short.tile.pixels[0].n -= 1;
+    assert_eq!(farm.submit(&grant.lease, &w, short, 0).unwrap_err().kind, ErrorKind::Invalid);
+    // The lease is still live: the honest result is merged once.
+    farm.submit(&grant.lease, &w, result_for(&grant, 0.5), 0).unwrap();
+    let status = farm.status(&id).unwrap();
+    assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 4));
+}
+
+/// A running job removed is gone at once (its lease with it) and after a restart, with every
+/// row it had; the other jobs and the scene stay.
+#[test]
+fn a_removed_job_is_gone_and_stays_gone_after_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut farm, w, id, grant) = one_leased_task(dir.path());
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp: 8,
+        samples_per_task: 4,
+        ..Default::default()
+    };
+    let hash = "aa".repeat(32);
+    let other = farm.create_job(&hash, settings, 0).unwrap().id;
+    // The other job gets a merged task and a pending one; the removed one a merged task.
+    let first = farm.lease(&w).unwrap().unwrap();
+    let second = farm.lease(&w).unwrap().unwrap();
+    assert_eq!((first.job.as_str(), second.job.as_str()), (other.as_str(), other.as_str()));
+    farm.submit(&second.lease, &w, result_for(&second, 0.5), 0).unwrap();
+    let rows = |farm: &Farm, job: &str| farm.store.rows_of(job);
+    assert_eq!(rows(&farm, &other), 2, "the other job's row and its pending result");
+
+    farm.remove_job(&id).unwrap();
+    assert_eq!(farm.status(&id).unwrap_err().kind, ErrorKind::NotFound);
+    assert_eq!(farm.remove_job(&id).unwrap_err().kind, ErrorKind::NotFound);
+    assert_eq!(farm.leases_out(), 1, "the removed job's lease is gone, the other's stays");
+    let late = farm.submit(&grant.lease, &w, result_for(&grant, 0.5), 0).unwrap_err();
+    assert_eq!(late.kind, ErrorKind::Conflict, "{}", late.message);
+    assert_eq!(rows(&farm, &id), 0);
+    assert_eq!(farm.counters.jobs_removed, 1);
+    drop(farm);
+
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    assert_eq!(farm.status(&id).unwrap_err().kind, ErrorKind::NotFound, "it came back");
+    assert_eq!(farm.status(&other).unwrap().samples_done, 64 * 4);
+    assert!(farm.scene_file(&hash).is_ok(), "the scene left with the job");
+    // A finished job is removed the same way, with its tiles.
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let again = farm.lease(&w).unwrap().unwrap();
+    farm.submit(&again.lease, &w, result_for(&again, 0.5), 0).unwrap();
+    assert_eq!(farm.status(&other).unwrap().state, JobState::Done);
+    farm.remove_job(&other).unwrap();
+    assert_eq!(rows(&farm, &other), 0);
+    assert!(farm.list(&JobQuery::default()).jobs.is_empty());
+}
+
+/// With a retention time, the tick removes finished jobs that long after they ended (by the
+/// farm's clock, also across a restart), and never a job that still runs.
+#[test]
+fn finished_jobs_are_removed_after_the_retention_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let hour = Duration::from_secs(3600);
+    let mut config = FarmConfig::new(dir.path().into());
+    config.retain_finished = Some(hour);
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, config.clone());
+    let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
+    let done = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+    let grant = farm.lease(&w).unwrap().unwrap();
+    clock.advance(Duration::from_secs(10));
+    farm.submit(&grant.lease, &w, result_for(&grant, 0.5), 0).unwrap();
+    let status = farm.status(&done).unwrap();
+    assert_eq!((status.state, status.finished_unix), (JobState::Done, Some(10.0)));
+    let running = farm.create_job(&hash, settings.clone(), 0).unwrap().id;
+    assert!(farm.lease(&w).unwrap().is_some());
+    clock.advance(Duration::from_secs(30 * 60));
+    let cancelled = farm.create_job(&hash, settings, 0).unwrap().id;
+    farm.cancel(&cancelled).unwrap();
+    assert_eq!(farm.status(&cancelled).unwrap().finished_unix, Some(1810.0));
+    drop(farm);
+
+    // The end time survives a restart.
+    let mut farm = Farm::open_with_clock(config, Arc::new(clock.clone())).unwrap();
+    clock.advance(hour - Duration::from_secs(30 * 60 + 1));
+    farm.tick();
+    assert!(farm.status(&done).is_ok(), "removed before its time");
+    clock.advance(Duration::from_secs(1));
+    farm.tick();
+    assert_eq!(farm.status(&done).unwrap_err().kind, ErrorKind::NotFound);
+    assert!(farm.status(&cancelled).is_ok());
+    assert_eq!(farm.status(&running).unwrap().finished_unix, None);
+    clock.advance(Duration::from_secs(30 * 60));
+    farm.tick();
+    assert_eq!(farm.status(&cancelled).unwrap_err().kind, ErrorKind::NotFound);
+    clock.advance(100 * hour);
+    farm.tick();
+    assert!(farm.status(&running).is_ok(), "a job that runs is never removed");
+    assert_eq!(farm.counters.jobs_removed, 2);
+}
+
+/// Without a retention time nothing is removed, however old.
+#[test]
+fn without_a_retention_time_finished_jobs_stay() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, _) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let settings = RenderSettings { width: 8, height: 8, spp: 4, ..Default::default() };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    farm.cancel(&id).unwrap();
+    clock.advance(Duration::from_secs(10 * 365 * 24 * 3600));
+    farm.tick();
+    assert!(farm.status(&id).is_ok());
+}
+
+/// Lists come a page at a time in either order, filtered by state, as summaries without the
+/// per-frame lists; a page's cursor leads to the next one, and the last has none.
+#[test]
+fn jobs_are_listed_a_page_at_a_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, _) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        spp: 4,
+        frames: common::settings::Frames { start: 3, end: 12, fps: 24.0 },
+        ..Default::default()
+    };
+    let ids: Vec<String> =
+        (0..5).map(|_| farm.create_job(&hash, settings.clone(), 0).unwrap().id).collect();
+    farm.cancel(&ids[1]).unwrap();
+    farm.cancel(&ids[3]).unwrap();
+    let listed = |page: &JobPage| page.jobs.iter().map(|j| j.id.clone()).collect::<Vec<_>>();
+
+    let all = farm.list(&JobQuery::default());
+    assert_eq!((listed(&all), all.next), (ids.clone(), None));
+    let summary = &all.jobs[0];
+    assert_eq!(
+        (summary.frame_count, summary.first_frame, summary.state),
+        (10, 3, JobState::Queued)
+    );
+    let json = serde_json::to_value(summary).unwrap();
+    assert!(json.get("frame_progress").is_none() && json.get("settings").is_none(), "{json}");
+
+    let mut query = JobQuery { limit: 2, ..Default::default() };
+    let mut pages = Vec::new();
+    loop {
+        let page = farm.list(&query);
+        pages.push(listed(&page));
+        let Some(next) = page.next else { break };
+        query.after = Some(next);
+    }
+    assert_eq!(pages, [&ids[0..2], &ids[2..4], &ids[4..5]]);
+
+    let newest = JobQuery { order: ListOrder::Newest, limit: 3, ..Default::default() };
+    let page = farm.list(&newest);
+    assert_eq!(listed(&page), [ids[4].clone(), ids[3].clone(), ids[2].clone()]);
+    let rest = farm.list(&JobQuery { after: page.next, ..newest });
+    assert_eq!((listed(&rest), rest.next), (vec![ids[1].clone(), ids[0].clone()], None));
+
+    let cancelled = JobQuery { states: Some(vec![JobState::Cancelled]), ..Default::default() };
+    assert_eq!(listed(&farm.list(&cancelled)), [ids[1].clone(), ids[3].clone()]);
+    // A removed job leaves no hole a cursor could fall into.
+    farm.remove_job(&ids[2]).unwrap();
+    let page = farm.list(&JobQuery {
+        limit: 2,
+        after: Some(farm.jobs[&ids[1]].seq),
+        ..Default::default()
+    });
+    assert_eq!(listed(&page), [ids[3].clone(), ids[4].clone()]);
+}

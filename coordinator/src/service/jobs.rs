@@ -1,12 +1,15 @@
-//! Jobs: `POST /api/v1/jobs` creates one on a stored scene, `GET /api/v1/jobs` lists them,
-//! `GET|DELETE /api/v1/jobs/{id}` shows or cancels one, and `GET /api/v1/jobs/{id}/frames/{n}.exr`
-//! (or `.png`) serves a frame's image, also while the job runs.
+//! Jobs: `POST /api/v1/jobs` creates one on a stored scene, `GET /api/v1/jobs` lists them a page
+//! at a time (`?state=&order=&after=&limit=`), `GET /api/v1/jobs/{id}` shows one,
+//! `POST /api/v1/jobs/{id}/cancel` cancels one (and so does `DELETE /api/v1/jobs/{id}`, as it
+//! always did), `DELETE /api/v1/jobs/{id}?purge=true` removes one entirely, and
+//! `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`) serves a frame's image, also while the job
+//! runs.
 
 use std::sync::Mutex;
 
 use axum::{
     body::Body,
-    extract::{Path, State},
+    extract::{rejection::QueryRejection, Path, Query, State},
     http::{header, HeaderMap, HeaderValue, StatusCode},
     response::{IntoResponse, Response},
     routing::{get, post},
@@ -18,14 +21,18 @@ use serde_json::json;
 
 use super::{blocking, json_body, lock_farm, ApiResult, AppState};
 use crate::{
-    farm::{job::JobStatus, validate_job_scene, ErrorKind, Farm, FarmError},
+    farm::{
+        job::{JobState, JobStatus},
+        validate_job_scene, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
+    },
     output::{exr_bytes, png_bytes, FrameInfo},
 };
 
 pub(super) fn routes() -> Router<AppState> {
     Router::new()
         .route("/api/v1/jobs", post(create_job).get(list_jobs))
-        .route("/api/v1/jobs/{id}", get(job_status).delete(cancel_job))
+        .route("/api/v1/jobs/{id}", get(job_status).delete(delete_job))
+        .route("/api/v1/jobs/{id}/cancel", post(cancel_job))
         .route("/api/v1/jobs/{id}/frames/{file}", get(frame_image))
 }
 
@@ -80,8 +87,75 @@ async fn create_job(
     Ok((StatusCode::CREATED, Json(status)).into_response())
 }
 
-async fn list_jobs(State(state): State<AppState>) -> Json<serde_json::Value> {
-    Json(json!({ "jobs": state.lock().list() }))
+/// A query string's pairs, decoded; an undecodable one is a 400 with a JSON body like every
+/// other refusal.
+type QueryPairs = Result<Query<Vec<(String, String)>>, QueryRejection>;
+
+fn query_pairs(query: QueryPairs) -> ApiResult<Vec<(String, String)>> {
+    query.map(|Query(pairs)| pairs).map_err(|e| FarmError::malformed(format!("query: {e}")))
+}
+
+/// Reads `GET /jobs`' query: `state` (one or more states, comma-separated), `order` (`oldest`,
+/// the default, or `newest`), `after` (the `next` cursor of the previous page) and `limit`
+/// (1 to [`MAX_LIST_LIMIT`], default [`crate::farm::DEFAULT_LIST_LIMIT`]).
+fn job_query(pairs: Vec<(String, String)>) -> ApiResult<JobQuery> {
+    let mut query = JobQuery::default();
+    for (key, value) in pairs {
+        match key.as_str() {
+            "state" => {
+                let states = value.split(',').map(|s| {
+                    JobState::parse(s.trim()).ok_or_else(|| {
+                        FarmError::malformed(format!(
+                            "state: '{s}' is not one of queued, running, done, failed, cancelled"
+                        ))
+                    })
+                });
+                query
+                    .states
+                    .get_or_insert_with(Vec::new)
+                    .extend(states.collect::<Result<Vec<_>, _>>()?);
+            }
+            "order" => {
+                query.order = match value.as_str() {
+                    "oldest" => ListOrder::Oldest,
+                    "newest" => ListOrder::Newest,
+                    _ => {
+                        return Err(FarmError::malformed(format!(
+                            "order: '{value}' is neither oldest nor newest"
+                        )))
+                    }
+                }
+            }
+            "after" => {
+                query.after = Some(value.parse().map_err(|_| {
+                    FarmError::malformed(format!(
+                        "after: '{value}' is not a cursor (use the next field of a page)"
+                    ))
+                })?);
+            }
+            "limit" => {
+                let limit = value.parse().ok().filter(|n| (1..=MAX_LIST_LIMIT).contains(n));
+                query.limit = limit.ok_or_else(|| {
+                    FarmError::malformed(format!(
+                        "limit: '{value}' is not a number from 1 to {MAX_LIST_LIMIT}"
+                    ))
+                })?;
+            }
+            _ => {
+                return Err(FarmError::malformed(format!(
+                    "unknown query parameter '{key}' (state, order, after, limit)"
+                )))
+            }
+        }
+    }
+    Ok(query)
+}
+
+async fn list_jobs(State(state): State<AppState>, query: QueryPairs) -> ApiResult<Response> {
+    let query = job_query(query_pairs(query)?)?;
+    let page = state.lock().list(&query);
+    let next = page.next.map(|seq| seq.to_string());
+    Ok(Json(json!({ "jobs": page.jobs, "next": next })).into_response())
 }
 
 async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
@@ -91,6 +165,37 @@ async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> Ap
 async fn cancel_job(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
     let status = state.lock().cancel(&id)?;
     Ok(Json(status).into_response())
+}
+
+/// `DELETE /jobs/{id}` cancels, as it always has (a client written for that must not lose a
+/// job's images); `?purge=true` removes the job entirely, cancelling it first if it runs.
+async fn delete_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    query: QueryPairs,
+) -> ApiResult<Response> {
+    let mut purge = false;
+    for (key, value) in query_pairs(query)? {
+        match (key.as_str(), value.as_str()) {
+            ("purge", "true") => purge = true,
+            ("purge", "false") => purge = false,
+            ("purge", _) => {
+                return Err(FarmError::malformed(format!(
+                    "purge: '{value}' is neither true nor false"
+                )))
+            }
+            _ => {
+                return Err(FarmError::malformed(format!(
+                    "unknown query parameter '{key}' (only purge)"
+                )))
+            }
+        }
+    }
+    if !purge {
+        return cancel_job(State(state), Path(id)).await;
+    }
+    state.lock().remove_job(&id)?;
+    Ok(Json(json!({ "removed": id })).into_response())
 }
 
 async fn frame_image(

@@ -1,7 +1,8 @@
 //! A lease's life after the grant, for the worker holding it (named by the `x-worker-id`
 //! header): `POST /api/v1/leases/{lease}/heartbeat` renews it, `.../result` hands in the task's
 //! partial sums (bincode) to be merged exactly once, `.../fail` reports that the task cannot be
-//! rendered. Every refused result is counted in `/metrics`.
+//! rendered. Every refused result is counted in `/metrics` and logged with the worker, the lease
+//! and the reason ([`crate::farm::Farm::result_refused`]).
 
 use axum::{
     body::Body,
@@ -50,9 +51,10 @@ async fn submit_result(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let answer = merge_result(state.clone(), lease, headers, body).await;
-    if answer.is_err() {
-        state.lock().counters.results_refused += 1;
+    let worker = headers.get(WORKER_HEADER).and_then(|v| v.to_str().ok()).map(str::to_string);
+    let answer = merge_result(state.clone(), lease.clone(), headers, body).await;
+    if let Err(e) = &answer {
+        state.lock().result_refused(&lease, worker.as_deref(), e);
     }
     answer
 }

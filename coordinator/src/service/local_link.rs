@@ -151,8 +151,8 @@ impl Link for LocalLink {
             let job = farm.lease_job(lease).map(str::to_string);
             // No bytes crossed a wire: the merged-bytes counter is for results received.
             let merged = farm.submit(lease, worker, result, 0);
-            if merged.is_err() {
-                farm.counters.results_refused += 1;
+            if let Err(e) = &merged {
+                farm.result_refused(lease, Some(worker), e);
             }
             (merged, job.is_none_or(|j| farm.job_ended(&j)))
         };

@@ -62,6 +62,12 @@ pub(super) async fn metrics(State(state): State<AppState>) -> Response {
         &one(c.results_refused as f64),
     );
     put(
+        "renderfarm_jobs_removed_total",
+        "counter",
+        "Jobs removed, by a user or past the retention time.",
+        &one(c.jobs_removed as f64),
+    );
+    put(
         "renderfarm_samples_merged_total",
         "counter",
         "Pixel samples merged.",

@@ -1,4 +1,6 @@
-//! Workers: `POST /api/v1/workers` joins, `DELETE /api/v1/workers/{id}` leaves,
+//! Workers: `POST /api/v1/workers` joins, `DELETE /api/v1/workers/{id}` leaves (a worker removes
+//! only itself, naming itself in the `x-worker-id` header; an operator with the API token removes
+//! any worker),
 //! `GET /api/v1/workers` lists them, and `POST /api/v1/workers/{id}/lease?wait_s=S` asks for a
 //! task, waiting up to S seconds (at most the service's `max_lease_wait`) for one: `200` with a
 //! lease grant, or `204` when no work came.
@@ -13,10 +15,10 @@ use axum::{
     routing::{delete, get, post},
     Json, Router,
 };
-use common::protocol::JoinRequest;
+use common::protocol::{JoinRequest, WORKER_HEADER};
 use serde_json::json;
 
-use super::{json_body, read_body, ApiResult, AppState};
+use super::{auth::Operator, json_body, read_body, ApiResult, AppState};
 use crate::farm::FarmError;
 
 pub(super) fn routes() -> Router<AppState> {
@@ -40,7 +42,30 @@ async fn join(
     Ok((StatusCode::CREATED, Json(resp)).into_response())
 }
 
-async fn leave(State(state): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+async fn leave(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    operator: Option<axum::Extension<Operator>>,
+    headers: HeaderMap,
+) -> ApiResult<Response> {
+    if operator.is_some() {
+        tracing::info!(worker = %id, "worker removed with the API token");
+    } else {
+        let caller = headers.get(WORKER_HEADER).and_then(|v| v.to_str().ok());
+        match caller {
+            Some(caller) if caller == id => {}
+            Some(caller) => {
+                return Err(FarmError::forbidden(format!(
+                    "worker {caller} may not remove worker {id}: a worker removes only itself (an operator removes any worker with the API token)"
+                )))
+            }
+            None => {
+                return Err(FarmError::malformed(format!(
+                    "missing the {WORKER_HEADER} header: a worker leaving names itself in it (a worker too old to send it must be updated); an operator removes any worker with the API token"
+                )))
+            }
+        }
+    }
     state.lock().leave(&id)?;
     state.work.notify_waiters();
     Ok(Json(json!({ "left": id })).into_response())

@@ -1,5 +1,6 @@
 //! What the API shows of a job: progress, samples saved by adaptive sampling, estimated error,
-//! running time and time left, per frame.
+//! running time and time left, per frame ([`JobStatus`]), or the same without the per-frame
+//! lists and the settings for a job in a list ([`JobSummary`]).
 
 use common::settings::RenderSettings;
 use serde::Serialize;
@@ -44,6 +45,56 @@ pub struct JobStatus {
     pub settings: RenderSettings,
     /// Creation time, seconds since the Unix epoch.
     pub created_unix: f64,
+    /// When it ended (done, failed or cancelled), seconds since the Unix epoch.
+    pub finished_unix: Option<f64>,
+}
+
+/// A job in a list: [`JobStatus`] without what grows with the frames (their numbers and
+/// progress) and without the settings, so that a list of many long animations stays small.
+#[derive(Clone, Debug, Serialize)]
+pub struct JobSummary {
+    /// The job id.
+    pub id: String,
+    /// The scene hash.
+    pub scene: String,
+    /// Scheduling priority.
+    pub priority: i32,
+    /// `queued`, `running`, `done`, `failed` or `cancelled`.
+    pub state: JobState,
+    /// Fraction of the planned samples merged.
+    pub progress: f64,
+    /// Pixel samples merged.
+    pub samples_done: u64,
+    /// Pixel samples a uniform render would take.
+    pub samples_planned: u64,
+    /// Estimated relative RMSE of the merged image.
+    pub est_rel_error: Option<f64>,
+    /// Seconds spent running.
+    pub elapsed_s: f64,
+    /// Estimated seconds left.
+    pub eta_s: Option<f64>,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// How many frames it has.
+    pub frame_count: u64,
+    /// The number of its first frame (the one a preview shows).
+    pub first_frame: i64,
+    /// Tasks leased now.
+    pub tasks_in_flight: u32,
+    /// Creation time, seconds since the Unix epoch.
+    pub created_unix: f64,
+    /// When it ended, seconds since the Unix epoch.
+    pub finished_unix: Option<f64>,
+}
+
+/// What both views compute from every tile.
+struct Totals {
+    planned: u64,
+    saved: u64,
+    progress: f64,
+    est_rel_error: Option<f64>,
+    elapsed: f64,
+    eta: Option<f64>,
 }
 
 /// One frame's progress in a job's status.
@@ -58,8 +109,7 @@ pub struct FrameProgress {
 }
 
 impl Job {
-    /// The job's status at `now`.
-    pub fn status(&self, now: Moment) -> JobStatus {
+    fn totals(&self, now: Moment) -> Totals {
         let pixels = self.settings.width as u64 * self.settings.height as u64;
         let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
         let mut saved = 0u64;
@@ -90,18 +140,31 @@ impl Job {
             _ => None,
         };
         let total_pixels = (pixels * self.frames.len() as u64).max(1) as f64;
+        Totals {
+            planned,
+            saved,
+            progress: progress.clamp(0.0, 1.0),
+            est_rel_error: rel_known.then(|| (rel_sum / total_pixels).sqrt()),
+            elapsed,
+            eta,
+        }
+    }
+
+    /// The job's status at `now`.
+    pub fn status(&self, now: Moment) -> JobStatus {
+        let t = self.totals(now);
         JobStatus {
             id: self.id.clone(),
             scene: self.scene.clone(),
             priority: self.priority,
             state: self.state,
-            progress: progress.clamp(0.0, 1.0),
+            progress: t.progress,
             samples_done: self.samples_done,
-            samples_planned: planned,
-            samples_saved: saved,
-            est_rel_error: rel_known.then(|| (rel_sum / total_pixels).sqrt()),
-            elapsed_s: elapsed,
-            eta_s: eta,
+            samples_planned: t.planned,
+            samples_saved: t.saved,
+            est_rel_error: t.est_rel_error,
+            elapsed_s: t.elapsed,
+            eta_s: t.eta,
             error: self.error.clone(),
             frames: self.frames.iter().map(|f| f.number).collect(),
             tasks_in_flight: self.in_flight,
@@ -116,6 +179,30 @@ impl Job {
                 .collect(),
             settings: self.settings.clone(),
             created_unix: self.created_unix,
+            finished_unix: self.finished_unix,
+        }
+    }
+
+    /// The job as a list shows it at `now`.
+    pub fn summary(&self, now: Moment) -> JobSummary {
+        let t = self.totals(now);
+        JobSummary {
+            id: self.id.clone(),
+            scene: self.scene.clone(),
+            priority: self.priority,
+            state: self.state,
+            progress: t.progress,
+            samples_done: self.samples_done,
+            samples_planned: t.planned,
+            est_rel_error: t.est_rel_error,
+            elapsed_s: t.elapsed,
+            eta_s: t.eta,
+            error: self.error.clone(),
+            frame_count: self.frames.len() as u64,
+            first_frame: self.settings.frames.start,
+            tasks_in_flight: self.in_flight,
+            created_unix: self.created_unix,
+            finished_unix: self.finished_unix,
         }
     }
 }
