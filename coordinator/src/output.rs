@@ -188,6 +188,77 @@ pub fn png_bytes(image: &FrameImage, exposure: f32) -> Result<Vec<u8>> {
     png_of_mean(image.width, image.height, &image.mean, exposure)
 }
 
+/// The longest side of a preview: larger frames are previewed downscaled.
+pub const PREVIEW_MAX_SIDE: u32 = 2048;
+
+/// A PNG preview built tile by tile, so that whoever serves it need hold a frame's sums one
+/// tile at a time, and at most [`PREVIEW_MAX_SIDE`] pixels on a side: a frame larger than that
+/// is shown at an integer fraction of its size, each preview pixel the mean of the frame
+/// pixels it covers. A frame that fits is shown at full size, the PNG of [`png_bytes`] bit for
+/// bit.
+pub struct Preview {
+    /// Frame pixels per preview pixel along each side.
+    factor: u32,
+    width: u32,
+    height: u32,
+    mean: [Vec<f32>; 3],
+    /// Per preview pixel: the sum of the means it covers so far, and their count.
+    sum: Vec<[f64; 3]>,
+    count: Vec<u32>,
+}
+
+impl Preview {
+    /// An empty (black) preview of a `width` x `height` frame.
+    pub fn new(width: u32, height: u32) -> Self {
+        let factor = width.max(height).div_ceil(PREVIEW_MAX_SIDE).max(1);
+        let (w, h) = (width.div_ceil(factor), height.div_ceil(factor));
+        let n = w as usize * h as usize;
+        let mean = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+        let (sum, count) =
+            if factor == 1 { (Vec::new(), Vec::new()) } else { (vec![[0.0; 3]; n], vec![0; n]) };
+        Preview { factor, width: w, height: h, mean, sum, count }
+    }
+
+    /// The preview's size in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// Adds a tile's merged means.
+    pub fn add_tile(&mut self, tile: &TileAccum) {
+        let r = tile.rect;
+        for row in 0..r.height {
+            for col in 0..r.width {
+                let m = tile.pixels[(row * r.width + col) as usize].mean();
+                let (x, y) = ((r.x0 + col) / self.factor, (r.y0 + row) / self.factor);
+                let i = (y * self.width + x) as usize;
+                if self.factor == 1 {
+                    for c in 0..3 {
+                        self.mean[c][i] = m[c] as f32;
+                    }
+                } else {
+                    for c in 0..3 {
+                        self.sum[i][c] += m[c];
+                    }
+                    self.count[i] += 1;
+                }
+            }
+        }
+    }
+
+    /// The PNG, scaled by 2^`exposure`.
+    pub fn png(mut self, exposure: f32) -> Result<Vec<u8>> {
+        if self.factor > 1 {
+            for (i, (s, &n)) in self.sum.iter().zip(&self.count).enumerate() {
+                for c in 0..3 {
+                    self.mean[c][i] = if n > 0 { (s[c] / n as f64) as f32 } else { 0.0 };
+                }
+            }
+        }
+        png_of_mean(self.width, self.height, &self.mean, exposure)
+    }
+}
+
 /// Encodes the 8-bit sRGB PNG of a `width` x `height` mean image, scaled by 2^`exposure`.
 fn png_of_mean(width: u32, height: u32, mean: &[Vec<f32>; 3], exposure: f32) -> Result<Vec<u8>> {
     let scale = exposure.exp2();
@@ -326,6 +397,65 @@ pub fn read_text_attributes(bytes: &[u8]) -> Result<Vec<(String, String, String)
 #[cfg(test)]
 mod tests {
     use super::*;
+    use common::film::Rect;
+
+    /// Tiles of a `width` x `height` frame whose pixel (x, y) has the value `value(x, y)`.
+    fn tiles(width: u32, height: u32, value: impl Fn(u32, u32) -> f32) -> Vec<TileAccum> {
+        let mut out = Vec::new();
+        for y0 in (0..height).step_by(32) {
+            for x0 in (0..width).step_by(32) {
+                let rect = Rect { x0, y0, width: 32.min(width - x0), height: 32.min(height - y0) };
+                let mut tile = TileAccum::new(rect);
+                for row in 0..rect.height {
+                    for col in 0..rect.width {
+                        let v = value(x0 + col, y0 + row);
+                        tile.add_sample(col, row, 0, [v, v * 0.5, 0.25]);
+                    }
+                }
+                out.push(tile);
+            }
+        }
+        out
+    }
+
+    /// A frame that fits is previewed at full size, bit for bit the PNG of the whole image; a
+    /// larger one at an integer fraction, each pixel the mean of those it covers.
+    #[test]
+    fn previews_built_tile_by_tile_match_and_downscale() {
+        let (w, h) = (70, 45);
+        let value = |x: u32, y: u32| ((x * 7 + y * 13) % 17) as f32 / 17.0;
+        let mut image = FrameImage::new(w, h);
+        let mut preview = Preview::new(w, h);
+        for tile in tiles(w, h, value) {
+            image.put_tile(&tile);
+            preview.add_tile(&tile);
+        }
+        assert_eq!(preview.size(), (w, h));
+        assert_eq!(preview.png(0.0).unwrap(), png_bytes(&image, 0.0).unwrap());
+
+        let (w, h) = (2 * PREVIEW_MAX_SIDE + 5, 40);
+        let mut preview = Preview::new(w, h);
+        for tile in tiles(w, h, |x, _| if x % 3 == 0 { 0.9 } else { 0.0 }) {
+            preview.add_tile(&tile);
+        }
+        // Three frame pixels a preview pixel: 4101 wide becomes 1367, 40 high becomes 14.
+        assert_eq!(preview.size(), (1367, 14));
+        let mut small = Preview::new(1367, 14);
+        for tile in tiles(1367, 14, |_, _| 0.3) {
+            small.add_tile(&tile);
+        }
+        // Every preview pixel covers one lit column in three: a mean of 0.3.
+        let decoded = |png: Vec<u8>| {
+            let decoder = png::Decoder::new(std::io::Cursor::new(png));
+            let mut reader = decoder.read_info().unwrap();
+            let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+            reader.next_frame(&mut buf).unwrap();
+            buf
+        };
+        let (big, reference) =
+            (decoded(preview.png(0.0).unwrap()), decoded(small.png(0.0).unwrap()));
+        assert_eq!(big, reference, "every preview pixel is the mean of the three it covers");
+    }
 
     /// A 3x2 frame with distinct values everywhere (pixel 4 has no samples yet).
     fn frame() -> FrameImage {

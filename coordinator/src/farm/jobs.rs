@@ -185,6 +185,23 @@ impl Farm {
         Ok((image, status))
     }
 
+    /// Where the sums of frame `number` of job `id` are, for reading them a tile at a time:
+    /// (frame index, tile count), or `None` when they left memory (read them with
+    /// [`Farm::image`]).
+    pub fn frame_tiles(&self, id: &str, number: i64) -> FarmResult<Option<(usize, usize)>> {
+        let job = self.job(id)?;
+        let f = Self::frame_index(job, number)?;
+        Ok((!job.frames[f].evicted).then(|| (f, job.frames[f].tiles.len())))
+    }
+
+    /// A copy of the merged sums of tile `t` of frame index `f` of job `id`, when it has any
+    /// and they are in memory (a job removed or evicted meanwhile gives `None`).
+    pub fn tile_sums(&self, id: &str, f: usize, t: usize) -> Option<TileAccum> {
+        let frame = self.jobs.get(id)?.frames.get(f).filter(|frame| !frame.evicted)?;
+        let tile = &frame.tiles.get(t)?.sums;
+        (!tile.pixels.is_empty()).then(|| tile.clone())
+    }
+
     /// The summed tiles of frame index `f` of an evicted job, from the database.
     fn stored_tiles(&self, job: &Job, f: usize) -> FarmResult<Vec<TileAccum>> {
         Ok(self.store.frame_sums(&job.id, f as u32)?)

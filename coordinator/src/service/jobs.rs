@@ -215,6 +215,12 @@ async fn frame_image(
     }
     let st = state.clone();
     blocking(move || {
+        if ext == "png" {
+            if let Some(png) = tiled_preview(&st, &id, number)? {
+                return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png)
+                    .into_response());
+            }
+        }
         let (image, status) = st.lock().image(&id, number)?;
         if ext == "exr" {
             let info = FrameInfo {
@@ -233,4 +239,24 @@ async fn frame_image(
         }
     })
     .await
+}
+
+/// The PNG preview of a frame whose sums are in memory, built a tile at a time so that the farm
+/// is locked for one tile's copy at a time, never for the whole frame, and downscaled past
+/// [`PREVIEW_MAX_SIDE`](crate::output::PREVIEW_MAX_SIDE); `None` for a frame whose sums left
+/// memory. A preview of a running job may show tiles at slightly different moments.
+fn tiled_preview(state: &AppState, id: &str, number: i64) -> ApiResult<Option<Vec<u8>>> {
+    let (width, height, layout) = {
+        let farm = state.lock();
+        let status = farm.status(id)?;
+        (status.settings.width, status.settings.height, farm.frame_tiles(id, number)?)
+    };
+    let Some((f, tiles)) = layout else { return Ok(None) };
+    let mut preview = crate::output::Preview::new(width, height);
+    for t in 0..tiles {
+        if let Some(tile) = state.lock().tile_sums(id, f, t) {
+            preview.add_tile(&tile);
+        }
+    }
+    Ok(Some(preview.png(0.0)?))
 }
