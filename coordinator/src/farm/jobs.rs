@@ -186,12 +186,17 @@ impl Farm {
     }
 
     /// Where the sums of frame `number` of job `id` are, for reading them a tile at a time:
-    /// (frame index, tile count), or `None` when they left memory (read them with
-    /// [`Farm::image`]).
-    pub fn frame_tiles(&self, id: &str, number: i64) -> FarmResult<Option<(usize, usize)>> {
+    /// (frame index, tile count, width, height), or `None` when they left memory (read them
+    /// with [`Farm::image`]).
+    pub fn frame_tiles(
+        &self,
+        id: &str,
+        number: i64,
+    ) -> FarmResult<Option<(usize, usize, u32, u32)>> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
-        Ok((!job.frames[f].evicted).then(|| (f, job.frames[f].tiles.len())))
+        let (w, h) = (job.settings.width, job.settings.height);
+        Ok((!job.frames[f].evicted).then(|| (f, job.frames[f].tiles.len(), w, h)))
     }
 
     /// A copy of the merged sums of tile `t` of frame index `f` of job `id`, when it has any

@@ -5,6 +5,18 @@ use super::*;
 use clock::ManualClock;
 use common::{film::TileAccum, protocol::TaskResult, settings::RenderSettings};
 
+/// An 8x8 frame in one tile, `spp` samples a pixel, 4 a task.
+fn one_tile(spp: u32) -> RenderSettings {
+    RenderSettings {
+        width: 8,
+        height: 8,
+        tile_size: 8,
+        spp,
+        samples_per_task: 4,
+        ..Default::default()
+    }
+}
+
 /// A result with the counts `grant` asks for (values from `v`), as a worker would send.
 pub(crate) fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
     let spec = grant.task;
@@ -24,14 +36,7 @@ pub(crate) fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
 #[test]
 fn pending_results_survive_a_restart_and_merge_in_order() {
     let dir = tempfile::tempdir().unwrap();
-    let settings = RenderSettings {
-        width: 8,
-        height: 8,
-        tile_size: 8,
-        spp: 8,
-        samples_per_task: 4,
-        ..Default::default()
-    };
+    let settings = one_tile(8);
     let hash = "ab".repeat(32);
     let (id, first, second) = {
         let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
@@ -73,12 +78,8 @@ fn pending_results_survive_a_restart_and_merge_in_order() {
 fn a_scratch_store_keeps_evicted_frames_bit_for_bit() {
     let settings = RenderSettings {
         width: 16,
-        height: 8,
-        tile_size: 8,
-        spp: 8,
-        samples_per_task: 4,
         frames: common::settings::Frames { start: 0, end: 1, fps: 24.0 },
-        ..Default::default()
+        ..one_tile(8)
     };
     let hash = "ef".repeat(32);
     let films = [true, false].map(|durable| {
@@ -159,15 +160,7 @@ fn a_time_limit_stops_leasing_and_the_last_lease_out_ends_the_job() {
     let dir = tempfile::tempdir().unwrap();
     let clock = ManualClock::new();
     let (mut farm, hash, w) = farm_on(&clock, FarmConfig::new(dir.path().into()));
-    let settings = RenderSettings {
-        width: 8,
-        height: 8,
-        tile_size: 8,
-        spp: 12,
-        samples_per_task: 4,
-        time_limit_s: Some(1.0),
-        ..Default::default()
-    };
+    let settings = RenderSettings { time_limit_s: Some(1.0), ..one_tile(12) };
     let id = farm.create_job(&hash, settings, 0).unwrap().id;
     let first = farm.lease(&w).unwrap().unwrap();
     clock.advance(Duration::from_millis(999));
@@ -193,14 +186,7 @@ fn one_leased_task(dir: &std::path::Path) -> (Farm, String, String, LeaseGrant) 
     let mut farm = Farm::open(FarmConfig::new(dir.into())).unwrap();
     let hash = "aa".repeat(32);
     farm.store.put_scene(&hash, "glb", b"scene").unwrap();
-    let settings = RenderSettings {
-        width: 8,
-        height: 8,
-        tile_size: 8,
-        spp: 4,
-        samples_per_task: 4,
-        ..Default::default()
-    };
+    let settings = one_tile(4);
     let id = farm.create_job(&hash, settings, 0).unwrap().id;
     let w =
         farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
@@ -255,14 +241,7 @@ fn physically_impossible_results_are_refused_and_nothing_is_merged() {
 fn a_removed_job_is_gone_and_stays_gone_after_a_restart() {
     let dir = tempfile::tempdir().unwrap();
     let (mut farm, w, id, grant) = one_leased_task(dir.path());
-    let settings = RenderSettings {
-        width: 8,
-        height: 8,
-        tile_size: 8,
-        spp: 8,
-        samples_per_task: 4,
-        ..Default::default()
-    };
+    let settings = one_tile(8);
     let hash = "aa".repeat(32);
     let other = farm.create_job(&hash, settings, 0).unwrap().id;
     // The other job gets a merged task and a pending one; the removed one a merged task.

@@ -246,12 +246,9 @@ async fn frame_image(
 /// [`PREVIEW_MAX_SIDE`](crate::output::PREVIEW_MAX_SIDE); `None` for a frame whose sums left
 /// memory. A preview of a running job may show tiles at slightly different moments.
 fn tiled_preview(state: &AppState, id: &str, number: i64) -> ApiResult<Option<Vec<u8>>> {
-    let (width, height, layout) = {
-        let farm = state.lock();
-        let status = farm.status(id)?;
-        (status.settings.width, status.settings.height, farm.frame_tiles(id, number)?)
+    let Some((f, tiles, width, height)) = state.lock().frame_tiles(id, number)? else {
+        return Ok(None);
     };
-    let Some((f, tiles)) = layout else { return Ok(None) };
     let mut preview = crate::output::Preview::new(width, height);
     for t in 0..tiles {
         if let Some(tile) = state.lock().tile_sums(id, f, t) {
