@@ -142,3 +142,85 @@ fn hostile_scenes_are_refused_before_the_work_in_bounded_memory() {
     eprintln!("coordinator peak resident memory: {peak:.0} MiB");
     assert!(peak < 100.0, "the coordinator peaked at {peak:.0} MiB");
 }
+
+/// The width and height of a PNG, from its header.
+fn png_size(png: &[u8]) -> (u32, u32) {
+    assert_eq!(&png[1..4], b"PNG", "not a PNG");
+    let be = |at: usize| u32::from_be_bytes(png[at..at + 4].try_into().unwrap());
+    (be(16), be(20))
+}
+
+/// Frames far larger than the coordinator's memory budget, nothing rendered yet, are served
+/// read a tile at a time: a 16384 x 16384 frame (the largest a job may ask for) as a PNG
+/// downscaled to 2048 pixels a side, and an 8192 x 8192 one as its whole EXR (1.9 GB of
+/// channels, written a row of tiles at a time and streamed). The coordinator's memory stays
+/// bounded, and requests made meanwhile are answered at once (the farm's lock is held for one
+/// tile's copy at a time, never for the frame).
+#[test]
+fn huge_frames_are_served_a_tile_at_a_time_in_bounded_memory() {
+    use std::{
+        io::Read as _,
+        sync::{atomic::AtomicBool, atomic::Ordering::Relaxed, Arc},
+        time::{Duration, Instant},
+    };
+    let dir = temp_dir("huge-frame");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let scene = upload(&url, &cornell_zip());
+    let big = create_job(&url, &scene, &json!({"width": 16384, "height": 16384, "spp": 1}), 0);
+    let side = 8192;
+    let id = create_job(&url, &scene, &json!({"width": side, "height": side, "spp": 1}), 0);
+
+    // Requests made while the frames are served: their slowest answer.
+    let serving = Arc::new(AtomicBool::new(true));
+    let watcher = {
+        let (serving, status_url) = (serving.clone(), format!("{url}/api/v1/jobs/{id}"));
+        std::thread::spawn(move || {
+            let (mut slowest, mut answered) = (Duration::ZERO, 0);
+            while serving.load(Relaxed) {
+                let start = Instant::now();
+                assert_eq!(get(&status_url).status, 200);
+                slowest = slowest.max(start.elapsed());
+                answered += 1;
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            (slowest, answered)
+        })
+    };
+
+    let start = Instant::now();
+    let png = get(&format!("{url}/api/v1/jobs/{big}/frames/0.png"));
+    let png_time = start.elapsed();
+    assert_eq!(png.status, 200, "{}", png.error());
+    assert_eq!(png_size(&png.body), (2048, 2048), "downscaled 8 times");
+
+    // The EXR is read as it comes: its header checked, the rest counted.
+    let start = Instant::now();
+    let response = ureq::get(&format!("{url}/api/v1/jobs/{id}/frames/0.exr")).call().unwrap();
+    let declared: u64 = response.header("content-length").unwrap().parse().unwrap();
+    let mut body = response.into_reader();
+    let mut head = vec![0; 64 << 10];
+    body.read_exact(&mut head).unwrap();
+    let rest = std::io::copy(&mut body, &mut std::io::sink()).unwrap();
+    let exr_time = start.elapsed();
+    serving.store(false, Relaxed);
+    let (slowest, answered) = watcher.join().unwrap();
+    assert_eq!(head.len() as u64 + rest, declared, "the whole file came");
+    let meta = coordinator::output::read_exr_meta(&head).unwrap();
+    let size = meta.headers[0].layer_size;
+    assert_eq!((size.width(), size.height()), (side as usize, side as usize));
+    assert_eq!(meta.headers.len(), 2, "the image part and the variance part");
+
+    let peak = peak_mib(&coordinator);
+    eprintln!(
+        "16384^2 frame: PNG in {png_time:.2?}; {side}^2 frame: EXR ({:.0} MB) in \
+         {exr_time:.2?}; {answered} status requests meanwhile, the slowest {slowest:.2?}; \
+         coordinator peak resident memory {peak:.0} MiB",
+        declared as f64 / 1e6
+    );
+    // The 8192^2 frame's channels alone would be 1.9 GB; a band of 32 rows is 7 MB.
+    assert!(peak < 300.0, "the coordinator peaked at {peak:.0} MiB");
+    assert!(slowest < Duration::from_millis(500), "a request waited {slowest:.2?}");
+    assert_eq!(get(&format!("{url}/healthz")).status, 200);
+}

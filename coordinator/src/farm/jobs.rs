@@ -3,8 +3,12 @@
 
 use std::{collections::BTreeMap, path::PathBuf};
 
-use common::{film::TileAccum, settings::RenderSettings};
+use common::{
+    film::{Rect, TileAccum},
+    settings::RenderSettings,
+};
 
+use super::store::TileReader;
 use super::{
     error::{FarmError, FarmResult},
     job::{Job, JobState, JobStatus, JobSummary},
@@ -13,7 +17,7 @@ use super::{
     validate::{check_settings, is_hash, SceneInfo},
     Farm,
 };
-use crate::output::FrameImage;
+use crate::output::{FrameImage, FrameInfo};
 
 impl Farm {
     /// Checks and stores an upload (call [`super::validate_upload`] first, outside any lock).
@@ -185,26 +189,41 @@ impl Farm {
         Ok((image, status))
     }
 
-    /// Where the sums of frame `number` of job `id` are, for reading them a tile at a time:
-    /// (frame index, tile count, width, height), or `None` when they left memory (read them
-    /// with [`Farm::image`]).
-    pub fn frame_tiles(
-        &self,
-        id: &str,
-        number: i64,
-    ) -> FarmResult<Option<(usize, usize, u32, u32)>> {
+    /// What serving frame `number` of job `id` a tile at a time needs: its size, its tiles,
+    /// where their sums are, and what its EXR header says of the job.
+    pub fn frame_layout(&self, id: &str, number: i64) -> FarmResult<FrameLayout> {
         let job = self.job(id)?;
         let f = Self::frame_index(job, number)?;
-        let (w, h) = (job.settings.width, job.settings.height);
-        Ok((!job.frames[f].evicted).then(|| (f, job.frames[f].tiles.len(), w, h)))
+        let s = &job.settings;
+        Ok(FrameLayout {
+            job: job.id.clone(),
+            f,
+            size: (s.width, s.height),
+            tiles: job.frames[f].tiles.iter().map(|t| t.sums.rect).collect(),
+            tile_rows: s.tile_size,
+            stored: job.frames[f].evicted,
+            info: FrameInfo {
+                settings_json: serde_json::to_string(s).unwrap_or_default(),
+                scene_hash: job.scene.clone(),
+                render_seconds: job.elapsed(self.clock.now()),
+                frame: number,
+            },
+        })
     }
 
-    /// A copy of the merged sums of tile `t` of frame index `f` of job `id`, when it has any
-    /// and they are in memory (a job removed or evicted meanwhile gives `None`).
-    pub fn tile_sums(&self, id: &str, f: usize, t: usize) -> Option<TileAccum> {
-        let frame = self.jobs.get(id)?.frames.get(f).filter(|frame| !frame.evicted)?;
-        let tile = &frame.tiles.get(t)?.sums;
-        (!tile.pixels.is_empty()).then(|| tile.clone())
+    /// A copy of the merged sums of tile `t` of frame index `f` of job `id`.
+    pub fn tile_copy(&self, id: &str, f: usize, t: usize) -> FarmResult<TileCopy> {
+        let frame = &self.job(id)?.frames[f];
+        if frame.evicted {
+            return Ok(TileCopy::Stored);
+        }
+        let tile = &frame.tiles[t].sums;
+        Ok(if tile.pixels.is_empty() { TileCopy::Empty } else { TileCopy::Sums(tile.clone()) })
+    }
+
+    /// A reader of stored tiles that needs no lock on the farm (see [`TileReader`]).
+    pub fn tile_reader(&self) -> FarmResult<TileReader> {
+        Ok(self.store.tile_reader()?)
     }
 
     /// The summed tiles of frame index `f` of an evicted job, from the database.
@@ -220,6 +239,35 @@ impl Farm {
             ))
         })
     }
+}
+
+/// Where a frame's tiles are and what its files say of it ([`Farm::frame_layout`]).
+#[derive(Clone, Debug)]
+pub struct FrameLayout {
+    /// The job's id.
+    pub job: String,
+    /// The frame's index in the job.
+    pub f: usize,
+    /// Width and height.
+    pub size: (u32, u32),
+    /// Its tiles, row-major: a tile row is `tile_rows` high.
+    pub tiles: Vec<Rect>,
+    /// The height of a row of tiles (the last may be lower).
+    pub tile_rows: u32,
+    /// The sums left memory for the database (read them with [`Farm::tile_reader`]).
+    pub stored: bool,
+    /// What the frame's EXR header says.
+    pub info: FrameInfo,
+}
+
+/// A tile's sums as [`Farm::tile_copy`] found them.
+pub enum TileCopy {
+    /// Its merged sums.
+    Sums(TileAccum),
+    /// No task of it is merged yet.
+    Empty,
+    /// The frame's sums left memory: they are in the database.
+    Stored,
 }
 
 /// The order of a job list.

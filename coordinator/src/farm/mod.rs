@@ -35,7 +35,9 @@ pub mod validate;
 pub mod workers;
 
 pub use error::{ErrorKind, FarmError, FarmResult};
-pub use jobs::{JobPage, JobQuery, ListOrder, DEFAULT_LIST_LIMIT, MAX_LIST_LIMIT};
+pub use jobs::{
+    FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, DEFAULT_LIST_LIMIT, MAX_LIST_LIMIT,
+};
 pub use validate::{hex, is_hash, validate_job_scene, validate_upload, SceneInfo};
 pub use workers::WorkerInfo;
 

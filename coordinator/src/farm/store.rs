@@ -24,6 +24,8 @@ use super::{
 /// The database and the scene folder.
 pub struct Store {
     db: Connection,
+    /// The database file.
+    path: PathBuf,
     scenes_dir: PathBuf,
     /// Whether what is written must survive a crash (scene files are synced to disk).
     durable: bool,
@@ -178,7 +180,10 @@ impl Store {
             db.execute_batch("ALTER TABLE jobs ADD COLUMN finished REAL")
                 .context("adding the jobs' end time")?;
         }
-        Ok(Store { db, scenes_dir, durable })
+        // A reader ([`Store::tile_reader`]) may hold the database a moment (without a write-ahead
+        // log): a commit waits for it rather than fail.
+        db.busy_timeout(std::time::Duration::from_secs(10))?;
+        Ok(Store { db, path, scenes_dir, durable })
     }
 
     /// Path of a stored scene's bytes.
@@ -378,6 +383,18 @@ impl Store {
         Ok(rows.into_iter().map(|(_, _, _, sums)| sums).collect())
     }
 
+    /// A second connection to the database, read-only, for reading tiles without the farm.
+    pub fn tile_reader(&self) -> Result<TileReader> {
+        use rusqlite::OpenFlags;
+        let db = Connection::open_with_flags(
+            &self.path,
+            OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .with_context(|| format!("opening {} to read", self.path.display()))?;
+        db.busy_timeout(std::time::Duration::from_secs(10))?;
+        Ok(TileReader { db })
+    }
+
     /// Rows of (frame, tile, a task number, decoded sums) from `sql`.
     fn tile_rows(
         &self,
@@ -421,6 +438,27 @@ impl Store {
             out.push(StoredTile { frame, tile, prefix: 0, sums: None, pending });
         }
         Ok(out)
+    }
+}
+
+/// Reads stored tiles one at a time on a connection of its own, so that serving the image of a
+/// finished job (whose sums left memory) holds neither the farm's lock nor more than one tile.
+pub struct TileReader {
+    db: Connection,
+}
+
+impl TileReader {
+    /// The summed tile `tile` of frame `frame` of job `job` (`None`: nothing is stored for it).
+    pub fn tile(&self, job: &str, frame: u32, tile: u32) -> Result<Option<TileAccum>> {
+        let blob: Option<Vec<u8>> = self
+            .db
+            .prepare_cached("SELECT sums FROM tiles WHERE job = ?1 AND frame = ?2 AND tile = ?3")?
+            .query_row(params![job, frame, tile], |r| r.get(0))
+            .optional()?;
+        Ok(match blob {
+            Some(blob) => Some(bincode::serde::decode_from_slice(&blob, bincode_config())?.0),
+            None => None,
+        })
     }
 }
 

@@ -1,16 +1,15 @@
 //! Jobs: `POST /api/v1/jobs` creates one on a stored scene, `GET /api/v1/jobs` lists them a page
 //! at a time (`?state=&order=&after=&limit=`), `GET /api/v1/jobs/{id}` shows one,
 //! `POST /api/v1/jobs/{id}/cancel` cancels one (and so does `DELETE /api/v1/jobs/{id}`, as it
-//! always did), `DELETE /api/v1/jobs/{id}?purge=true` removes one entirely, and
-//! `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`) serves a frame's image, also while the job
-//! runs.
+//! always did), and `DELETE /api/v1/jobs/{id}?purge=true` removes one entirely. A frame's
+//! image, `GET /api/v1/jobs/{id}/frames/{n}.exr|png`, is served by `frames.rs`.
 
 use std::sync::Mutex;
 
 use axum::{
     body::Body,
     extract::{rejection::QueryRejection, Path, Query, State},
-    http::{header, HeaderMap, HeaderValue, StatusCode},
+    http::{HeaderMap, StatusCode},
     response::{IntoResponse, Response},
     routing::{get, post},
     Json, Router,
@@ -20,12 +19,9 @@ use serde::Deserialize;
 use serde_json::json;
 
 use super::{blocking, json_body, lock_farm, ApiResult, AppState};
-use crate::{
-    farm::{
-        job::{JobState, JobStatus},
-        validate_job_scene, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
-    },
-    output::{exr_bytes, png_bytes, FrameInfo},
+use crate::farm::{
+    job::{JobState, JobStatus},
+    validate_job_scene, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
 };
 
 pub(super) fn routes() -> Router<AppState> {
@@ -33,7 +29,7 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/api/v1/jobs", post(create_job).get(list_jobs))
         .route("/api/v1/jobs/{id}", get(job_status).delete(delete_job))
         .route("/api/v1/jobs/{id}/cancel", post(cancel_job))
-        .route("/api/v1/jobs/{id}/frames/{file}", get(frame_image))
+        .route("/api/v1/jobs/{id}/frames/{file}", get(super::frames::frame_image))
 }
 
 /// `POST /jobs` after the body is parsed: checks the settings against the farm and the stored
@@ -196,64 +192,4 @@ async fn delete_job(
     }
     state.lock().remove_job(&id)?;
     Ok(Json(json!({ "removed": id })).into_response())
-}
-
-async fn frame_image(
-    State(state): State<AppState>,
-    Path((id, file)): Path<(String, String)>,
-) -> ApiResult<Response> {
-    let (number, ext) = file
-        .rsplit_once('.')
-        .and_then(|(n, e)| Some((n.parse::<i64>().ok()?, e.to_ascii_lowercase())))
-        .ok_or_else(|| {
-            FarmError::not_found(format!(
-                "'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"
-            ))
-        })?;
-    if ext != "exr" && ext != "png" {
-        return Err(FarmError::not_found(format!("'{file}': frames are served as .exr or .png")));
-    }
-    let st = state.clone();
-    blocking(move || {
-        if ext == "png" {
-            if let Some(png) = tiled_preview(&st, &id, number)? {
-                return Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png)
-                    .into_response());
-            }
-        }
-        let (image, status) = st.lock().image(&id, number)?;
-        if ext == "exr" {
-            let info = FrameInfo {
-                settings_json: serde_json::to_string(&status.settings).unwrap_or_default(),
-                scene_hash: status.scene.clone(),
-                render_seconds: status.elapsed_s,
-                frame: number,
-            };
-            let bytes = exr_bytes(image, &info)?;
-            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"))], bytes)
-                .into_response())
-        } else {
-            let bytes = png_bytes(&image, 0.0)?;
-            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], bytes)
-                .into_response())
-        }
-    })
-    .await
-}
-
-/// The PNG preview of a frame whose sums are in memory, built a tile at a time so that the farm
-/// is locked for one tile's copy at a time, never for the whole frame, and downscaled past
-/// [`PREVIEW_MAX_SIDE`](crate::output::PREVIEW_MAX_SIDE); `None` for a frame whose sums left
-/// memory. A preview of a running job may show tiles at slightly different moments.
-fn tiled_preview(state: &AppState, id: &str, number: i64) -> ApiResult<Option<Vec<u8>>> {
-    let Some((f, tiles, width, height)) = state.lock().frame_tiles(id, number)? else {
-        return Ok(None);
-    };
-    let mut preview = crate::output::Preview::new(width, height);
-    for t in 0..tiles {
-        if let Some(tile) = state.lock().tile_sums(id, f, t) {
-            preview.add_tile(&tile);
-        }
-    }
-    Ok(Some(preview.png(0.0)?))
 }

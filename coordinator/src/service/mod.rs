@@ -12,7 +12,7 @@
 //! - here: `GET /`, `GET /healthz`, `GET /api/v1/openapi.json`; `metrics.rs`: `GET /metrics`.
 //! - `scenes.rs`: `POST /api/v1/scenes`, `GET /api/v1/scenes/{hash}`.
 //! - `jobs.rs`: `POST|GET /api/v1/jobs`, `GET|DELETE /api/v1/jobs/{id}`,
-//!   `GET /api/v1/jobs/{id}/frames/{n}.exr|png`.
+//!   `POST /api/v1/jobs/{id}/cancel`; `frames.rs`: `GET /api/v1/jobs/{id}/frames/{n}.exr|png`.
 //! - `workers.rs`: `GET|POST /api/v1/workers`, `DELETE /api/v1/workers/{id}`,
 //!   `POST /api/v1/workers/{id}/lease`.
 //! - `leases.rs`: `POST /api/v1/leases/{lease}/heartbeat|result|fail`.
@@ -21,6 +21,7 @@
 //! HTTP, for the local workers of `coordinator render`.
 
 mod auth;
+mod frames;
 mod jobs;
 mod leases;
 mod listen;

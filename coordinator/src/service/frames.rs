@@ -1,0 +1,160 @@
+//! `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`): a frame's image, also while its job runs.
+//!
+//! A frame is read a tile at a time, from memory under the farm's lock for one tile's copy at a
+//! time, or, once its job finished and its sums left memory, from the database on a connection
+//! of its own without the lock. Nothing holds a whole frame: the EXR is written a row of tiles
+//! at a time into an unnamed file in the data folder and streamed from it; the PNG preview is
+//! downscaled past [`PREVIEW_MAX_SIDE`](crate::output::PREVIEW_MAX_SIDE). A frame of a running
+//! job may show tiles at slightly different moments.
+
+use axum::{
+    body::{Body, Bytes},
+    extract::{Path, State},
+    http::{header, HeaderValue},
+    response::{IntoResponse, Response},
+};
+use common::film::TileAccum;
+use tokio::io::AsyncReadExt;
+
+use super::{blocking, ApiResult, AppState};
+use crate::{
+    farm::{store::TileReader, FarmError, FrameLayout, TileCopy},
+    output::{write_exr_in_bands, ExrTotals, FrameImage, Preview},
+};
+
+pub(super) async fn frame_image(
+    State(state): State<AppState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let (number, ext) = file
+        .rsplit_once('.')
+        .and_then(|(n, e)| Some((n.parse::<i64>().ok()?, e.to_ascii_lowercase())))
+        .ok_or_else(|| {
+            FarmError::not_found(format!(
+                "'{file}' is not a frame file: use {{n}}.exr or {{n}}.png"
+            ))
+        })?;
+    match ext.as_str() {
+        "png" => {
+            let png = blocking(move || preview(&state, &id, number)).await?;
+            Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png)
+                .into_response())
+        }
+        "exr" => {
+            let (file, len) = blocking(move || exr_file(&state, &id, number)).await?;
+            Ok((
+                [
+                    (header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr")),
+                    (header::CONTENT_LENGTH, HeaderValue::from(len)),
+                ],
+                Body::from_stream(chunks(tokio::fs::File::from_std(file))),
+            )
+                .into_response())
+        }
+        _ => Err(FarmError::not_found(format!("'{file}': frames are served as .exr or .png"))),
+    }
+}
+
+/// A file's bytes from where it stands, 256 KiB at a time (the stream ends after an error).
+fn chunks(
+    file: tokio::fs::File,
+) -> impl futures_util::Stream<Item = std::io::Result<Bytes>> + Send + 'static {
+    futures_util::stream::unfold(Some(file), |file| async move {
+        let mut file = file?;
+        let mut buf = vec![0; 256 << 10];
+        match file.read(&mut buf).await {
+            Ok(0) => None,
+            Ok(n) => {
+                buf.truncate(n);
+                Some((Ok(Bytes::from(buf)), Some(file)))
+            }
+            Err(e) => Some((Err(e), None)),
+        }
+    })
+}
+
+/// A frame's tiles, read one at a time.
+struct FrameTiles<'a> {
+    state: &'a AppState,
+    layout: FrameLayout,
+    /// Set once the frame's sums are found to be in the database.
+    reader: Option<TileReader>,
+}
+
+impl<'a> FrameTiles<'a> {
+    fn open(state: &'a AppState, id: &str, number: i64) -> ApiResult<Self> {
+        let layout = state.lock().frame_layout(id, number)?;
+        let reader = if layout.stored { Some(state.lock().tile_reader()?) } else { None };
+        Ok(FrameTiles { state, layout, reader })
+    }
+
+    /// Tile `t`'s sums, `None` when it has none yet.
+    fn tile(&mut self, t: usize) -> ApiResult<Option<TileAccum>> {
+        if self.reader.is_none() {
+            let copy = self.state.lock().tile_copy(&self.layout.job, self.layout.f, t)?;
+            match copy {
+                TileCopy::Sums(sums) => return Ok(Some(sums)),
+                TileCopy::Empty => return Ok(None),
+                // The job finished meanwhile: the rest is read from the database.
+                TileCopy::Stored => self.reader = Some(self.state.lock().tile_reader()?),
+            }
+        }
+        let reader = self.reader.as_ref().expect("a reader was just opened");
+        Ok(reader.tile(&self.layout.job, self.layout.f as u32, t as u32)?)
+    }
+}
+
+/// The PNG preview of a frame, built a tile at a time.
+fn preview(state: &AppState, id: &str, number: i64) -> ApiResult<Vec<u8>> {
+    let mut tiles = FrameTiles::open(state, id, number)?;
+    let (width, height) = tiles.layout.size;
+    let mut preview = Preview::new(width, height);
+    for t in 0..tiles.layout.tiles.len() {
+        if let Some(tile) = tiles.tile(t)? {
+            preview.add_tile(&tile);
+        }
+    }
+    Ok(preview.png(0.0)?)
+}
+
+/// The EXR of a frame, written a row of tiles at a time into an unnamed file (gone when it is
+/// closed) in the data folder, rewound; and its length.
+fn exr_file(state: &AppState, id: &str, number: i64) -> ApiResult<(std::fs::File, u64)> {
+    use std::io::{Seek, SeekFrom};
+    let mut tiles = FrameTiles::open(state, id, number)?;
+    // The header comes first and states totals over the whole frame: one pass for them.
+    let mut totals = ExrTotals::default();
+    for t in 0..tiles.layout.tiles.len() {
+        if let Some(tile) = tiles.tile(t)? {
+            totals.add_tile(&tile);
+        }
+    }
+    let dir = state.lock().config().data_dir.clone();
+    let mut file = tempfile::tempfile_in(&dir).map_err(|e| {
+        FarmError::internal(format!("a file for the EXR in {}: {e}", dir.display()))
+    })?;
+    let layout = tiles.layout.clone();
+    let (width, _) = layout.size;
+    // Tiles start at multiples of the band's height: each lies in one band.
+    write_exr_in_bands(
+        &mut file,
+        layout.size,
+        &layout.info,
+        &totals,
+        layout.tile_rows,
+        |y0, rows| {
+            let mut band = FrameImage::new(width, rows);
+            for (t, rect) in layout.tiles.iter().enumerate() {
+                if (y0..y0 + rows).contains(&rect.y0) {
+                    if let Some(tile) = tiles.tile(t).map_err(|e| anyhow::anyhow!(e.message))? {
+                        band.put_tile_below(&tile, y0);
+                    }
+                }
+            }
+            Ok(band)
+        },
+    )?;
+    let len = file.seek(SeekFrom::End(0)).map_err(|e| FarmError::internal(e.to_string()))?;
+    file.rewind().map_err(|e| FarmError::internal(e.to_string()))?;
+    Ok((file, len))
+}
