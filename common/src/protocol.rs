@@ -104,6 +104,14 @@ pub fn encode_result(result: &TaskResult) -> Vec<u8> {
         .expect("a task result always encodes")
 }
 
+/// The most bytes an encoded result for `spec` can take: a pixel's sums are at most 82 bytes
+/// (two counts of at most five varint bytes, nine `f64`s), and the rest (the task, the tile's
+/// corner and size, the counts of pixels, refused samples and rays) at most 256. The service
+/// reads no more of a result's body than this.
+pub fn max_result_bytes(spec: &TaskSpec) -> usize {
+    256 + spec.rect.area() * 82
+}
+
 /// Decodes a task result; a truncated or malformed body gives a message, never a panic.
 /// The decoder allocates at most 1 GiB, whatever the body claims.
 pub fn decode_result(bytes: &[u8]) -> Result<TaskResult, String> {
@@ -171,3 +179,36 @@ pub struct FailReport {
 
 /// Header carrying the worker id on heartbeats, results and failure reports.
 pub const WORKER_HEADER: &str = "x-worker-id";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::film::PixelSums;
+
+    /// The largest encoding of a result, every count and varint at its widest, fits the bound,
+    /// and the bound is not loose by more than its fixed part.
+    #[test]
+    fn the_result_bound_holds_the_widest_encoding() {
+        let rect = Rect { x0: u32::MAX, y0: u32::MAX, width: 37, height: 11 };
+        let spec = TaskSpec {
+            frame: i64::MIN,
+            rect,
+            samples: SampleRange { start: u32::MAX, end: u32::MAX },
+        };
+        let widest = PixelSums {
+            n: u32::MAX,
+            n_odd: u32::MAX,
+            mean: [f64::MAX; 3],
+            m2: [f64::MAX; 3],
+            mean_odd: [f64::MAX; 3],
+        };
+        let mut tile = TileAccum::new(rect);
+        tile.pixels.fill(widest);
+        tile.rejected = u64::MAX;
+        let result = TaskResult { spec: spec.clone(), tile, rays: u64::MAX };
+        let bytes = encode_result(&result).len();
+        let bound = max_result_bytes(&spec);
+        assert!(bytes <= bound, "{bytes} bytes over the bound of {bound}");
+        assert!(bound - bytes <= 256, "{bytes} bytes against a bound of {bound}");
+    }
+}

@@ -163,7 +163,13 @@ enum Command {
         /// Hours a task may stay leased to one worker, heartbeats or not (a hung render).
         #[arg(long, default_value_t = 6.0)]
         max_lease_hours: f64,
-        /// Largest upload (scene or result) in MiB.
+        /// Times a task may be reported failed by workers before its job fails with the reason.
+        #[arg(long, default_value_t = 3)]
+        max_task_failures: u32,
+        /// Times a task's lease may expire (its worker gone silent) before its job fails.
+        #[arg(long, default_value_t = 5)]
+        max_task_expiries: u32,
+        /// Largest scene upload in MiB (a result is read no further than its tile's sums can take).
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
         /// Most bytes a scene's .zip may unpack to, in MiB (checked while unpacking).
@@ -308,6 +314,8 @@ fn main() -> Result<()> {
             lease_timeout,
             max_spp,
             max_lease_hours,
+            max_task_failures,
+            max_task_expiries,
             max_upload_mib,
             max_scene_mib,
             max_megatexels,
@@ -376,6 +384,12 @@ fn main() -> Result<()> {
             config.farm.lease_timeout = Duration::from_secs_f64(lease_timeout);
             config.farm.max_spp = max_spp;
             config.farm.max_lease_lifetime = Duration::from_secs_f64(max_lease_hours * 3600.0);
+            anyhow::ensure!(
+                max_task_failures > 0 && max_task_expiries > 0,
+                "--max-task-failures and --max-task-expiries must be at least 1"
+            );
+            config.farm.max_task_failures = max_task_failures;
+            config.farm.max_task_expiries = max_task_expiries;
             config.max_upload_bytes = max_upload_mib << 20;
             config.connections.header_timeout = Duration::from_secs_f64(header_timeout);
             config.connections.max_connections = max_connections;

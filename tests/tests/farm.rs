@@ -203,6 +203,13 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let a = send(&w1, "application/json", &good);
     assert_eq!(a.status, 415, "{}", a.error());
 
+    // A result is read no further than its tile's sums can take (a 32x32 tile: 84 KiB).
+    let mut padded = good.clone();
+    padded.resize(good.len() + (1 << 20), 0);
+    let a = send(&w1, "application/octet-stream", &padded);
+    assert_eq!(a.status, 413, "{}", a.error());
+    assert!(a.error().contains("84224 bytes a result for this lease can take"), "{}", a.error());
+
     let a = post_bytes(&result_url, "application/octet-stream", &[], &good);
     assert_eq!((a.status, a.error().contains("x-worker-id")), (400, true), "{}", a.error());
 
@@ -211,6 +218,15 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
         "application/octet-stream",
         &[("x-worker-id", &w1)],
         &good,
+    );
+    assert_eq!(a.status, 409, "{}", a.error());
+    // A call on a lease that is not the caller's is refused as such, its body unread and
+    // unkept, however large.
+    let a = post_bytes(
+        &format!("{url}/api/v1/leases/0123456789abcdef/result"),
+        "application/octet-stream",
+        &[("x-worker-id", &w1)],
+        &vec![0; 32 << 20],
     );
     assert_eq!(a.status, 409, "{}", a.error());
 
@@ -226,13 +242,13 @@ fn forged_stale_and_malformed_results_are_refused_and_nothing_is_merged() {
     let done = job_status(&url, &scratch);
     assert_eq!(done["samples_done"], 32 * 32 * 32, "{done:#}");
     assert_eq!(done["state"], "done");
-    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 12.0);
+    assert_eq!(metric(&url, "renderfarm_results_refused_total"), 14.0);
     // Each refusal is logged with the worker, the lease and the reason.
     let log = coordinator.log_text();
     let line = log.lines().find(|l| l.contains("mean -100 is negative")).expect("no log line");
     assert!(line.contains("WARN") && line.contains(&w1) && line.contains(&lease), "{line}");
     let refusals = log.lines().filter(|l| l.contains("result refused")).count();
-    assert_eq!(refusals, 12, "{log}");
+    assert_eq!(refusals, 14, "{log}");
 
     // The forger leaves (it may remove only itself); its lease goes back, and a real worker
     // renders the job: its image is bit for bit `coordinator render`'s, nothing forged in it.

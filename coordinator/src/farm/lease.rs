@@ -353,8 +353,8 @@ impl Leases {
         }
     }
 
-    /// The live lease `id`, if `worker` holds it.
-    fn held(&self, id: &str, worker: &str) -> FarmResult<&Lease> {
+    /// The live lease `id`, if `worker` holds it; else the refusal a call on it gets.
+    pub fn held(&self, id: &str, worker: &str) -> FarmResult<&Lease> {
         let l = self.live.get(id).ok_or_else(|| {
             FarmError::conflict(format!(
                 "lease {id} is not live (expired, already answered, its job ended, or the coordinator restarted)"

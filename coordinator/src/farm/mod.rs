@@ -333,6 +333,18 @@ impl Farm {
         Ok(self.config.lease_timeout.as_secs_f64())
     }
 
+    /// The most bytes a result for lease `id` can take, if `worker` holds it (see
+    /// [`common::protocol::max_result_bytes`]); else the refusal the result would get.
+    pub fn result_limit(&self, lease: &str, worker: &str) -> FarmResult<usize> {
+        if !self.leases.workers().knows(worker) {
+            // As the result itself would be: the worker is told to join again.
+            return Err(FarmError::not_found(format!(
+                "unknown worker {worker}: join again (POST /api/v1/workers)"
+            )));
+        }
+        Ok(common::protocol::max_result_bytes(&self.leases.held(lease, worker)?.spec))
+    }
+
     /// Merges the result of a live lease, exactly once, and commits it before returning.
     pub fn submit(
         &mut self,

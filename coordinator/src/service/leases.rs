@@ -15,7 +15,7 @@ use axum::{
 use common::protocol::{decode_result, FailReport, WORKER_HEADER};
 use serde_json::json;
 
-use super::{blocking, content_type, json_body, read_body, ApiResult, AppState};
+use super::{blocking, content_type, discard_body, json_body, read_body, ApiResult, AppState};
 use crate::farm::{ErrorKind, FarmError};
 
 pub(super) fn routes() -> Router<AppState> {
@@ -65,8 +65,26 @@ async fn merge_result(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let bytes = read_body(body, state.config.max_upload_bytes, state.config.body_stall).await?;
-    let worker = worker_id(&headers)?;
+    // A live lease's result is read up to what its tile's sums can take; any other call is
+    // refused, its body drained without being kept.
+    let limit = worker_id(&headers).and_then(|w| Ok((state.lock().result_limit(&lease, &w)?, w)));
+    let (limit, worker) = match limit {
+        Ok(found) => found,
+        Err(refusal) => {
+            discard_body(body, state.config.max_upload_bytes, state.config.body_stall).await?;
+            return Err(refusal);
+        }
+    };
+    let bytes = read_body(body, limit, state.config.body_stall).await.map_err(|e| {
+        if e.kind == ErrorKind::TooLarge {
+            FarmError::new(
+                e.kind,
+                format!("result refused: over the {limit} bytes a result for this lease can take"),
+            )
+        } else {
+            e
+        }
+    })?;
     match content_type(&headers).as_deref() {
         Some("application/octet-stream") => {}
         other => {

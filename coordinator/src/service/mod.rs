@@ -181,6 +181,28 @@ async fn read_body(body: Body, limit: usize, stall: Duration) -> ApiResult<axum:
     Ok(kept.into())
 }
 
+/// Reads a body to its end without keeping it (up to `cap` bytes; past that the rest is left
+/// unread and the connection closes after the answer), so that a refusal decided before
+/// reading reaches a client that is still sending.
+async fn discard_body(body: Body, cap: usize, stall: Duration) -> ApiResult<()> {
+    use http_body_util::BodyExt;
+    let mut body = body;
+    let mut total = 0usize;
+    while total <= cap {
+        let Ok(frame) = tokio::time::timeout(stall, body.frame()).await else {
+            return Err(FarmError::malformed(format!(
+                "the body stalled: nothing arrived for {} s after {total} bytes (--body-timeout)",
+                stall.as_secs_f64()
+            )));
+        };
+        match frame {
+            Some(Ok(frame)) => total += frame.data_ref().map_or(0, |d| d.len()),
+            Some(Err(_)) | None => break,
+        }
+    }
+    Ok(())
+}
+
 fn content_type(headers: &HeaderMap) -> Option<String> {
     headers
         .get(header::CONTENT_TYPE)
