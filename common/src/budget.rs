@@ -2,9 +2,9 @@
 //! instancing. Each is checked before the work it bounds (a zip entry while it inflates, an image
 //! from its header, a placement before its triangles are copied), so that a small hostile file
 //! is refused for the cost of reading its headers. The coordinator sets the budgets
-//! (`coordinator serve --max-scene-mib`, `--max-megatexels`, `--max-megatriangles`) and hands them
-//! to its workers when they join, so that a scene the coordinator accepted is one every worker
-//! can load.
+//! (`--max-scene-mib`, `--max-megatexels`, `--max-megatriangles` on `coordinator serve` and
+//! `render`) and hands them to its workers when they join, so that a scene the coordinator
+//! accepted is one every worker can load.
 
 use serde::{Deserialize, Serialize};
 
@@ -52,12 +52,15 @@ impl Line {
     /// What is counted, and the setting that sets its budget.
     fn describe(self) -> (&'static str, &'static str) {
         match self {
-            Line::InflatedBytes => ("bytes unpacked", "coordinator serve --max-scene-mib"),
-            Line::Entries => ("files in the archive", "a fixed limit"),
-            Line::Texels => ("decoded texels", "coordinator serve --max-megatexels"),
-            Line::Triangles => {
-                ("triangles after instancing", "coordinator serve --max-megatriangles")
+            Line::InflatedBytes => {
+                ("bytes unpacked", "--max-scene-mib on coordinator serve and render")
             }
+            Line::Entries => ("files in the archive", "a fixed limit"),
+            Line::Texels => ("decoded texels", "--max-megatexels on coordinator serve and render"),
+            Line::Triangles => (
+                "triangles after instancing",
+                "--max-megatriangles on coordinator serve and render",
+            ),
         }
     }
 }
@@ -92,7 +95,7 @@ mod tests {
         let e = over_budget(Line::Texels, 335_544_320, 268_435_456, "image 3, 8192x8192").0;
         assert_eq!(
             e,
-            "the scene needs at least 335.5 M decoded texels (image 3, 8192x8192), over this farm's budget of 268.4 M (coordinator serve --max-megatexels)"
+            "the scene needs at least 335.5 M decoded texels (image 3, 8192x8192), over this farm's budget of 268.4 M (--max-megatexels on coordinator serve and render)"
         );
         assert_eq!(amount(9_999), "9999");
         assert_eq!(amount(12_345), "12.3 k");

@@ -16,6 +16,7 @@ use std::{
 
 use anyhow::{bail, Context, Result};
 use common::{
+    budget::SceneBudget,
     bundle::{Bundle, Format},
     envmap::EnvMap,
     gltf::{DirResolver, Resolver},
@@ -211,6 +212,19 @@ pub fn render_file(
     out: &Path,
     progress: Progress<'_>,
 ) -> Result<RenderReport> {
+    render_file_within(scene_path, settings, workers, SceneBudget::default(), out, progress)
+}
+
+/// [`render_file`] within a scene budget other than the default (`coordinator render
+/// --max-scene-mib`, `--max-megatexels`, `--max-megatriangles`).
+pub fn render_file_within(
+    scene_path: &Path,
+    settings: &RenderSettings,
+    workers: usize,
+    budget: SceneBudget,
+    out: &Path,
+    progress: Progress<'_>,
+) -> Result<RenderReport> {
     settings.validate()?;
     let start = Instant::now();
     progress(Stage::Loading);
@@ -219,6 +233,7 @@ pub fn render_file(
     let data = tempfile::Builder::new().prefix("renderfarm-").tempdir()?;
     let mut config = ServiceConfig::new(data.path().to_path_buf());
     config.farm.max_spp = common::settings::MAX_SPP;
+    config.farm.scene_budget = budget;
     // The data folder is deleted when the render ends: nothing to keep across a crash.
     config.farm.durable = false;
     let service = crate::service::spawn("127.0.0.1:0", config)?;

@@ -15,7 +15,7 @@ use common::{
 };
 use coordinator::{
     client::{healthcheck, submit, Remote},
-    local::{render_file, Stage},
+    local::{render_file_within, Stage},
     output::{check_writable, describe_error, exr_output, is_black},
     service::{serve_on, ServiceConfig},
 };
@@ -123,6 +123,41 @@ impl SettingsArgs {
     }
 }
 
+/// What loading one scene may cost, checked before the work it bounds.
+#[derive(Args, Clone, Copy, Debug)]
+struct BudgetArgs {
+    /// Most bytes a scene's .zip may unpack to, in MiB (checked while unpacking).
+    #[arg(long, default_value_t = SceneBudget::default().inflated_bytes >> 20)]
+    max_scene_mib: u64,
+    /// Most decoded texels of a scene's images, in millions (counted from their headers,
+    /// before decoding; 4 bytes each).
+    #[arg(long, default_value_t = SceneBudget::default().texels as f64 / 1e6)]
+    max_megatexels: f64,
+    /// Most triangles of a scene after instancing, in millions.
+    #[arg(long, default_value_t = SceneBudget::default().triangles as f64 / 1e6)]
+    max_megatriangles: f64,
+}
+
+impl BudgetArgs {
+    fn budget(self) -> Result<SceneBudget> {
+        for (flag, value) in [
+            ("--max-megatexels", self.max_megatexels),
+            ("--max-megatriangles", self.max_megatriangles),
+        ] {
+            anyhow::ensure!(
+                value.is_finite() && value > 0.0,
+                "{flag} must be a positive number of millions"
+            );
+        }
+        Ok(SceneBudget {
+            inflated_bytes: self.max_scene_mib.saturating_mul(1 << 20),
+            texels: (self.max_megatexels * 1e6) as u64,
+            triangles: (self.max_megatriangles * 1e6) as u64,
+            ..SceneBudget::default()
+        })
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Render a glTF scene on this machine and write OUT.exr (+ OUT.png).
@@ -139,6 +174,8 @@ enum Command {
         /// same (the peers benchmark harness passes it).
         #[arg(long, visible_alias = "threads")]
         workers: Option<usize>,
+        #[command(flatten)]
+        budget: BudgetArgs,
     },
     /// Run the farm service: REST API, worker protocol, metrics and dashboard.
     Serve {
@@ -172,16 +209,8 @@ enum Command {
         /// Largest scene upload in MiB (a result is read no further than its tile's sums can take).
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
-        /// Most bytes a scene's .zip may unpack to, in MiB (checked while unpacking).
-        #[arg(long, default_value_t = SceneBudget::default().inflated_bytes >> 20)]
-        max_scene_mib: u64,
-        /// Most decoded texels of a scene's images, in millions (counted from their headers,
-        /// before decoding; 4 bytes each).
-        #[arg(long, default_value_t = SceneBudget::default().texels as f64 / 1e6)]
-        max_megatexels: f64,
-        /// Most triangles of a scene after instancing, in millions.
-        #[arg(long, default_value_t = SceneBudget::default().triangles as f64 / 1e6)]
-        max_megatriangles: f64,
+        #[command(flatten)]
+        budget: BudgetArgs,
         /// Seconds a client has to send a request's headers.
         #[arg(long, default_value_t = 10.0)]
         header_timeout: f64,
@@ -317,9 +346,7 @@ fn main() -> Result<()> {
             max_task_failures,
             max_task_expiries,
             max_upload_mib,
-            max_scene_mib,
-            max_megatexels,
-            max_megatriangles,
+            budget,
             header_timeout,
             body_timeout,
             max_connections,
@@ -339,14 +366,7 @@ fn main() -> Result<()> {
                 max_concurrent_uploads > 0,
                 "--max-concurrent-uploads must be at least 1"
             );
-            for (flag, value) in
-                [("--max-megatexels", max_megatexels), ("--max-megatriangles", max_megatriangles)]
-            {
-                anyhow::ensure!(
-                    value.is_finite() && value > 0.0,
-                    "{flag} must be a positive number of millions"
-                );
-            }
+            let scene_budget = budget.budget()?;
             anyhow::ensure!(
                 lease_timeout.is_finite() && lease_timeout > 0.0,
                 "--lease-timeout must be a positive number of seconds"
@@ -395,12 +415,7 @@ fn main() -> Result<()> {
             config.connections.max_connections = max_connections;
             config.body_stall = Duration::from_secs_f64(body_timeout);
             config.max_concurrent_uploads = max_concurrent_uploads;
-            config.farm.scene_budget = SceneBudget {
-                inflated_bytes: max_scene_mib.saturating_mul(1 << 20),
-                texels: (max_megatexels * 1e6) as u64,
-                triangles: (max_megatriangles * 1e6) as u64,
-                ..SceneBudget::default()
-            };
+            config.farm.scene_budget = scene_budget;
             config.farm.retain_finished = retain_finished;
             if let Some(h) = retain_finished_hours {
                 tracing::info!("finished jobs are removed {h} hours after they end");
@@ -441,7 +456,8 @@ fn main() -> Result<()> {
             ));
             Ok(())
         }
-        Command::Render { scene, output, settings, workers } => {
+        Command::Render { scene, output, settings, workers, budget } => {
+            let budget = budget.budget()?;
             let s = settings.load()?;
             let output = outputs(&output, &s)?;
             let workers = workers.unwrap_or_else(|| {
@@ -453,7 +469,7 @@ fn main() -> Result<()> {
                     show_stage(bar, stage);
                 }
             };
-            let report = render_file(&scene, &s, workers, &output, &progress)?;
+            let report = render_file_within(&scene, &s, workers, budget, &output, &progress)?;
             if let Some(bar) = bar {
                 bar.finish_and_clear();
             }

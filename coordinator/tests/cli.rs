@@ -366,3 +366,27 @@ fn progress_shows_the_preparing_stage_on_a_terminal() {
     assert!(drawn.contains("preparing scene"), "no preparing stage drawn: {drawn}");
     assert!(drawn.contains("rendered"), "{drawn}");
 }
+
+/// `render` takes the scene budgets `serve` takes: a scene over one is refused before it is
+/// rendered, with the figure and the flag; within it the render goes on.
+#[test]
+fn render_takes_the_scene_budgets() {
+    let out = temp("render-budgets.exr");
+    let tiny = ["--spp", "1", "--width", "8", "--height", "8"];
+    let cornell = ["scenes/cornell-box.gltf", "-o", out.to_str().unwrap()];
+    let over = run_render(&[&cornell[..], &tiny, &["--max-megatriangles", "0.00001"]].concat());
+    let stderr = String::from_utf8_lossy(&over.stderr);
+    assert!(!over.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("triangles after instancing")
+            && stderr.contains("budget of 10")
+            && stderr.contains("--max-megatriangles"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "nothing is written for a refused scene");
+    let within = run_render(&[&cornell[..], &tiny, &["--max-megatriangles", "0.001"]].concat());
+    assert!(within.status.success(), "{}", String::from_utf8_lossy(&within.stderr));
+    let bad = run_render(&[&cornell[..], &tiny, &["--max-megatexels", "0"]].concat());
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && stderr.contains("--max-megatexels"), "{stderr}");
+}
