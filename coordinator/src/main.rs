@@ -209,6 +209,10 @@ enum Command {
         /// Largest scene upload in MiB (a result is read no further than its tile's sums can take).
         #[arg(long, default_value_t = 1024)]
         max_upload_mib: usize,
+        /// Most MiB of scene uploads held at once, over all uploads being received and checked;
+        /// past it an upload is refused as busy (503). At least --max-upload-mib.
+        #[arg(long, default_value_t = 2048)]
+        max_uploads_in_flight_mib: usize,
         #[command(flatten)]
         budget: BudgetArgs,
         /// Seconds a client has to send a request's headers.
@@ -346,6 +350,7 @@ fn main() -> Result<()> {
             max_task_failures,
             max_task_expiries,
             max_upload_mib,
+            max_uploads_in_flight_mib,
             budget,
             header_timeout,
             body_timeout,
@@ -410,7 +415,12 @@ fn main() -> Result<()> {
             );
             config.farm.max_task_failures = max_task_failures;
             config.farm.max_task_expiries = max_task_expiries;
+            anyhow::ensure!(
+                max_uploads_in_flight_mib >= max_upload_mib,
+                "--max-uploads-in-flight-mib {max_uploads_in_flight_mib} is below --max-upload-mib {max_upload_mib}: the largest upload could never be taken"
+            );
             config.max_upload_bytes = max_upload_mib << 20;
+            config.max_upload_bytes_in_flight = max_uploads_in_flight_mib << 20;
             config.connections.header_timeout = Duration::from_secs_f64(header_timeout);
             config.connections.max_connections = max_connections;
             config.body_stall = Duration::from_secs_f64(body_timeout);

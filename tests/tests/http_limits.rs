@@ -75,3 +75,38 @@ fn slow_and_greedy_clients_are_cut_off_within_their_limits() {
     std::thread::sleep(Duration::from_millis(300));
     assert_eq!(get(&format!("{url}/healthz")).status, 200);
 }
+
+/// Scene uploads being received share one budget of bytes held: one that holds 2 MiB of a
+/// 3 MiB budget leaves room for no second 2 MiB upload (503, naming the flag), and once it is
+/// refused (its body stalled) the budget is whole again.
+#[test]
+fn uploads_in_flight_share_one_byte_budget() {
+    let dir = temp_dir("upload-bytes");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let addr = format!("127.0.0.1:{port}");
+    let limits =
+        ["--max-upload-mib", "2", "--max-uploads-in-flight-mib", "3", "--body-timeout", "2"];
+    let _coordinator = start_coordinator(&dir.join("data"), port, &limits);
+    let big = vec![7u8; (2 << 20) - 64];
+    let mut holding = TcpStream::connect(&addr).unwrap();
+    write!(
+        holding,
+        "POST /api/v1/scenes HTTP/1.1\r\nHost: x\r\nContent-Type: application/zip\r\nContent-Length: {}\r\n\r\n",
+        big.len() + 64
+    )
+    .unwrap();
+    holding.write_all(&big).unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let busy = post_bytes(&format!("{url}/api/v1/scenes"), "application/zip", &[], &big);
+    assert_eq!(busy.status, 503, "{}", busy.error());
+    assert!(busy.error().contains("--max-uploads-in-flight-mib"), "{}", busy.error());
+    let (answer, _) = until_closed(holding);
+    assert!(answer.starts_with("HTTP/1.1 400") && answer.contains("stalled"), "{answer}");
+    // The held bytes are given back: a scene is taken again.
+    upload(&url, &cornell_zip());
+    // An upload over the per-upload limit is too large, not busy.
+    let over =
+        post_bytes(&format!("{url}/api/v1/scenes"), "application/zip", &[], &vec![7; 3 << 20]);
+    assert_eq!(over.status, 413, "{}", over.error());
+}

@@ -8,15 +8,14 @@
 //! job may show tiles at slightly different moments.
 
 use axum::{
-    body::{Body, Bytes},
+    body::Body,
     extract::{Path, State},
     http::{header, HeaderValue},
     response::{IntoResponse, Response},
 };
 use common::film::TileAccum;
-use tokio::io::AsyncReadExt;
 
-use super::{blocking, ApiResult, AppState};
+use super::{blocking, file_chunks, ApiResult, AppState};
 use crate::{
     farm::{store::TileReader, FarmError, FrameLayout, TileCopy},
     output::{write_exr_in_bands, ExrTotals, FrameImage, Preview},
@@ -47,30 +46,12 @@ pub(super) async fn frame_image(
                     (header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr")),
                     (header::CONTENT_LENGTH, HeaderValue::from(len)),
                 ],
-                Body::from_stream(chunks(tokio::fs::File::from_std(file))),
+                Body::from_stream(file_chunks(tokio::fs::File::from_std(file))),
             )
                 .into_response())
         }
         _ => Err(FarmError::not_found(format!("'{file}': frames are served as .exr or .png"))),
     }
-}
-
-/// A file's bytes from where it stands, 256 KiB at a time (the stream ends after an error).
-fn chunks(
-    file: tokio::fs::File,
-) -> impl futures_util::Stream<Item = std::io::Result<Bytes>> + Send + 'static {
-    futures_util::stream::unfold(Some(file), |file| async move {
-        let mut file = file?;
-        let mut buf = vec![0; 256 << 10];
-        match file.read(&mut buf).await {
-            Ok(0) => None,
-            Ok(n) => {
-                buf.truncate(n);
-                Some((Ok(Bytes::from(buf)), Some(file)))
-            }
-            Err(e) => Some((Err(e), None)),
-        }
-    })
 }
 
 /// A frame's tiles, read one at a time.

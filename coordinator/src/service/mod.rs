@@ -61,8 +61,11 @@ use crate::farm::{ErrorKind, Farm, FarmConfig, FarmError};
 pub struct ServiceConfig {
     /// The farm's settings.
     pub farm: FarmConfig,
-    /// Largest accepted upload (scenes and results).
+    /// Largest accepted scene upload.
     pub max_upload_bytes: usize,
+    /// Most bytes of scene uploads held at once, over all uploads being received and checked;
+    /// past it an upload is refused as busy (503).
+    pub max_upload_bytes_in_flight: usize,
     /// How long a lease request may wait for work.
     pub max_lease_wait: Duration,
     /// Workers must present this bearer token (when set).
@@ -83,6 +86,7 @@ impl ServiceConfig {
         ServiceConfig {
             farm: FarmConfig::new(data_dir),
             max_upload_bytes: 1 << 30,
+            max_upload_bytes_in_flight: 2 << 30,
             max_lease_wait: Duration::from_secs(30),
             join_token: None,
             api_token: None,
@@ -105,6 +109,8 @@ struct AppState {
     draining: Arc<AtomicBool>,
     /// One permit per scene upload being received.
     uploads: Arc<tokio::sync::Semaphore>,
+    /// One permit per KiB of scene uploads held.
+    upload_kib: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -142,6 +148,18 @@ async fn blocking<T: Send + 'static>(
 
 /// Reads a whole body, with clear errors for oversize and truncated ones.
 async fn read_body(body: Body, limit: usize, stall: Duration) -> ApiResult<axum::body::Bytes> {
+    read_body_reserving(body, limit, stall, &mut |_| Ok(())).await
+}
+
+/// [`read_body`], asking `reserve` for each chunk's bytes before keeping them: a refusal stops
+/// the keeping (what was kept is dropped), and is the answer once the rest of the body is
+/// drained, so that a client still sending hears it.
+async fn read_body_reserving(
+    body: Body,
+    limit: usize,
+    stall: Duration,
+    reserve: &mut (dyn FnMut(usize) -> ApiResult<()> + Send),
+) -> ApiResult<axum::body::Bytes> {
     use http_body_util::BodyExt;
     // Past the limit the rest is still read (and dropped), up to a cap, so that a client that is
     // still sending hears the 413 instead of a broken connection.
@@ -149,6 +167,7 @@ async fn read_body(body: Body, limit: usize, stall: Duration) -> ApiResult<axum:
     let mut body = body;
     let mut kept: Vec<u8> = Vec::new();
     let mut total = 0usize;
+    let mut refused = None;
     loop {
         // A client that stops sending does not hold its connection and buffer for ever.
         let Ok(frame) = tokio::time::timeout(stall, body.frame()).await else {
@@ -165,8 +184,14 @@ async fn read_body(body: Body, limit: usize, stall: Duration) -> ApiResult<axum:
         })?;
         if let Ok(data) = frame.into_data() {
             total = total.saturating_add(data.len());
-            if total <= limit {
-                kept.extend_from_slice(&data);
+            if total <= limit && refused.is_none() {
+                match reserve(data.len()) {
+                    Ok(()) => kept.extend_from_slice(&data),
+                    Err(e) => {
+                        refused = Some(e);
+                        kept = Vec::new();
+                    }
+                }
             } else if total > drain_cap {
                 break;
             }
@@ -178,7 +203,30 @@ async fn read_body(body: Body, limit: usize, stall: Duration) -> ApiResult<axum:
             format!("the body is larger than the limit of {limit} bytes"),
         ));
     }
-    Ok(kept.into())
+    match refused {
+        Some(e) => Err(e),
+        None => Ok(kept.into()),
+    }
+}
+
+/// A file's bytes from where it stands, 256 KiB at a time, for a streamed response body (the
+/// stream ends after an error).
+fn file_chunks(
+    file: tokio::fs::File,
+) -> impl futures_util::Stream<Item = std::io::Result<axum::body::Bytes>> + Send + 'static {
+    use tokio::io::AsyncReadExt;
+    futures_util::stream::unfold(Some(file), |file| async move {
+        let mut file = file?;
+        let mut buf = vec![0; 256 << 10];
+        match file.read(&mut buf).await {
+            Ok(0) => None,
+            Ok(n) => {
+                buf.truncate(n);
+                Some((Ok(axum::body::Bytes::from(buf)), Some(file)))
+            }
+            Err(e) => Some((Err(e), None)),
+        }
+    })
 }
 
 /// Reads a body to its end without keeping it (up to `cap` bytes; past that the rest is left
@@ -407,7 +455,10 @@ async fn serve_farm(
 ) -> Result<()> {
     let (draining, work) = embedded.unwrap_or_default();
     let uploads = Arc::new(tokio::sync::Semaphore::new(config.max_concurrent_uploads.max(1)));
-    let state = AppState { farm, work, config: Arc::new(config), draining, uploads };
+    let kib =
+        (config.max_upload_bytes_in_flight >> 10).clamp(1, tokio::sync::Semaphore::MAX_PERMITS);
+    let upload_kib = Arc::new(tokio::sync::Semaphore::new(kib));
+    let state = AppState { farm, work, config: Arc::new(config), draining, uploads, upload_kib };
     let ticker = {
         let state = state.clone();
         tokio::spawn(async move {

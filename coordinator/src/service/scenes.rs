@@ -13,7 +13,9 @@ use axum::{
 };
 use common::bundle::Format;
 
-use super::{blocking, content_type, lock_farm, read_body, ApiResult, AppState};
+use super::{
+    blocking, content_type, file_chunks, lock_farm, read_body_reserving, ApiResult, AppState,
+};
 use crate::farm::{validate_upload, ErrorKind, Farm, FarmError, SceneInfo};
 
 pub(super) fn routes() -> Router<AppState> {
@@ -51,7 +53,34 @@ async fn upload_scene(
             ),
         ));
     };
-    let bytes = read_body(body, state.config.max_upload_bytes, state.config.body_stall).await?;
+    // Every upload's bytes held count against one budget (a KiB a permit), taken as they
+    // arrive and given back when the upload is stored or refused.
+    let mut held: Option<tokio::sync::OwnedSemaphorePermit> = None;
+    let budget = state.upload_kib.clone();
+    let in_flight_mib = state.config.max_upload_bytes_in_flight >> 20;
+    let mut reserve = |bytes: usize| -> ApiResult<()> {
+        let kib = u32::try_from(bytes.div_ceil(1024)).unwrap_or(u32::MAX);
+        let permit = budget.clone().try_acquire_many_owned(kib).map_err(|_| {
+            FarmError::new(
+                ErrorKind::Busy,
+                format!(
+                    "scene uploads being received hold {in_flight_mib} MiB, the most this coordinator holds at once (--max-uploads-in-flight-mib); try again shortly"
+                ),
+            )
+        })?;
+        match &mut held {
+            Some(h) => h.merge(permit),
+            None => held = Some(permit),
+        }
+        Ok(())
+    };
+    let bytes = read_body_reserving(
+        body,
+        state.config.max_upload_bytes,
+        state.config.body_stall,
+        &mut reserve,
+    )
+    .await?;
     let declared = match content_type(&headers).as_deref() {
         Some("model/gltf-binary") => Some(Format::Glb),
         Some("model/gltf+json") => Some(Format::Gltf),
@@ -74,11 +103,22 @@ async fn download_scene(
     State(state): State<AppState>,
     Path(hash): Path<String>,
 ) -> ApiResult<Response> {
-    let bytes = blocking(move || {
-        let path = state.lock().scene_file(&hash)?;
-        std::fs::read(path).map_err(|e| FarmError::internal(format!("scene {hash}: {e}")))
-    })
-    .await?;
-    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"))], bytes)
+    // Streamed from its file: workers fetching a large scene at once hold none of it.
+    let path = blocking(move || state.lock().scene_file(&hash)).await?;
+    let file = tokio::fs::File::open(&path)
+        .await
+        .map_err(|e| FarmError::internal(format!("scene {}: {e}", path.display())))?;
+    let len = file
+        .metadata()
+        .await
+        .map_err(|e| FarmError::internal(format!("scene {}: {e}", path.display())))?
+        .len();
+    Ok((
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream")),
+            (header::CONTENT_LENGTH, HeaderValue::from(len)),
+        ],
+        Body::from_stream(file_chunks(file)),
+    )
         .into_response())
 }
