@@ -490,7 +490,7 @@ fn tokens_guard_the_worker_protocol_and_the_user_api() {
     let dir = temp_dir("tokens");
     let port = free_port();
     let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(
+    let coordinator = start_coordinator(
         &dir.join("data"),
         port,
         &["--token", "join-secret", "--api-token", "api-secret"],
@@ -581,6 +581,26 @@ fn tokens_guard_the_worker_protocol_and_the_user_api() {
     let ids: Vec<&str> =
         listed["workers"].as_array().unwrap().iter().filter_map(|w| w["id"].as_str()).collect();
     assert!(!ids.contains(&a_id.as_str()) && !ids.contains(&b_id.as_str()), "{listed:#}");
+
+    // A client guessing tokens in a loop: every try is counted by status on /metrics, and the
+    // log holds at most 20 lines of refusals in 10 s, each naming the request and the reason.
+    let before = metric(&url, "renderfarm_requests_refused_total{status=\"401\"}");
+    for i in 0..100 {
+        let a = ureq::get(&format!("{url}/api/v1/jobs"))
+            .set("authorization", &format!("Bearer guess-{i}"))
+            .call();
+        assert!(matches!(a, Err(ureq::Error::Status(401, _))));
+    }
+    let after = metric(&url, "renderfarm_requests_refused_total{status=\"401\"}");
+    assert_eq!(after - before, 100.0);
+    let log = coordinator.log_text();
+    let lines: Vec<&str> =
+        log.lines().filter(|l| l.contains("WARN") && l.contains("refused")).collect();
+    assert!(
+        lines.iter().any(|l| l.contains("GET") && l.contains("/api/v1/jobs") && l.contains("401")),
+        "{log}"
+    );
+    assert!(lines.len() <= 20, "{} lines of refusals in a few seconds:\n{log}", lines.len());
 }
 
 #[test]

@@ -395,14 +395,10 @@ impl Farm {
         Ok(())
     }
 
-    /// Counts and logs a refused result (from the farm's checks, or from the service's before
-    /// them: an unreadable body, a missing header): every refusal is on `/metrics` and in the
-    /// log with the worker, the lease and the reason.
-    pub fn result_refused(&mut self, lease: &str, worker: Option<&str>, why: &FarmError) {
+    /// Counts a refused result (from the farm's checks, or from the service's before them: an
+    /// unreadable body, a missing header) for `/metrics`; the service logs it.
+    pub fn result_refused(&mut self) {
         self.counters.results_refused += 1;
-        let reason = why.message.strip_prefix("result refused: ").unwrap_or(&why.message);
-        let worker = worker.unwrap_or("(not named)");
-        tracing::warn!(worker, lease, kind = %why.kind, "result refused: {reason}");
     }
 
     /// A worker could not render its task: the task is leased again, or after

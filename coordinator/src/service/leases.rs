@@ -1,8 +1,8 @@
 //! A lease's life after the grant, for the worker holding it (named by the `x-worker-id`
 //! header): `POST /api/v1/leases/{lease}/heartbeat` renews it, `.../result` hands in the task's
 //! partial sums (bincode) to be merged exactly once, `.../fail` reports that the task cannot be
-//! rendered. Every refused result is counted in `/metrics` and logged with the worker, the lease
-//! and the reason ([`crate::farm::Farm::result_refused`]).
+//! rendered. Every refused result is counted in `/metrics` ([`crate::farm::Farm::result_refused`])
+//! and logged with the worker, the lease and the reason (`refusals.rs`).
 
 use axum::{
     body::Body,
@@ -51,10 +51,9 @@ async fn submit_result(
     headers: HeaderMap,
     body: Body,
 ) -> ApiResult<Response> {
-    let worker = headers.get(WORKER_HEADER).and_then(|v| v.to_str().ok()).map(str::to_string);
-    let answer = merge_result(state.clone(), lease.clone(), headers, body).await;
-    if let Err(e) = &answer {
-        state.lock().result_refused(&lease, worker.as_deref(), e);
+    let answer = merge_result(state.clone(), lease, headers, body).await;
+    if answer.is_err() {
+        state.lock().result_refused();
     }
     answer
 }

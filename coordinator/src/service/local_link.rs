@@ -152,7 +152,9 @@ impl Link for LocalLink {
             // No bytes crossed a wire: the merged-bytes counter is for results received.
             let merged = farm.submit(lease, worker, result, 0);
             if let Err(e) = &merged {
-                farm.result_refused(lease, Some(worker), e);
+                farm.result_refused();
+                let reason = e.message.strip_prefix("result refused: ").unwrap_or(&e.message);
+                tracing::warn!(worker, lease, kind = %e.kind, "result refused: {reason}");
             }
             (merged, job.is_none_or(|j| farm.job_ended(&j)))
         };

@@ -61,6 +61,16 @@ pub(super) async fn metrics(State(state): State<AppState>) -> Response {
         "Results refused (stale, duplicate, forged or malformed).",
         &one(c.results_refused as f64),
     );
+    let refused: Vec<(String, f64)> = {
+        let r = state.refusals.lock().unwrap_or_else(|p| p.into_inner());
+        r.by_status.iter().map(|(s, n)| (format!("{{status=\"{s}\"}}"), *n as f64)).collect()
+    };
+    put(
+        "renderfarm_requests_refused_total",
+        "counter",
+        "Requests refused, by HTTP status: bad tokens, bodies and uploads over a budget, forged or stale results, a busy coordinator (unknown ids, 404, and ended jobs, 409, are not counted but on a result).",
+        &refused,
+    );
     put(
         "renderfarm_jobs_removed_total",
         "counter",

@@ -27,6 +27,7 @@ mod leases;
 mod listen;
 mod local_link;
 mod metrics;
+mod refusals;
 mod scenes;
 mod workers;
 
@@ -111,6 +112,8 @@ struct AppState {
     uploads: Arc<tokio::sync::Semaphore>,
     /// One permit per KiB of scene uploads held.
     upload_kib: Arc<tokio::sync::Semaphore>,
+    /// Refused requests: counts, and the log's rate limit.
+    refusals: Arc<Mutex<refusals::Refusals>>,
 }
 
 impl AppState {
@@ -131,7 +134,11 @@ fn status_of(kind: ErrorKind) -> StatusCode {
 
 impl IntoResponse for FarmError {
     fn into_response(self) -> Response {
-        (status_of(self.kind), Json(json!({ "error": self.message }))).into_response()
+        let mut response =
+            (status_of(self.kind), Json(json!({ "error": self.message.clone() }))).into_response();
+        // For the refusals log (`refusals.rs`), which runs outside every handler.
+        response.extensions_mut().insert(self);
+        response
     }
 }
 
@@ -308,6 +315,8 @@ fn router(state: AppState) -> Router {
             },
         )
         .layer(axum::middleware::from_fn_with_state(state.clone(), auth::check))
+        // Outermost: it sees the refusals of the token check too.
+        .layer(axum::middleware::from_fn_with_state(state.clone(), refusals::log))
         .with_state(state)
 }
 
@@ -458,7 +467,9 @@ async fn serve_farm(
     let kib =
         (config.max_upload_bytes_in_flight >> 10).clamp(1, tokio::sync::Semaphore::MAX_PERMITS);
     let upload_kib = Arc::new(tokio::sync::Semaphore::new(kib));
-    let state = AppState { farm, work, config: Arc::new(config), draining, uploads, upload_kib };
+    let refusals = Arc::new(Mutex::new(refusals::Refusals::new()));
+    let state =
+        AppState { farm, work, config: Arc::new(config), draining, uploads, upload_kib, refusals };
     let ticker = {
         let state = state.clone();
         tokio::spawn(async move {
