@@ -34,6 +34,39 @@ fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
     let scene = upload(&url, &cornell_zip());
     let id = create_job(&url, &scene, &json!({"width": 32, "height": 32, "spp": 8}), 3);
     wait_done(&url, &id, Duration::from_secs(120));
+    let dom = dump(&browser, &dir, &url);
+    let jobs = jobs_table(&dom);
+    assert!(jobs.contains(&id), "the job {id} is not listed:\n{jobs}");
+    assert!(jobs.contains("done"), "the job's state is not shown:\n{jobs}");
+    assert!(jobs.contains("<img"), "no preview of the finished job:\n{jobs}");
+    let workers = dom.split("id=\"workers-table\"").nth(1).expect("a workers table in the page");
+    let workers = workers.split("</table>").next().unwrap();
+    assert!(workers.contains("<td"), "no worker listed:\n{workers}");
+    assert!(dom.contains("id=\"upload-form\""), "no upload form");
+
+    // Jobs come a page at a time, newest first: with pages of two, the newest two, then the
+    // one before them through the API's cursor; a state filter shows only its jobs.
+    let more: Vec<String> = (0..2)
+        .map(|_| create_job(&url, &scene, &json!({"width": 8, "height": 8, "spp": 1}), 0))
+        .collect();
+    for job in &more {
+        wait_done(&url, job, Duration::from_secs(120));
+    }
+    let page = jobs_table(&dump(&browser, &dir, &format!("{url}/?jobs=2")));
+    assert!(page.contains(&more[0]) && page.contains(&more[1]), "{page}");
+    assert!(!page.contains(&id), "the oldest job is on the next page:\n{page}");
+    let next = get(&format!("{url}/api/v1/jobs?order=newest&limit=2")).json()["next"].clone();
+    let next = next.as_str().expect("a next page").to_string();
+    let older = dump(&browser, &dir, &format!("{url}/?jobs=2&after={next}"));
+    let page = jobs_table(&older);
+    assert!(page.contains(&id) && !page.contains(&more[0]), "{page}");
+    assert!(older.contains("older than the newest"), "the page does not say where it is");
+    let failed = jobs_table(&dump(&browser, &dir, &format!("{url}/?state=failed")));
+    assert!(failed.contains("No jobs on this page") && !failed.contains(&id), "{failed}");
+}
+
+/// The DOM of `url` after its scripts ran in headless Chromium.
+fn dump(browser: &str, dir: &std::path::Path, url: &str) -> String {
     let output = Command::new(browser)
         .args([
             "--headless",
@@ -43,22 +76,19 @@ fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
             "--dump-dom",
         ])
         .arg(format!("--user-data-dir={}", dir.join("profile").display()))
-        .arg(&url)
+        .arg(url)
         .output()
         .unwrap();
-    let dom = String::from_utf8_lossy(&output.stdout);
     assert!(
         output.status.success(),
         "chromium failed: {}",
         String::from_utf8_lossy(&output.stderr)
     );
+    String::from_utf8_lossy(&output.stdout).into_owned()
+}
+
+/// The jobs table of a page's DOM.
+fn jobs_table(dom: &str) -> String {
     let jobs = dom.split("id=\"jobs-table\"").nth(1).expect("a jobs table in the page");
-    let jobs = jobs.split("</table>").next().unwrap();
-    assert!(jobs.contains(&id), "the job {id} is not listed:\n{jobs}");
-    assert!(jobs.contains("done"), "the job's state is not shown:\n{jobs}");
-    assert!(jobs.contains("<img"), "no preview of the finished job:\n{jobs}");
-    let workers = dom.split("id=\"workers-table\"").nth(1).expect("a workers table in the page");
-    let workers = workers.split("</table>").next().unwrap();
-    assert!(workers.contains("<td"), "no worker listed:\n{workers}");
-    assert!(dom.contains("id=\"upload-form\""), "no upload form");
+    jobs.split("</table>").next().unwrap().to_string()
 }
