@@ -96,6 +96,18 @@ impl Drop for Proc {
     }
 }
 
+/// A process's peak resident memory so far, in MiB (`VmHWM`).
+pub fn peak_mib(proc: &Proc) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{}/status", proc.child.id())).unwrap();
+    let kb: f64 = status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .expect("VmHWM in /proc/PID/status");
+    kb / 1024.0
+}
+
 /// `coordinator serve` on `127.0.0.1:port` with its state in `data`.
 pub fn start_coordinator(data: &Path, port: u16, extra: &[&str]) -> Proc {
     let mut cmd = Command::new(bin_dir().join("coordinator"));

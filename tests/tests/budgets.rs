@@ -8,18 +8,6 @@ use base64::Engine as _;
 use serde_json::{json, Value};
 use tests::*;
 
-/// The coordinator's peak resident memory so far, in MiB (`VmHWM`).
-fn peak_mib(proc: &Proc) -> f64 {
-    let status = std::fs::read_to_string(format!("/proc/{}/status", proc.child.id())).unwrap();
-    let kb: f64 = status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse().ok())
-        .expect("VmHWM in /proc/PID/status");
-    kb / 1024.0
-}
-
 /// Uploads `bytes`; returns (status, error message).
 fn upload_raw(url: &str, bytes: &[u8]) -> (u16, String) {
     let a = post_bytes(&format!("{url}/api/v1/scenes"), "application/octet-stream", &[], bytes);

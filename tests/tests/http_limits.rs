@@ -36,7 +36,7 @@ fn slow_and_greedy_clients_are_cut_off_within_their_limits() {
         "--max-concurrent-uploads",
         "1",
     ];
-    let _coordinator = start_coordinator(&dir.join("data"), port, &limits);
+    let coordinator = start_coordinator(&dir.join("data"), port, &limits);
     let scene = cornell_zip();
 
     // An upload whose body stops after 10 bytes holds the one upload slot: a second upload is
@@ -74,6 +74,9 @@ fn slow_and_greedy_clients_are_cut_off_within_their_limits() {
     drop(idle);
     std::thread::sleep(Duration::from_millis(300));
     assert_eq!(get(&format!("{url}/healthz")).status, 200);
+    let peak = peak_mib(&coordinator);
+    eprintln!("coordinator peak resident memory: {peak:.0} MiB");
+    assert!(peak < 100.0, "the coordinator peaked at {peak:.0} MiB");
 }
 
 /// Scene uploads being received share one budget of bytes held: one that holds 2 MiB of a
@@ -87,7 +90,7 @@ fn uploads_in_flight_share_one_byte_budget() {
     let addr = format!("127.0.0.1:{port}");
     let limits =
         ["--max-upload-mib", "2", "--max-uploads-in-flight-mib", "3", "--body-timeout", "2"];
-    let _coordinator = start_coordinator(&dir.join("data"), port, &limits);
+    let coordinator = start_coordinator(&dir.join("data"), port, &limits);
     let big = vec![7u8; (2 << 20) - 64];
     let mut holding = TcpStream::connect(&addr).unwrap();
     write!(
@@ -109,4 +112,7 @@ fn uploads_in_flight_share_one_byte_budget() {
     let over =
         post_bytes(&format!("{url}/api/v1/scenes"), "application/zip", &[], &vec![7; 3 << 20]);
     assert_eq!(over.status, 413, "{}", over.error());
+    let peak = peak_mib(&coordinator);
+    eprintln!("coordinator peak resident memory: {peak:.0} MiB");
+    assert!(peak < 100.0, "the coordinator peaked at {peak:.0} MiB");
 }
