@@ -103,6 +103,34 @@ pub struct TextureRef {
     pub transform: Option<TexTransform>,
 }
 
+/// The medium inside a `KHR_materials_volume` boundary: light travelling a distance `d` in it
+/// keeps `exp(-absorption * d)` of itself per channel (Beer-Lambert), where `absorption =
+/// -ln(attenuationColor) / attenuationDistance`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Volume {
+    /// Absorption coefficient per channel, per unit of world distance (0: clear).
+    pub absorption: Vec3,
+}
+
+impl Volume {
+    /// From `attenuationColor` (each in [0, 1]) and `attenuationDistance` (> 0, infinite for
+    /// none).
+    pub fn new(attenuation_color: Vec3, attenuation_distance: f32) -> Volume {
+        let per_channel = |c: f32| {
+            if !attenuation_distance.is_finite() {
+                0.0
+            } else if c > 0.0 {
+                (-c.ln()).max(0.0) / attenuation_distance
+            } else {
+                // No colour left at any distance: absorbed at once.
+                f32::MAX
+            }
+        };
+        let absorption = Vec3::from_array(attenuation_color.to_array().map(per_channel));
+        Volume { absorption }
+    }
+}
+
 /// The glTF metallic-roughness material with the extensions the renderer honours.
 #[derive(Clone, Debug)]
 pub struct Material {
@@ -136,10 +164,27 @@ pub struct Material {
     pub transmission: f32,
     /// `KHR_materials_transmission.transmissionTexture` (R = transmission, linear).
     pub transmission_texture: Option<TextureRef>,
+    /// `KHR_materials_volume` with `thicknessFactor > 0`: the mesh bounds a refractive volume
+    /// (`None`: thin-walled, as without the extension).
+    pub volume: Option<Volume>,
     /// `alphaMode` and `alphaCutoff`.
     pub alpha_mode: AlphaMode,
     /// `doubleSided`: emission leaves both faces when true, the front face only otherwise.
     pub double_sided: bool,
+}
+
+impl Material {
+    /// Whether the material is a smooth refractive boundary: a volume, fully transmitting, not
+    /// metallic, with roughness 0 and neither factor textured. Other volumes are rendered
+    /// thin-walled for now (the loader warns).
+    pub fn refracts(&self) -> bool {
+        self.volume.is_some()
+            && self.transmission >= 1.0
+            && self.transmission_texture.is_none()
+            && self.metallic == 0.0
+            && self.roughness == 0.0
+            && self.metallic_roughness_texture.is_none()
+    }
 }
 
 impl Default for Material {
@@ -160,6 +205,7 @@ impl Default for Material {
             ior: 1.5,
             transmission: 0.0,
             transmission_texture: None,
+            volume: None,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
         }

@@ -1,5 +1,6 @@
 //! Materials, textures, samplers and images: the metallic-roughness model with the extensions
-//! the renderer honours (emissive strength, specular, ior, transmission, texture transform), and
+//! the renderer honours (emissive strength, specular, ior, transmission, volume, texture
+//! transform), and
 //! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
 
 use std::io::Cursor;
@@ -12,7 +13,7 @@ use serde_json::Value;
 
 use super::{fail, Context, Image, Loader, SceneError};
 use crate::budget;
-use crate::scene::{AlphaMode, Material, TexTransform, Texture, TextureRef, Wrap};
+use crate::scene::{AlphaMode, Material, TexTransform, Texture, TextureRef, Volume, Wrap};
 
 impl Loader<'_> {
     /// The materials of the scene: every glTF material a loaded mesh uses, in file order, then
@@ -64,6 +65,10 @@ impl Loader<'_> {
         let ior = ext.and_then(|e| e.ior.as_ref()).map_or(1.5, |i| i.ior.0);
         let transmission =
             ext.and_then(|e| e.transmission.as_ref()).map_or(0.0, |t| t.transmission_factor.0);
+        let volume = match ext.and_then(|e| e.others.get("KHR_materials_volume")) {
+            Some(v) => volume(v).context(|| "KHR_materials_volume".into())?,
+            None => None,
+        };
         let alpha_mode = match m.alpha_mode {
             Checked::Valid(json::material::AlphaMode::Opaque) => AlphaMode::Opaque,
             Checked::Valid(json::material::AlphaMode::Mask) => {
@@ -128,7 +133,7 @@ impl Loader<'_> {
             None => None,
         };
 
-        Ok(Material {
+        let material = Material {
             name: m.name.clone().unwrap_or_else(|| format!("material {index}")),
             base_color: base_color.min(Vec4::ONE),
             base_color_texture,
@@ -143,9 +148,17 @@ impl Loader<'_> {
             ior,
             transmission: transmission.min(1.0),
             transmission_texture,
+            volume,
             alpha_mode,
             double_sided: m.double_sided,
-        })
+        };
+        if material.volume.is_some() && material.transmission > 0.0 && !material.refracts() {
+            tracing::warn!(
+                "material {index} ({}): KHR_materials_volume with roughness, metal, partial or textured transmission is rendered thin-walled for now (smooth, clear-coated glass refracts)",
+                material.name
+            );
+        }
+        Ok(material)
     }
 
     /// A `textureInfo` with its `KHR_texture_transform`.
@@ -373,4 +386,41 @@ fn check_transform(t: &TexTransform) -> Result<(), SceneError> {
         return fail("KHR_texture_transform: non-finite offset, rotation or scale");
     }
     Ok(())
+}
+
+/// `KHR_materials_volume`: a volume when `thicknessFactor > 0`, thin-walled (`None`) at 0.
+/// `thicknessTexture` only approximates a volume for rasterizers: a path tracer follows the
+/// light through the mesh itself, so it is not read.
+fn volume(v: &Value) -> Result<Option<Volume>, SceneError> {
+    let number = |key: &str, default: f64| -> Result<f64, SceneError> {
+        match v.get(key) {
+            None => Ok(default),
+            Some(Value::Number(n)) => Ok(n.as_f64().unwrap_or(f64::NAN)),
+            Some(other) => fail(format!("{key} must be a number, not {other}")),
+        }
+    };
+    let thickness = number("thicknessFactor", 0.0)?;
+    if !(thickness.is_finite() && thickness >= 0.0) {
+        return fail(format!("thicknessFactor {thickness} must be finite and not negative"));
+    }
+    let distance = number("attenuationDistance", f64::INFINITY)?;
+    if !(distance > 0.0) {
+        return fail(format!("attenuationDistance {distance} must be greater than 0"));
+    }
+    let color = match v.get("attenuationColor") {
+        None => [1.0; 3],
+        Some(Value::Array(c)) if c.len() == 3 => {
+            let c: Vec<f64> = c.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
+            [c[0], c[1], c[2]]
+        }
+        Some(other) => return fail(format!("attenuationColor must be 3 numbers, not {other}")),
+    };
+    if color.iter().any(|c| !(0.0..=1.0).contains(c)) {
+        return fail(format!("attenuationColor {color:?} must lie in [0, 1]"));
+    }
+    if thickness == 0.0 {
+        return Ok(None);
+    }
+    let color = Vec3::new(color[0] as f32, color[1] as f32, color[2] as f32);
+    Ok(Some(Volume::new(color, distance as f32)))
 }

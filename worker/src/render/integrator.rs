@@ -76,12 +76,23 @@ pub fn li(
     let mut radiance = Vec3::ZERO;
     let mut beta = Vec3::ONE;
     let mut depth = 0u32;
-    // Density of the BSDF sample that produced `ray` (0 for camera rays: no MIS on them).
+    // Density of the BSDF sample that produced `ray` (0 for camera rays: no MIS on them;
+    // infinite after a delta lobe, whose direction no light sample could have chosen).
     let mut prev_bsdf_pdf = 0.0f32;
+    // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
+    // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
+    let mut eta_scale = 1.0f32;
+    // The refractive volume the ray travels in (its material), `None` outside every volume.
+    let mut medium: Option<u32> = None;
     let lights = &scene.lights;
     loop {
         stats.rays += 1;
         let hit = scene.intersect(&ray, f32::INFINITY, pose);
+        if let Some(m) = medium {
+            // Beer-Lambert along the segment inside the volume (an escape is endless).
+            let distance = hit.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
+            beta *= transmittance(scene, m, distance);
+        }
         let Some(hit) = hit else {
             if let (Some(env), Some(env_idx)) = (&scene.environment, lights.environment) {
                 let weight = if depth == 0 {
@@ -141,8 +152,10 @@ pub fn li(
             break;
         }
 
-        // Shading frame on wo's side of the surface (surfaces reflect on both faces).
-        let ng = if ng.dot(wo) < 0.0 { -ng } else { ng };
+        // Shading frame on wo's side of the surface (surfaces reflect on both faces); the front
+        // face is the one the winding makes counter-clockwise.
+        let front = ng.dot(wo) > 0.0;
+        let ng = if front { ng } else { -ng };
         let mut ns = if tri.smooth {
             let [a, bb, c] = tri.vertices;
             let n = scene.vertex_normal(a, hit.prim, pose) * b[0]
@@ -164,7 +177,7 @@ pub fn li(
         if wo_local.z <= 0.0 {
             break; // Grazing with a bent normal: no consistent reflection.
         }
-        let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp);
+        let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front);
         let transmits = bsdf.transmits();
 
         // Next-event estimation. A bounce's numbers are drawn where they are used, in the
@@ -205,6 +218,10 @@ pub fn li(
                                     li *= scene.coverage(l.prim, ls.barycentrics);
                                 }
                             }
+                            if let Some(m) = medium {
+                                let distance = ls.point.map_or(f32::INFINITY, |q| (q - p).length());
+                                li *= transmittance(scene, m, distance);
+                            }
                             let light_pdf = ls.pdf * choice_pdf;
                             let weight = if ls.is_delta {
                                 1.0
@@ -237,7 +254,12 @@ pub fn li(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
-        prev_bsdf_pdf = bs.pdf;
+        prev_bsdf_pdf = if bs.lobe.is_delta() { f32::INFINITY } else { bs.pdf };
+        if bs.lobe.enters_far_side() {
+            eta_scale *= bs.eta * bs.eta;
+            // Into the volume through its front face, out of it through the back.
+            medium = front.then_some(tri.material);
+        }
         ray = Ray::new(offset_ray_origin(p, p_error, ng, wi), wi);
         depth += 1;
 
@@ -246,7 +268,7 @@ pub fn li(
             sampler.skip(1);
         } else {
             let u_rr = sampler.next_1d();
-            let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
+            let q = (1.0 - (beta * eta_scale).max_element() * RR_SURVIVAL_SCALE).max(0.0);
             if u_rr < q {
                 break;
             }
@@ -254,6 +276,19 @@ pub fn li(
         }
     }
     radiance
+}
+
+/// What a distance `distance` inside the volume of material `m` lets through.
+#[inline]
+fn transmittance(scene: &PreparedScene, m: u32, distance: f32) -> Vec3 {
+    match &scene.materials[m as usize].volume {
+        Some(v) if v.absorption != Vec3::ZERO => {
+            // exp(-0 x inf) would be NaN: a clear channel passes everything at any distance.
+            let through = |a: f32| if a == 0.0 { 1.0 } else { (-a * distance).exp() };
+            Vec3::new(through(v.absorption.x), through(v.absorption.y), through(v.absorption.z))
+        }
+        _ => Vec3::ONE,
+    }
 }
 
 /// Applies a tangent-space normal from a normal map. The tangent frame comes from the

@@ -5,7 +5,7 @@ use common::scene::{AlphaMode, Material, Texture};
 use glam::{Vec2, Vec3, Vec4};
 
 use super::{
-    bsdf::{Bsdf, Diffuse, MetalRough},
+    bsdf::{Bsdf, Dielectric, Diffuse, MetalRough},
     texture,
 };
 
@@ -51,11 +51,19 @@ pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
     }
 }
 
-/// The BSDF at the point. A material with no metal, no specular layer and no transmission is pure
-/// Lambert, the cheap path (the Cornell box and furnace scenes are all such).
+/// The BSDF at the point, seen from the front face (`front`, the side the winding makes
+/// counter-clockwise) or from the back. A material with no metal, no specular layer and no
+/// transmission is pure Lambert, the cheap path (the Cornell box and furnace scenes are all
+/// such). A refractive volume's boundary is a dielectric whose inside is the back face's side.
 #[inline]
-pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Bsdf {
+pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
+    if m.refracts() {
+        // ior 0 (the extension's "no refraction") is 1: an index-matched boundary.
+        let ior = if m.ior > 0.0 { m.ior } else { 1.0 };
+        let eta = if front { ior } else { 1.0 / ior };
+        return Bsdf::Dielectric(Dielectric { eta, tint: base });
+    }
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
     if let Some(r) = &m.metallic_roughness_texture {
         let t = texture::sample(textures, r, sp.uvs, false);

@@ -60,9 +60,9 @@ impl Tables {
                 return None;
             }
             // Without textures or vertex colours every point of the material is this one.
-            match material::bsdf(textures, m, &SurfacePoint::PLAIN) {
+            match material::bsdf(textures, m, &SurfacePoint::PLAIN, true) {
                 Bsdf::Diffuse(d) => albedo.push(d.albedo),
-                Bsdf::MetalRough(_) => return None,
+                Bsdf::MetalRough(_) | Bsdf::Dielectric(_) => return None,
             }
             emission.push(material::emission(textures, m, &SurfacePoint::PLAIN));
         }

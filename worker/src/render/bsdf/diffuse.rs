@@ -44,6 +44,6 @@ impl Diffuse {
         if pdf <= 0.0 {
             return None;
         }
-        Some(BsdfSample { f: self.albedo * FRAC_1_PI, wi, pdf, lobe: Lobe::Diffuse })
+        Some(BsdfSample { f: self.albedo * FRAC_1_PI, wi, pdf, lobe: Lobe::Diffuse, eta: 1.0 })
     }
 }

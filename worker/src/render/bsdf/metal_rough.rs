@@ -187,7 +187,7 @@ impl MetalRough {
         if !(pdf > 0.0) {
             return None;
         }
-        Some(BsdfSample { f: self.eval(wo, wi), wi, pdf, lobe })
+        Some(BsdfSample { f: self.eval(wo, wi), wi, pdf, lobe, eta: 1.0 })
     }
 }
 

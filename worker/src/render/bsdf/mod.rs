@@ -6,9 +6,11 @@
 //! BSDF passes. `eval` returns f(wo, wi) without the cosine; `pdf` is per solid
 //! angle; `sample` takes its uniform numbers as arguments.
 
+mod dielectric;
 mod diffuse;
 mod metal_rough;
 
+pub use dielectric::{fresnel_dielectric, refract, Dielectric};
 pub use diffuse::Diffuse;
 pub use metal_rough::MetalRough;
 
@@ -21,8 +23,27 @@ pub enum Lobe {
     Diffuse,
     /// Glossy (microfacet) reflection.
     Glossy,
-    /// Transmission to the far side (thin-walled).
+    /// Transmission to the far side (thin-walled: the direction does not bend).
     Transmission,
+    /// Mirror reflection (a delta distribution).
+    SpecularReflection,
+    /// Refraction into the far side's medium (a delta distribution).
+    SpecularTransmission,
+}
+
+impl Lobe {
+    /// Whether the lobe is a delta distribution: no light sample can reach it, and multiple
+    /// importance sampling gives its sampled direction the whole weight.
+    #[inline]
+    pub fn is_delta(self) -> bool {
+        matches!(self, Lobe::SpecularReflection | Lobe::SpecularTransmission)
+    }
+
+    /// Whether the sampled direction crossed into the medium on the far side.
+    #[inline]
+    pub fn enters_far_side(self) -> bool {
+        self == Lobe::SpecularTransmission
+    }
 }
 
 /// A sampled direction.
@@ -36,6 +57,9 @@ pub struct BsdfSample {
     pub pdf: f32,
     /// The lobe that produced it.
     pub lobe: Lobe,
+    /// Index of refraction of the side `wi` leads into over that of `wo`'s side (1 unless the
+    /// sample refracted).
+    pub eta: f32,
 }
 
 /// A BSDF at a shading point.
@@ -45,6 +69,8 @@ pub enum Bsdf {
     Diffuse(Diffuse),
     /// The glTF metallic-roughness BRDF (Lambert + GGX, Fresnel-mixed).
     MetalRough(MetalRough),
+    /// A smooth refractive boundary.
+    Dielectric(Dielectric),
 }
 
 impl Bsdf {
@@ -54,6 +80,7 @@ impl Bsdf {
         match self {
             Bsdf::Diffuse(b) => b.eval(wo, wi),
             Bsdf::MetalRough(b) => b.eval(wo, wi),
+            Bsdf::Dielectric(b) => b.eval(wo, wi),
         }
     }
 
@@ -63,13 +90,18 @@ impl Bsdf {
         match self {
             Bsdf::Diffuse(b) => b.pdf(wo, wi),
             Bsdf::MetalRough(b) => b.pdf(wo, wi),
+            Bsdf::Dielectric(b) => b.pdf(wo, wi),
         }
     }
 
     /// Whether `wi` on the far side of the surface (local z < 0) can carry light.
     #[inline]
     pub fn transmits(&self) -> bool {
-        matches!(self, Bsdf::MetalRough(b) if b.transmits())
+        match self {
+            Bsdf::Diffuse(_) => false,
+            Bsdf::MetalRough(b) => b.transmits(),
+            Bsdf::Dielectric(_) => true,
+        }
     }
 
     /// Whether `sample` uses its lobe-choice number (a single-lobe BSDF does not).
@@ -84,6 +116,7 @@ impl Bsdf {
         match self {
             Bsdf::Diffuse(b) => b.sample(wo, u),
             Bsdf::MetalRough(b) => b.sample(wo, u_lobe, u),
+            Bsdf::Dielectric(b) => b.sample(wo, u_lobe, u),
         }
     }
 }

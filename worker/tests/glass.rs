@@ -1,0 +1,196 @@
+//! Refractive volumes (`KHR_materials_volume` with `KHR_materials_transmission`) through the
+//! whole renderer, on scenes whose answer physics gives in closed form.
+//!
+//! - A furnace: a clear glass box in a uniform white environment. Light is neither made nor
+//!   lost at a smooth dielectric boundary (reflection takes F, refraction 1 - F, and the 1 / eta²
+//!   of radiance entering the glass comes back leaving it), so every pixel is exactly 1, whatever
+//!   it sees through the box.
+//! - A slab: an absorbing glass slab seen at normal incidence by an orthographic camera, in a
+//!   white environment. What comes back is the reflected and transmitted light of the Fresnel
+//!   multiple-reflection series with Beer-Lambert attenuation: with r = ((n - 1) / (n + 1))² and
+//!   tau = exp(-absorption x thickness), R = r + (1 - r)² r tau² / (1 - r² tau²) and
+//!   T = (1 - r)² tau / (1 - r² tau²), and the pixel is R + T.
+//! - The same slab at thickness 0 (thin-walled) keeps the behaviour the extension had before:
+//!   light passes straight through without bending.
+
+mod support;
+
+use common::settings::{Environment, RenderSettings};
+use serde_json::{json, Value};
+use support::*;
+
+/// A box of half sizes `half` centred at `center`, faces wound counter-clockwise seen from
+/// outside, with `material`, and an orthographic camera at height `camera_y` looking down on a
+/// square of half size `view`. Returns the file's path.
+fn box_scene(
+    tag: &str,
+    half: [f32; 3],
+    center: [f32; 3],
+    material: Value,
+    camera_y: f32,
+    view: f32,
+) -> std::path::PathBuf {
+    let [hx, hy, hz] = half;
+    let [cx, cy, cz] = center;
+    let corner = |i: usize| {
+        [
+            cx + if i & 1 == 1 { hx } else { -hx },
+            cy + if i & 2 == 2 { hy } else { -hy },
+            cz + if i & 4 == 4 { hz } else { -hz },
+        ]
+    };
+    let positions: Vec<[f32; 3]> = (0..8).map(corner).collect();
+    // Each face as a quad counter-clockwise seen from outside.
+    let faces: [[u16; 4]; 6] = [
+        [0, 4, 6, 2], // -x
+        [1, 3, 7, 5], // +x
+        [0, 1, 5, 4], // -y
+        [2, 6, 7, 3], // +y
+        [0, 2, 3, 1], // -z
+        [4, 5, 7, 6], // +z
+    ];
+    let indices: Vec<u16> =
+        faces.iter().flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]]).collect();
+    let mut bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    let index_start = bytes.len();
+    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+    let (min, max) = (corner(0), corner(7));
+    let json = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"mesh": 0},
+            {"camera": 0, "translation": [0.0, camera_y, 0.0],
+             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}
+        ],
+        "cameras": [{"type": "orthographic", "orthographic": {"xmag": view, "ymag": view, "znear": 0.01, "zfar": 100.0}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+        "materials": [material],
+        "extensionsUsed": ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 8, "type": "VEC3", "min": min, "max": max},
+            {"bufferView": 1, "componentType": 5123, "count": 36, "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": index_start},
+            {"buffer": 0, "byteOffset": index_start, "byteLength": 72}
+        ],
+        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+    });
+    let dir = std::env::temp_dir().join(format!("renderfarm-glass-{}-{tag}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("box.gltf");
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    path
+}
+
+/// Clear or tinted glass: full transmission, roughness 0, `ior`, and a volume of `thickness`
+/// with `attenuation` (colour, distance) when given.
+fn glass(ior: f64, thickness: f64, attenuation: Option<([f64; 3], f64)>) -> Value {
+    let mut volume = json!({"thicknessFactor": thickness});
+    if let Some((color, distance)) = attenuation {
+        volume["attenuationColor"] = json!(color);
+        volume["attenuationDistance"] = json!(distance);
+    }
+    json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
+        "extensions": {
+            "KHR_materials_transmission": {"transmissionFactor": 1.0},
+            "KHR_materials_volume": volume,
+            "KHR_materials_ior": {"ior": ior}
+        }
+    })
+}
+
+fn white_furnace(res: u32, spp: u32) -> RenderSettings {
+    RenderSettings {
+        width: res,
+        height: res,
+        spp,
+        max_depth: 256,
+        environment: Some(Environment::Color { color: [1.0; 3] }),
+        ..Default::default()
+    }
+}
+
+/// Every pixel of a clear glass box in a white furnace is 1: a smooth dielectric boundary
+/// neither makes nor loses light. The box fills part of the view at an angle that sends light
+/// through its sides, so paths reflect and refract, totally reflect inside, and leave anywhere.
+#[test]
+fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
+    let path =
+        box_scene("furnace", [0.6, 0.4, 0.5], [0.1, 0.0, -0.2], glass(1.5, 1.0, None), 3.0, 1.0);
+    let scene = common::gltf::load_path(&path).unwrap();
+    assert!(scene.materials[0].refracts(), "the box is a refractive volume");
+    let film = render(&scene, &white_furnace(16, 64));
+    let worst =
+        film.mean_rgb().iter().flatten().map(|&v| (v as f64 - 1.0).abs()).fold(0.0, f64::max);
+    assert!(worst < 1e-5, "a pixel is {worst} away from 1");
+}
+
+/// An absorbing slab at normal incidence: R + T of the Fresnel multiple-reflection series with
+/// Beer-Lambert transmittance, per channel, within four standard errors.
+#[test]
+fn an_absorbing_slab_at_normal_incidence_gives_the_fresnel_series() {
+    let (ior, thickness) = (1.5f64, 0.2f64);
+    let color = [0.8, 0.5, 0.1];
+    let distance = 0.25;
+    let material = glass(ior, 1.0, Some((color, distance)));
+    // The slab is far wider than the view: every path stays at normal incidence.
+    let path =
+        box_scene("slab", [50.0, thickness as f32 / 2.0, 50.0], [0.0; 3], material, 2.0, 1.0);
+    let scene = common::gltf::load_path(&path).unwrap();
+    let film = render(&scene, &white_furnace(16, 256));
+    let r = ((ior - 1.0) / (ior + 1.0)).powi(2);
+    let n = film.pixels.len() as f64;
+    let means = film.mean_rgb();
+    for c in 0..3 {
+        let absorption = -(color[c] as f64).ln() / distance;
+        let tau = (-absorption * thickness).exp();
+        let denom = 1.0 - r * r * tau * tau;
+        let expected =
+            r + (1.0 - r).powi(2) * r * tau * tau / denom + (1.0 - r).powi(2) * tau / denom;
+        let mean = means.iter().map(|p| p[c] as f64).sum::<f64>() / n;
+        let var: f64 = film.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / n;
+        let se = (var / n).sqrt();
+        eprintln!("channel {c}: {mean:.5} against {expected:.5} (standard error {se:.1e})");
+        assert!(
+            (mean - expected).abs() < 4.0 * se + 1e-5,
+            "channel {c}: {mean} against {expected}"
+        );
+    }
+}
+
+/// At thickness 0 the extension is thin-walled, as before volumes were read: nothing bends and
+/// nothing is absorbed, whatever the attenuation says.
+#[test]
+fn a_volume_of_thickness_zero_stays_thin_walled() {
+    let path = box_scene(
+        "thin",
+        [50.0, 0.1, 50.0],
+        [0.0; 3],
+        glass(1.5, 0.0, Some(([0.1; 3], 0.01))),
+        2.0,
+        1.0,
+    );
+    let scene = common::gltf::load_path(&path).unwrap();
+    assert!(scene.materials[0].volume.is_none() && !scene.materials[0].refracts());
+}
+
+/// Out-of-range volume values are refused, naming the key.
+#[test]
+fn bad_volumes_are_refused_with_the_key() {
+    for (volume, key) in [
+        (json!({"thicknessFactor": -1.0}), "thicknessFactor"),
+        (json!({"thicknessFactor": 1.0, "attenuationDistance": 0.0}), "attenuationDistance"),
+        (json!({"thicknessFactor": 1.0, "attenuationColor": [1.5, 0.5, 0.5]}), "attenuationColor"),
+        (json!({"thicknessFactor": 1.0, "attenuationColor": [0.5, 0.5]}), "attenuationColor"),
+    ] {
+        let mut material = glass(1.5, 1.0, None);
+        material["extensions"]["KHR_materials_volume"] = volume;
+        let path = box_scene(&format!("bad-{key}"), [1.0; 3], [0.0; 3], material, 3.0, 1.0);
+        let e = common::gltf::load_path(&path).unwrap_err().to_string();
+        assert!(e.contains("KHR_materials_volume") && e.contains(key), "{e}");
+    }
+}
