@@ -205,7 +205,7 @@ mod tests {
         let mut tile = TileAccum::new(rect);
         tile.pixels.fill(widest);
         tile.rejected = u64::MAX;
-        let result = TaskResult { spec: spec.clone(), tile, rays: u64::MAX };
+        let result = TaskResult { spec, tile, rays: u64::MAX };
         let bytes = encode_result(&result).len();
         let bound = max_result_bytes(&spec);
         assert!(bytes <= bound, "{bytes} bytes over the bound of {bound}");

@@ -146,7 +146,7 @@ fn an_absorbing_slab_at_normal_incidence_gives_the_fresnel_series() {
     let n = film.pixels.len() as f64;
     let means = film.mean_rgb();
     for c in 0..3 {
-        let absorption = -(color[c] as f64).ln() / distance;
+        let absorption = -color[c].ln() / distance;
         let tau = (-absorption * thickness).exp();
         let denom = 1.0 - r * r * tau * tau;
         let expected =

@@ -404,7 +404,7 @@ fn volume(v: &Value) -> Result<Option<Volume>, SceneError> {
         return fail(format!("thicknessFactor {thickness} must be finite and not negative"));
     }
     let distance = number("attenuationDistance", f64::INFINITY)?;
-    if !(distance > 0.0) {
+    if distance.is_nan() || distance <= 0.0 {
         return fail(format!("attenuationDistance {distance} must be greater than 0"));
     }
     let color = match v.get("attenuationColor") {
