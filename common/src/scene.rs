@@ -174,16 +174,14 @@ pub struct Material {
 }
 
 impl Material {
-    /// Whether the material is a smooth refractive boundary: a volume, fully transmitting, not
-    /// metallic, with roughness 0 and neither factor textured. Other volumes are rendered
-    /// thin-walled for now (the loader warns).
+    /// Whether the material is a refractive boundary: a volume, fully transmitting (the factor
+    /// 1, not textured) and not metallic (the factor 0). Other volumes are rendered thin-walled
+    /// for now (the loader warns).
     pub fn refracts(&self) -> bool {
         self.volume.is_some()
             && self.transmission >= 1.0
             && self.transmission_texture.is_none()
             && self.metallic == 0.0
-            && self.roughness == 0.0
-            && self.metallic_roughness_texture.is_none()
     }
 }
 

@@ -129,6 +129,26 @@ fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
     assert!(worst < 1e-5, "a pixel is {worst} away from 1");
 }
 
+/// Rough glass makes no light either: in the white furnace no pixel exceeds 1 beyond its noise
+/// (single scattering off microfacets loses a little), and the box stays nearly white.
+#[test]
+fn a_rough_glass_box_in_a_white_furnace_never_exceeds_white() {
+    let mut material = glass(1.5, 1.0, None);
+    material["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.3);
+    let path = box_scene("rough-furnace", [0.6, 0.4, 0.5], [0.1, 0.0, -0.2], material, 3.0, 1.0);
+    let scene = common::gltf::load_path(&path).unwrap();
+    let film = render(&scene, &white_furnace(16, 256));
+    let means = film.mean_rgb();
+    let mut total = 0.0;
+    for (p, m) in film.pixels.iter().zip(&means) {
+        let se = p.variance_of_mean()[0].sqrt();
+        assert!((m[0] as f64) <= 1.0 + 5.0 * se + 1e-5, "a pixel of {} +- {se}", m[0]);
+        total += m[0] as f64;
+    }
+    let mean = total / means.len() as f64;
+    assert!(mean > 0.97 && mean <= 1.0 + 1e-3, "the image's mean is {mean}");
+}
+
 /// An absorbing slab at normal incidence: R + T of the Fresnel multiple-reflection series with
 /// Beer-Lambert transmittance, per channel, within four standard errors.
 #[test]

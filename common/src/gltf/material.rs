@@ -154,7 +154,7 @@ impl Loader<'_> {
         };
         if material.volume.is_some() && material.transmission > 0.0 && !material.refracts() {
             tracing::warn!(
-                "material {index} ({}): KHR_materials_volume with roughness, metal, partial or textured transmission is rendered thin-walled for now (smooth, clear-coated glass refracts)",
+                "material {index} ({}): KHR_materials_volume with metal, or with partial or textured transmission, is rendered thin-walled for now (a fully transmitting dielectric refracts)",
                 material.name
             );
         }

@@ -218,7 +218,14 @@ pub fn li(
                                     li *= scene.coverage(l.prim, ls.barycentrics);
                                 }
                             }
-                            if let Some(m) = medium {
+                            // The shadow ray travels in the far side's volume when it
+                            // crosses a refractive boundary, else in the path's.
+                            let through = if wi_local.z < 0.0 && bsdf.refracts() {
+                                front.then_some(tri.material)
+                            } else {
+                                medium
+                            };
+                            if let Some(m) = through {
                                 let distance = ls.point.map_or(f32::INFINITY, |q| (q - p).length());
                                 li *= transmittance(scene, m, distance);
                             }

@@ -6,6 +6,7 @@ use glam::{Vec2, Vec3, Vec4};
 
 use super::{
     bsdf::{Bsdf, Dielectric, Diffuse, MetalRough},
+    sampling::{Ggx, MIN_ALPHA},
     texture,
 };
 
@@ -58,17 +59,20 @@ pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
 #[inline]
 pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
-    if m.refracts() {
-        // ior 0 (the extension's "no refraction") is 1: an index-matched boundary.
-        let ior = if m.ior > 0.0 { m.ior } else { 1.0 };
-        let eta = if front { ior } else { 1.0 / ior };
-        return Bsdf::Dielectric(Dielectric { eta, tint: base });
-    }
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
     if let Some(r) = &m.metallic_roughness_texture {
         let t = texture::sample(textures, r, sp.uvs, false);
         roughness *= t.y;
         metallic *= t.z;
+    }
+    if m.refracts() {
+        // ior 0 (the extension's "no refraction") is 1: an index-matched boundary.
+        let ior = if m.ior > 0.0 { m.ior } else { 1.0 };
+        let eta = if front { ior } else { 1.0 / ior };
+        // Below GGX's smallest alpha the boundary is a mirror: the delta lobes, exactly.
+        let alpha = roughness.clamp(0.0, 1.0).powi(2);
+        let ggx = (alpha >= MIN_ALPHA).then(|| Ggx::new(alpha));
+        return Bsdf::Dielectric(Dielectric { eta, tint: base, ggx });
     }
     let metallic = metallic.clamp(0.0, 1.0);
     let mut transmission = m.transmission;

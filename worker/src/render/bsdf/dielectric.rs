@@ -1,25 +1,36 @@
-//! A smooth dielectric interface: the boundary of a refractive volume (`KHR_materials_volume`
-//! with `KHR_materials_transmission`), glass or water with a polished surface.
+//! A dielectric interface: the boundary of a refractive volume (`KHR_materials_volume` with
+//! `KHR_materials_transmission`), glass or water, polished or rough.
 //!
-//! Both lobes are delta distributions: mirror reflection with the exact (unpolarised) Fresnel
-//! reflectance F, and refraction by Snell's law with 1 - F (total internal reflection past the
-//! critical angle). `sample` picks reflection with probability F, so a sample's weight
-//! f |cos| / pdf is 1 for reflection and tint / eta² for refraction: radiance is scaled by
-//! 1 / eta² crossing into a denser medium (pbrt's radiance mode; the path tracer's Russian
-//! roulette undoes the scale with the eta it is told). `eval` and `pdf` are 0: no light sample
-//! can hit a delta lobe.
+//! Smooth (roughness 0): both lobes are delta distributions: mirror reflection with the exact
+//! (unpolarised) Fresnel reflectance F, and refraction by Snell's law with 1 - F (total internal
+//! reflection past the critical angle). `sample` picks reflection with probability F, so a
+//! sample's weight f |cos| / pdf is 1 for reflection and tint / eta² for refraction: radiance is
+//! scaled by 1 / eta² crossing into a denser medium (pbrt's radiance mode; the path tracer's
+//! Russian roulette undoes the scale with the eta it is told). `eval` and `pdf` are 0: no light
+//! sample can hit a delta lobe.
+//!
+//! Rough: the GGX microfacet dielectric of Walter et al. 2007 with height-correlated Smith
+//! masking: reflection D G2 F / (4 |wo.z| |wi.z|) and refraction
+//! D G2 (1 - F) |wi.m| |wo.m| / (|wi.z| |wo.z| (wi.m + wo.m / eta)²) / eta², where m is the
+//! (generalised) half vector. `sample` draws a visible normal (Heitz 2018), then reflects with
+//! probability F(wo.m) or refracts through it; `pdf` is the visible-normal density times the
+//! Jacobian of each lobe, weighted by the same choice, so both strategies of multiple importance
+//! sampling see one density.
 
 use glam::{Vec2, Vec3};
 
 use super::{BsdfSample, Lobe};
+use crate::render::{geometry::reflect, sampling::Ggx};
 
-/// A smooth dielectric boundary seen from one side.
+/// A dielectric boundary seen from one side.
 #[derive(Clone, Copy, Debug)]
 pub struct Dielectric {
     /// Index of refraction of the far side over that of `wo`'s side (the local frame's +z side).
     pub eta: f32,
     /// What refraction lets through, per channel (the base colour times the transmission).
     pub tint: Vec3,
+    /// The microfacets of a rough boundary; `None` for a smooth one.
+    pub ggx: Option<Ggx>,
 }
 
 /// Fresnel reflectance of an unpolarised wave at a smooth dielectric boundary, for the cosine
@@ -51,25 +62,108 @@ pub fn refract(wo: Vec3, eta: f32) -> Option<Vec3> {
     Some(Vec3::new(-wo.x / eta, -wo.y / eta, -cos_t))
 }
 
+/// `w` refracted through a surface of normal `n` (on `w`'s side: w.n > 0) into a medium `eta`
+/// times as dense, or `None` past the critical angle.
+#[inline]
+fn refract_about(w: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    let cos_i = w.dot(n);
+    let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return None;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    Some(-w / eta + (cos_i / eta - cos_t) * n)
+}
+
 impl Dielectric {
-    /// f(wo, wi): 0, the lobes are delta distributions.
+    /// f(wo, wi): 0 for a smooth boundary (delta lobes); the microfacet reflection (wi.z > 0)
+    /// or refraction (wi.z < 0) of a rough one.
     #[inline]
-    pub fn eval(&self, _wo: Vec3, _wi: Vec3) -> Vec3 {
-        Vec3::ZERO
+    pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        let Some(ggx) = self.ggx else { return Vec3::ZERO };
+        let Some((m, reflecting)) = self.half_vector(wo, wi) else { return Vec3::ZERO };
+        let f = fresnel_dielectric(wo.dot(m), self.eta);
+        let dg = ggx.d(m) * ggx.g2(wo, wi);
+        if reflecting {
+            return Vec3::splat(dg * f / (4.0 * wo.z * wi.z));
+        }
+        let denom = wi.dot(m) + wo.dot(m) / self.eta;
+        let denom = denom * denom * wi.z.abs() * wo.z;
+        if denom == 0.0 {
+            return Vec3::ZERO;
+        }
+        let ft = dg * (1.0 - f) * (wi.dot(m) * wo.dot(m)).abs() / denom;
+        self.tint * (ft / (self.eta * self.eta))
     }
 
-    /// Density of `wi`: 0 (see `eval`).
+    /// Density of `sample` producing `wi`: 0 for a smooth boundary.
     #[inline]
-    pub fn pdf(&self, _wo: Vec3, _wi: Vec3) -> f32 {
-        0.0
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        let Some(ggx) = self.ggx else { return 0.0 };
+        let Some((m, reflecting)) = self.half_vector(wo, wi) else { return 0.0 };
+        let f = fresnel_dielectric(wo.dot(m), self.eta);
+        // The visible-normal density D_wo(m) = G1(wo) max(0, wo.m) D(m) / wo.z.
+        let visible = ggx.g1(wo) * wo.dot(m) * ggx.d(m) / wo.z;
+        if reflecting {
+            return visible / (4.0 * wo.dot(m)) * f;
+        }
+        let denom = wi.dot(m) + wo.dot(m) / self.eta;
+        let jacobian = wi.dot(m).abs() / (denom * denom);
+        visible * jacobian * (1.0 - f)
     }
 
-    /// Reflection with probability F (chosen by `u_lobe`), else refraction.
+    /// The microfacet normal that takes `wo` to `wi` (facing +z), and whether it reflects;
+    /// `None` when no microfacet facing both directions does.
     #[inline]
-    pub fn sample(&self, wo: Vec3, u_lobe: f32, _u: Vec2) -> Option<BsdfSample> {
+    fn half_vector(&self, wo: Vec3, wi: Vec3) -> Option<(Vec3, bool)> {
+        if wo.z <= 0.0 || wi.z == 0.0 {
+            return None;
+        }
+        let reflecting = wi.z > 0.0;
+        let m = if reflecting { wo + wi } else { wo + wi * self.eta };
+        let m = m.try_normalize()?;
+        let m = if m.z < 0.0 { -m } else { m };
+        // Both directions on the microfacet's proper sides: wo in front of it, and wi in front
+        // (reflection) or behind it (refraction).
+        let wi_side = wi.dot(m);
+        if wo.dot(m) <= 0.0 || (reflecting && wi_side <= 0.0) || (!reflecting && wi_side >= 0.0) {
+            return None;
+        }
+        Some((m, reflecting))
+    }
+
+    /// Reflection with probability F (chosen by `u_lobe`), else refraction; through a visible
+    /// microfacet drawn with `u` on a rough boundary.
+    #[inline]
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         if wo.z <= 0.0 {
             return None;
         }
+        let Some(ggx) = self.ggx else { return self.sample_smooth(wo, u_lobe) };
+        let m = ggx.sample_visible_normal(wo, u);
+        let f = fresnel_dielectric(wo.dot(m), self.eta);
+        let (wi, lobe, eta) = if u_lobe < f {
+            let wi = reflect(wo, m);
+            if wi.z <= 0.0 {
+                return None;
+            }
+            (wi, Lobe::Glossy, 1.0)
+        } else {
+            let wi = refract_about(wo, m, self.eta)?;
+            if wi.z >= 0.0 {
+                return None;
+            }
+            (wi, Lobe::GlossyTransmission, self.eta)
+        };
+        let pdf = self.pdf(wo, wi);
+        if !(pdf > 0.0 && pdf.is_finite()) {
+            return None;
+        }
+        Some(BsdfSample { f: self.eval(wo, wi), wi, pdf, lobe, eta })
+    }
+
+    #[inline]
+    fn sample_smooth(&self, wo: Vec3, u_lobe: f32) -> Option<BsdfSample> {
         let f = fresnel_dielectric(wo.z, self.eta);
         if u_lobe < f {
             let wi = Vec3::new(-wo.x, -wo.y, wo.z);
@@ -135,7 +229,7 @@ mod tests {
     /// crossed both ways returns the weight 1.
     #[test]
     fn samples_are_weighted_by_what_they_pass() {
-        let into = Dielectric { eta: 1.5, tint: Vec3::new(1.0, 0.5, 0.25) };
+        let into = Dielectric { eta: 1.5, tint: Vec3::new(1.0, 0.5, 0.25), ggx: None };
         let wo = Vec3::new(0.6, 0.0, 0.8);
         let f = fresnel_dielectric(0.8, 1.5);
         let mut reflected = 0;
@@ -156,7 +250,7 @@ mod tests {
             }
         }
         assert!((reflected as f32 / n as f32 - f).abs() < 1e-4);
-        let out = Dielectric { eta: 1.0 / 1.5, tint: Vec3::ONE };
+        let out = Dielectric { eta: 1.0 / 1.5, tint: Vec3::ONE, ggx: None };
         let s = out.sample(Vec3::new(0.0, 0.0, 1.0), 0.99, Vec2::ZERO).unwrap();
         let through = s.f * s.wi.z.abs() / s.pdf;
         assert!((through - Vec3::splat(2.25)).abs().max_element() < 1e-5, "{through}");

@@ -29,6 +29,8 @@ pub enum Lobe {
     SpecularReflection,
     /// Refraction into the far side's medium (a delta distribution).
     SpecularTransmission,
+    /// Refraction into the far side's medium through rough microfacets.
+    GlossyTransmission,
 }
 
 impl Lobe {
@@ -42,7 +44,7 @@ impl Lobe {
     /// Whether the sampled direction crossed into the medium on the far side.
     #[inline]
     pub fn enters_far_side(self) -> bool {
-        self == Lobe::SpecularTransmission
+        matches!(self, Lobe::SpecularTransmission | Lobe::GlossyTransmission)
     }
 }
 
@@ -69,7 +71,7 @@ pub enum Bsdf {
     Diffuse(Diffuse),
     /// The glTF metallic-roughness BRDF (Lambert + GGX, Fresnel-mixed).
     MetalRough(MetalRough),
-    /// A smooth refractive boundary.
+    /// A refractive boundary, smooth or rough.
     Dielectric(Dielectric),
 }
 
@@ -102,6 +104,13 @@ impl Bsdf {
             Bsdf::MetalRough(b) => b.transmits(),
             Bsdf::Dielectric(_) => true,
         }
+    }
+
+    /// Whether light crossing to the far side enters another medium (a refractive boundary),
+    /// rather than passing a thin wall.
+    #[inline]
+    pub fn refracts(&self) -> bool {
+        matches!(self, Bsdf::Dielectric(_))
     }
 
     /// Whether `sample` uses its lobe-choice number (a single-lobe BSDF does not).

@@ -6,7 +6,7 @@ use glam::{Vec2, Vec3};
 
 use super::chi2::{assert_fits, Rng, Spherical};
 use crate::render::{
-    bsdf::{Bsdf, Diffuse, MetalRough},
+    bsdf::{Bsdf, Dielectric, Diffuse, Lobe, MetalRough},
     geometry::reflect,
     sampling::Ggx,
 };
@@ -38,9 +38,19 @@ const DIFFUSE_COS_WO: [f32; 2] = [0.6, 0.05];
 /// fully and half transmitting, rough and near-specular.
 const TRANSMISSION_CASES: [(f32, f32); 3] = [(1.0, 0.3), (0.5, 0.7), (1.0, 0.05)];
 
+/// (perceptual roughness, eta) of the rough dielectric cases: from outside glass (1.5) and from
+/// inside it (1 / 1.5, where total internal reflection takes part of the lobe), near-specular
+/// to rough.
+const DIELECTRIC_CASES: [(f32, f32); 6] =
+    [(0.1, 1.5), (0.3, 1.5), (0.7, 1.5), (0.1, 1.0 / 1.5), (0.3, 1.0 / 1.5), (0.7, 1.0 / 1.5)];
+
+/// cos(theta) of the outgoing directions of the dielectric cases.
+const DIELECTRIC_COS_WO: [f32; 2] = [0.9, 0.3];
+
 /// Chi-square tests in this file.
 pub(super) const N_CHI2: usize = ROUGHNESS.len() * METAL_SPECULAR.len() * COS_WO.len()
     + TRANSMISSION_CASES.len() * COS_WO.len()
+    + DIELECTRIC_CASES.len() * DIELECTRIC_COS_WO.len()
     + 1
     + GGX_ALPHA.len() * GGX_COS_WO.len()
     + DIFFUSE_COS_WO.len();
@@ -337,6 +347,69 @@ fn bsdf_sample_agrees_with_eval_and_pdf() {
                     case()
                 );
                 assert!((s.pdf - pdf).abs() <= 1e-5 * pdf, "{}: pdf {pdf}", case());
+            }
+        }
+    }
+}
+
+fn rough_dielectric(roughness: f32, eta: f32) -> Bsdf {
+    Bsdf::Dielectric(Dielectric { eta, tint: BASE, ggx: Some(Ggx::new(roughness * roughness)) })
+}
+
+#[test]
+fn rough_dielectric_matches_pdf_over_the_sphere() {
+    // Reflection above the surface and refraction below it: `pdf` (the visible-normal density
+    // times each lobe's Jacobian and choice) must integrate to 1 less what falls on no valid
+    // microfacet, and match where `sample` puts its directions.
+    for (roughness, eta) in DIELECTRIC_CASES {
+        let bsdf = rough_dielectric(roughness, eta);
+        for cos_wo in DIELECTRIC_COS_WO {
+            let wo = wo_at(cos_wo);
+            let name = format!("rough_dielectric_r{roughness}_eta{eta:.3}_coswo{cos_wo}");
+            assert_fits(
+                &name,
+                Spherical::sphere(),
+                |u| {
+                    let s = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z))?;
+                    assert!(
+                        s.pdf > 0.0 && s.pdf.is_finite(),
+                        "{name}: pdf {} at {:?}",
+                        s.pdf,
+                        s.wi
+                    );
+                    let refracted = s.wi.z < 0.0;
+                    assert_eq!(refracted, s.lobe == Lobe::GlossyTransmission, "{name}");
+                    assert_eq!(s.eta, if refracted { eta } else { 1.0 }, "{name}");
+                    Some(s.wi)
+                },
+                |wi| bsdf.pdf(wo, wi),
+            );
+        }
+    }
+}
+
+/// A rough dielectric makes no light: what it reflects plus what it refracts (with the 1 / eta²
+/// of radiance undone) is at most what arrives, and close to it at low roughness.
+#[test]
+fn rough_dielectric_gains_no_energy() {
+    let mut rng = Rng::from_name("rough_dielectric_gains_no_energy");
+    let n = 200_000;
+    for (roughness, eta) in DIELECTRIC_CASES {
+        let white = Bsdf::Dielectric(Dielectric {
+            eta,
+            tint: Vec3::ONE,
+            ggx: Some(Ggx::new(roughness * roughness)),
+        });
+        for cos_wo in DIELECTRIC_COS_WO {
+            let wo = wo_at(cos_wo);
+            let (mean, err) =
+                mean_and_error(n, &mut rng, |u| match white.sample(wo, u.x, Vec2::new(u.y, u.z)) {
+                    Some(s) => (s.f.x * s.wi.z.abs() / s.pdf * s.eta * s.eta) as f64,
+                    None => 0.0,
+                });
+            assert!(mean <= 1.0 + 4.0 * err, "r{roughness} eta{eta} cos{cos_wo}: {mean} +- {err}");
+            if roughness <= 0.1 {
+                assert!(mean > 0.97, "r{roughness} eta{eta} cos{cos_wo}: {mean} +- {err}");
             }
         }
     }
