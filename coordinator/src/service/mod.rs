@@ -30,7 +30,7 @@ mod metrics;
 mod scenes;
 mod workers;
 
-pub use listen::ConnectionLimits;
+pub use listen::{bind, ConnectionLimits};
 pub use local_link::LocalLink;
 
 use std::{
