@@ -17,7 +17,7 @@ use coordinator::{
     client::{healthcheck, submit, Remote},
     local::{render_file_within, Stage},
     output::{check_writable, describe_error, exr_output, is_black},
-    service::{serve_on, ServiceConfig},
+    service::{bind, serve_on, ServiceConfig},
 };
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -221,7 +221,8 @@ enum Command {
         /// Seconds a request body may send nothing before it is refused.
         #[arg(long, default_value_t = 30.0)]
         body_timeout: f64,
-        /// Connections open at once; more are closed as they arrive.
+        /// Connections open at once; more are closed as they arrive. As many may wait to be
+        /// accepted (up to the kernel's net.core.somaxconn), for workers that connect all at once.
         #[arg(long, default_value_t = 4096)]
         max_connections: usize,
         /// Scene uploads received at once; more are refused as busy (503).
@@ -430,11 +431,12 @@ fn main() -> Result<()> {
             if let Some(h) = retain_finished_hours {
                 tracing::info!("finished jobs are removed {h} hours after they end");
             }
+            let backlog = u32::try_from(max_connections).unwrap_or(u32::MAX);
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {
-                let listener = tokio::net::TcpListener::bind(addr)
-                    .await
-                    .with_context(|| format!("listening on {addr}"))?;
+                // Room for every connection to wait to be accepted: workers join all at once.
+                let listener =
+                    bind(addr, backlog).with_context(|| format!("listening on {addr}"))?;
                 tracing::info!("coordinator listening on http://{}", listener.local_addr()?);
                 serve_on(listener, config, shutdown_signal()).await
             })

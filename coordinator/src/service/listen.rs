@@ -2,16 +2,20 @@
 //! unset. A client has `header_timeout` to send a request's headers (one that trickles them is
 //! cut off), at most `max_connections` connections are open at once (past that a new one is
 //! closed at once, and logged), and on shutdown the loop stops accepting, asks every connection
-//! to finish its request in hand, and waits for them.
+//! to finish its request in hand, and waits for them. [`bind`] makes the listener with room for
+//! as many connections waiting to be accepted as may be open.
 
-use std::{future::Future, sync::Arc, time::Duration};
+use std::{future::Future, net::SocketAddr, sync::Arc, time::Duration};
 
 use axum::Router;
 use hyper_util::{
     rt::{TokioIo, TokioTimer},
     service::TowerToHyperService,
 };
-use tokio::{net::TcpListener, sync::Semaphore};
+use tokio::{
+    net::{TcpListener, TcpSocket},
+    sync::Semaphore,
+};
 
 /// Limits on connections.
 #[derive(Clone, Copy, Debug)]
@@ -20,6 +24,19 @@ pub struct ConnectionLimits {
     pub header_timeout: Duration,
     /// Connections open at once.
     pub max_connections: usize,
+}
+
+/// Listens on `addr` with room for `backlog` connections waiting to be accepted (the kernel caps
+/// it at `net.core.somaxconn`). `TcpListener::bind` leaves room for 128: when a farm's workers
+/// all connect at once (a thousand joining, or coming back after a restart), the kernel drops the
+/// connections past that, and each waits for its connection attempt to be sent again, one second
+/// later, then three, then seven. Must be called inside a tokio runtime.
+pub fn bind(addr: SocketAddr, backlog: u32) -> std::io::Result<TcpListener> {
+    let socket = if addr.is_ipv4() { TcpSocket::new_v4()? } else { TcpSocket::new_v6()? };
+    // As `TcpListener::bind` does: a restarted coordinator gets its port back at once.
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(backlog)
 }
 
 /// Serves `app` on `listener` until `shutdown` completes, then lets the open connections finish.
@@ -82,4 +99,41 @@ pub(super) async fn serve(
     let mut all_closed = all_closed;
     // Resolves when every connection task has dropped its sender.
     let _ = all_closed.recv().await;
+}
+
+#[cfg(test)]
+mod tests {
+    use std::{
+        net::TcpStream,
+        time::{Duration, Instant},
+    };
+
+    #[test]
+    fn a_burst_of_connections_waits_in_the_accept_queue() {
+        // The kernel caps the backlog at somaxconn: below what the test needs, there is nothing
+        // to show.
+        let somaxconn: usize = std::fs::read_to_string("/proc/sys/net/core/somaxconn")
+            .ok()
+            .and_then(|s| s.trim().parse().ok())
+            .unwrap_or(4096);
+        let burst = 400;
+        if somaxconn <= burst {
+            return;
+        }
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build().unwrap();
+        let listener =
+            runtime.block_on(async { super::bind("127.0.0.1:0".parse().unwrap(), 1024) }).unwrap();
+        let addr = listener.local_addr().unwrap();
+        // Nobody accepts, as when a busy accept loop has not caught up: with 128 places the
+        // 130th connection attempt would be dropped, and not answered within the timeout.
+        let start = Instant::now();
+        let streams: Vec<TcpStream> = (0..burst)
+            .map(|i| {
+                TcpStream::connect_timeout(&addr, Duration::from_millis(800))
+                    .unwrap_or_else(|e| panic!("connection {i} of {burst}: {e}"))
+            })
+            .collect();
+        assert_eq!(streams.len(), burst);
+        assert!(start.elapsed() < Duration::from_secs(5));
+    }
 }

@@ -31,7 +31,7 @@ mod refusals;
 mod scenes;
 mod workers;
 
-pub use listen::ConnectionLimits;
+pub use listen::{bind, ConnectionLimits};
 pub use local_link::LocalLink;
 
 use std::{
