@@ -71,6 +71,13 @@ fn slow_and_greedy_clients_are_cut_off_within_their_limits() {
     std::thread::sleep(Duration::from_millis(200));
     let (answer, took) = until_closed(TcpStream::connect(&addr).unwrap());
     assert!(answer.is_empty() && took < Duration::from_millis(900), "{answer:?} after {took:?}");
+    // A client retrying in a loop is turned away each time, and logged once a second at most.
+    for _ in 0..100 {
+        let (answer, _) = until_closed(TcpStream::connect(&addr).unwrap());
+        assert!(answer.is_empty());
+    }
+    let lines = coordinator.log_text().lines().filter(|l| l.contains("closed on arrival")).count();
+    assert!((1..=3).contains(&lines), "{lines} lines for 101 connections turned away");
     drop(idle);
     std::thread::sleep(Duration::from_millis(300));
     assert_eq!(get(&format!("{url}/healthz")).status, 200);

@@ -51,6 +51,8 @@ pub(super) async fn serve(
     let (stop, stopping) = tokio::sync::watch::channel(false);
     let (open, all_closed) = tokio::sync::mpsc::channel::<()>(1);
     tokio::pin!(shutdown);
+    // Connections closed on arrival (over `max_connections`) since the last log line about them.
+    let (mut turned_away, mut last_logged) = (0u64, None::<std::time::Instant>);
     loop {
         let (stream, remote) = tokio::select! {
             accepted = listener.accept() => match accepted {
@@ -65,11 +67,19 @@ pub(super) async fn serve(
             _ = &mut shutdown => break,
         };
         let Ok(permit) = permits.clone().try_acquire_owned() else {
-            tracing::warn!(
-                %remote,
-                "connection closed: {} connections are open, the most this coordinator serves (--max-connections)",
-                limits.max_connections
-            );
+            // One line a second at most, with the count: clients retrying in a loop must not
+            // flood the log (a thousand workers over the cap wrote 20,000 lines in 5 s).
+            turned_away += 1;
+            let now = std::time::Instant::now();
+            if last_logged.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(1)) {
+                tracing::warn!(
+                    %remote,
+                    "{turned_away} connection(s) closed on arrival since the last such line: {} connections are open, the most this coordinator serves (--max-connections)",
+                    limits.max_connections
+                );
+                last_logged = Some(now);
+                turned_away = 0;
+            }
             continue;
         };
         let _ = stream.set_nodelay(true);
