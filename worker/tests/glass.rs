@@ -10,8 +10,9 @@
 //!   multiple-reflection series with Beer-Lambert attenuation: with r = ((n - 1) / (n + 1))² and
 //!   tau = exp(-absorption x thickness), R = r + (1 - r)² r tau² / (1 - r² tau²) and
 //!   T = (1 - r)² tau / (1 - r² tau²), and the pixel is R + T.
-//! - The same slab at thickness 0 (thin-walled) keeps the behaviour the extension had before:
-//!   light passes straight through without bending.
+//! - A tilted slab shifts what lies behind it sideways by the Snell-law offset.
+//! - Rough glass in the furnace never exceeds 1 beyond its noise.
+//! - A volume of thickness 0 stays thin-walled; out-of-range volume values are refused.
 
 mod support;
 
@@ -29,6 +30,22 @@ fn box_scene(
     material: Value,
     camera_y: f32,
     view: f32,
+) -> std::path::PathBuf {
+    box_scene_with(tag, half, center, material, camera_y, view, 0.0, false)
+}
+
+/// [`box_scene`] with the box turned by `tilt` radians about the z axis, and, when `edge`, an
+/// emitting half-plane (radiance 1, facing up) at y = -1 under it, lit for x > 0 only.
+#[allow(clippy::too_many_arguments)]
+fn box_scene_with(
+    tag: &str,
+    half: [f32; 3],
+    center: [f32; 3],
+    material: Value,
+    camera_y: f32,
+    view: f32,
+    tilt: f64,
+    edge: bool,
 ) -> std::path::PathBuf {
     let [hx, hy, hz] = half;
     let [cx, cy, cz] = center;
@@ -55,26 +72,45 @@ fn box_scene(
     let index_start = bytes.len();
     bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
     let (min, max) = (corner(0), corner(7));
+    // The half-plane: 4 corners and 2 triangles, counter-clockwise seen from above.
+    let plane_start = bytes.len();
+    let plane: [[f32; 3]; 4] =
+        [[0.0, -1.0, -20.0], [20.0, -1.0, -20.0], [20.0, -1.0, 20.0], [0.0, -1.0, 20.0]];
+    bytes.extend(plane.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    bytes.extend([0u16, 2, 1, 0, 3, 2].iter().flat_map(|v| v.to_le_bytes()));
+    let half_turn = (tilt / 2.0).sin_cos();
     let json = json!({
         "asset": {"version": "2.0"},
         "scene": 0,
-        "scenes": [{"nodes": [0, 1]}],
+        "scenes": [{"nodes": if edge { vec![0, 1, 2] } else { vec![0, 1] }}],
         "nodes": [
-            {"mesh": 0},
+            {"mesh": 0, "rotation": [0.0, 0.0, half_turn.0, half_turn.1]},
             {"camera": 0, "translation": [0.0, camera_y, 0.0],
-             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}
+             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]},
+            {"mesh": 1}
         ],
         "cameras": [{"type": "orthographic", "orthographic": {"xmag": view, "ymag": view, "znear": 0.01, "zfar": 100.0}}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
-        "materials": [material],
-        "extensionsUsed": ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"],
+        "meshes": [
+            {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]},
+            {"primitives": [{"attributes": {"POSITION": 2}, "indices": 3, "material": 1}]}
+        ],
+        "materials": [material, {
+            "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0},
+            "emissiveFactor": [1.0, 1.0, 1.0],
+            "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
+        }],
+        "extensionsUsed": ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior", "KHR_materials_specular"],
         "accessors": [
             {"bufferView": 0, "componentType": 5126, "count": 8, "type": "VEC3", "min": min, "max": max},
-            {"bufferView": 1, "componentType": 5123, "count": 36, "type": "SCALAR"}
+            {"bufferView": 1, "componentType": 5123, "count": 36, "type": "SCALAR"},
+            {"bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.0, -1.0, -20.0], "max": [20.0, -1.0, 20.0]},
+            {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}
         ],
         "bufferViews": [
             {"buffer": 0, "byteOffset": 0, "byteLength": index_start},
-            {"buffer": 0, "byteOffset": index_start, "byteLength": 72}
+            {"buffer": 0, "byteOffset": index_start, "byteLength": 72},
+            {"buffer": 0, "byteOffset": plane_start, "byteLength": 48},
+            {"buffer": 0, "byteOffset": plane_start + 48, "byteLength": 12}
         ],
         "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
     });
@@ -212,5 +248,55 @@ fn bad_volumes_are_refused_with_the_key() {
         let path = box_scene(&format!("bad-{key}"), [1.0; 3], [0.0; 3], material, 3.0, 1.0);
         let e = common::gltf::load_path(&path).unwrap_err().to_string();
         assert!(e.contains("KHR_materials_volume") && e.contains(key), "{e}");
+    }
+}
+
+/// A tilted slab shifts what lies behind it by the Snell offset: seen straight down through a
+/// clear slab of thickness t tilted by theta, an edge moves sideways by
+/// t sin(theta - theta_t) / cos(theta_t), with sin(theta_t) = sin(theta) / n. The edge of an
+/// emitting half-plane under the slab is found in the image (from a row's lit area) within a
+/// twentieth of a pixel of where the law puts it; through an index-matched slab it stays at 0.
+#[test]
+fn a_tilted_slab_shifts_what_lies_behind_it_by_the_snell_offset() {
+    let (ior, thickness, tilt) = (1.5f64, 0.5f64, 30f64.to_radians());
+    let theta_t = (tilt.sin() / ior).asin();
+    let shift = thickness * (tilt - theta_t).sin() / theta_t.cos();
+    let width = 256u32;
+    // Square: the orthographic view is 2 x 2 (the camera's ymag sets its height).
+    let settings =
+        RenderSettings { width, height: width, spp: 4, max_depth: 16, ..Default::default() };
+    // The edge's image position. Every row sees the same edge (nothing changes along z), so the
+    // columns are averaged over the rows; pixels average what they cover, so the one column the
+    // edge cuts is lit in proportion to its lit part, the columns right of it fully.
+    let edge_at = |film: &common::film::Film| {
+        let w = width as usize;
+        let profile: Vec<f64> = (0..w)
+            .map(|i| (0..w).map(|row| film.pixels[row * w + i].mean()[0]).sum::<f64>() / w as f64)
+            .collect();
+        let lit = profile[w - 64..].iter().sum::<f64>() / 64.0;
+        let k = profile.iter().position(|&v| v > 0.01 * lit).expect("a lit part");
+        let pixel = 2.0 / width as f64;
+        -1.0 + k as f64 * pixel + (1.0 - profile[k] / lit).max(0.0) * pixel
+    };
+    let pixel = 2.0 / width as f64;
+    for (ior_here, expected) in [(1.0, 0.0), (ior, -shift)] {
+        let mut material = glass(ior, 1.0, None);
+        material["extensions"]["KHR_materials_ior"]["ior"] = json!(ior_here);
+        let half = [20.0, thickness as f32 / 2.0, 20.0];
+        let path = box_scene_with(
+            &format!("snell-{ior_here}"),
+            half,
+            [0.0; 3],
+            material,
+            3.0,
+            1.0,
+            tilt,
+            true,
+        );
+        let scene = common::gltf::load_path(&path).unwrap();
+        let film = render(&scene, &settings);
+        let at = edge_at(&film);
+        eprintln!("ior {ior_here}: the edge at {at:.5}, the law puts it at {expected:.5} (a pixel is {pixel:.5})");
+        assert!((at - expected).abs() < 0.05 * pixel, "ior {ior_here}: {at} against {expected}");
     }
 }
