@@ -300,3 +300,21 @@ fn a_tilted_slab_shifts_what_lies_behind_it_by_the_snell_offset() {
         assert!((at - expected).abs() < 0.05 * pixel, "ior {ior_here}: {at} against {expected}");
     }
 }
+
+/// The shipped glass scene's sphere is a closed, consistently wound, absorbing volume; a mesh
+/// with a face missing (the Cornell box's blocks stand on the floor with no bottom) is found
+/// open, and the loader warns when such a mesh bounds a volume.
+#[test]
+fn the_shipped_glass_scene_bounds_a_closed_volume() {
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene = common::gltf::load_path(&repo.join("scenes/cornell-glass.gltf")).unwrap();
+    let glass: Vec<_> =
+        scene.meshes.iter().filter(|m| scene.materials[m.material].refracts()).collect();
+    assert_eq!(glass.len(), 1, "one glass sphere");
+    assert_eq!(common::gltf::open_edges(glass[0]), None, "the sphere is closed");
+    let volume = scene.materials[glass[0].material].volume.unwrap();
+    assert!(volume.absorption.max_element() > 0.0, "the glass is tinted");
+    let cornell = common::gltf::load_path(&repo.join("scenes/cornell-box.gltf")).unwrap();
+    let block = cornell.meshes.iter().find(|m| m.name.starts_with("short-block")).unwrap();
+    assert_eq!(common::gltf::open_edges(block), Some(4), "the bottom's four edges are open");
+}

@@ -319,6 +319,38 @@ impl<'a> Loader<'a> {
         if scene.cameras.is_empty() {
             scene.cameras.push(nodes::default_camera(&scene));
         }
+        for mesh in &scene.meshes {
+            if scene.materials[mesh.material].refracts() {
+                if let Some(open) = open_edges(mesh) {
+                    tracing::warn!(
+                        "mesh {}: a refractive volume whose mesh is not closed ({open} edges not shared by two faces wound the opposite way): light that leaves through a gap is taken to leave the volume",
+                        mesh.name
+                    );
+                }
+            }
+        }
         Ok(scene)
     }
+}
+
+/// How many edges of `mesh` are not matched by the same edge run the other way in another
+/// triangle (vertices compared by position, so that seams of split vertices count as joined);
+/// `None` for a closed, consistently wound mesh: the boundary of a volume.
+pub fn open_edges(mesh: &crate::scene::Mesh) -> Option<usize> {
+    use std::collections::HashMap;
+    let key = |i: u32| mesh.positions[i as usize].to_array().map(f32::to_bits);
+    let mut edges: HashMap<([u32; 3], [u32; 3]), i32> = HashMap::new();
+    for t in &mesh.indices {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            let (a, b) = (key(a), key(b));
+            if a == b {
+                continue; // A degenerate edge bounds nothing.
+            }
+            // +1 for a -> b, -1 for b -> a, under the ordered pair's key.
+            let (k, d) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
+            *edges.entry(k).or_default() += d;
+        }
+    }
+    let open = edges.values().filter(|&&n| n != 0).count();
+    (open > 0).then_some(open)
 }
