@@ -109,6 +109,32 @@ pub fn sample_uniform_triangle(u: Vec2) -> (f32, f32) {
     (u.x - m, u.y - m)
 }
 
+/// The Henyey-Greenstein phase function: the density, per solid angle, of scattering by an angle
+/// whose cosine is `cos_theta` (between the directions of travel before and after) with mean
+/// cosine `g` in (-1, 1): (1 - g²) / (4 pi (1 + g² - 2 g cos_theta)^(3/2)). g > 0 scatters
+/// forward, g < 0 back, g = 0 uniformly.
+#[inline]
+pub fn henyey_greenstein(cos_theta: f32, g: f32) -> f32 {
+    let denom = 1.0 + g * g - 2.0 * g * cos_theta;
+    (1.0 - g * g) / (4.0 * PI * denom * denom.max(0.0).sqrt())
+}
+
+/// A direction of travel after scattering, in the frame whose +z is the direction of travel
+/// before, distributed by [`henyey_greenstein`] with mean cosine `g`: the cosine inverts the
+/// function's CDF, the azimuth is uniform.
+#[inline]
+pub fn sample_henyey_greenstein(g: f32, u: Vec2) -> Vec3 {
+    let cos_theta = if g.abs() < 1e-3 {
+        1.0 - 2.0 * u.x
+    } else {
+        let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u.x);
+        ((1.0 + g * g - s * s) / (2.0 * g)).clamp(-1.0, 1.0)
+    };
+    let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    Vec3::new(sin_theta * phi.cos(), sin_theta * phi.sin(), cos_theta)
+}
+
 /// GGX (Trowbridge-Reitz) isotropic microfacet distribution in the local frame (+z = normal).
 #[derive(Clone, Copy, Debug)]
 pub struct Ggx {

@@ -8,17 +8,21 @@ use super::chi2::{assert_fits, Planar, Spherical};
 use crate::render::{
     camera::{Camera, CameraModel},
     sampling::{
-        cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_cone,
-        sample_uniform_disk_concentric, sample_uniform_sphere, sample_uniform_triangle,
-        uniform_cone_pdf, uniform_disk_pdf, uniform_sphere_pdf,
+        cosine_hemisphere_pdf, henyey_greenstein, sample_cosine_hemisphere,
+        sample_henyey_greenstein, sample_uniform_cone, sample_uniform_disk_concentric,
+        sample_uniform_sphere, sample_uniform_triangle, uniform_cone_pdf, uniform_disk_pdf,
+        uniform_sphere_pdf,
     },
 };
 
 /// Cone half-angles tested, in degrees: narrow, medium, a hemisphere and wider than one.
 const CONE_DEGREES: [f32; 4] = [5.0, 30.0, 90.0, 150.0];
 
+/// Mean cosines of the Henyey-Greenstein cases: backward, isotropic, forward, strongly forward.
+const HG_G: [f32; 4] = [-0.7, 0.0, 0.3, 0.9];
+
 /// Chi-square tests in this file.
-pub(super) const N_CHI2: usize = 5 + CONE_DEGREES.len();
+pub(super) const N_CHI2: usize = 5 + CONE_DEGREES.len() + HG_G.len();
 
 fn xy(u: Vec3) -> Vec2 {
     Vec2::new(u.x, u.y)
@@ -132,4 +136,19 @@ fn the_quarter_sine_and_cosine_are_exact_to_f32_rounding() {
     let eps = f64::from(f32::EPSILON);
     println!("worst relative error: {:.3} f32 epsilons", worst / eps);
     assert!(worst <= eps, "worst relative error {:.3} epsilons", worst / eps);
+}
+
+#[test]
+fn henyey_greenstein_matches_its_phase_function() {
+    // Around a direction off the grid's axes; the density over the whole sphere integrates to 1.
+    let dir = Vec3::new(0.3, -0.5, 0.81).normalize();
+    let frame = crate::render::geometry::Frame::from_z(dir);
+    for g in HG_G {
+        assert_fits(
+            &format!("henyey_greenstein_g{g}"),
+            Spherical::sphere(),
+            |u| Some(frame.to_world(sample_henyey_greenstein(g, xy(u)))),
+            |w| henyey_greenstein(dir.dot(w), g),
+        );
+    }
 }
