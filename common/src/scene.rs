@@ -167,6 +167,9 @@ pub struct Material {
     /// `KHR_materials_volume` with `thicknessFactor > 0`: the mesh bounds a refractive volume
     /// (`None`: thin-walled, as without the extension).
     pub volume: Option<Volume>,
+    /// `KHR_materials_unlit`: the surface shows its base colour (factor, texture, vertex colour)
+    /// to whatever looks at it, whatever lights it; it reflects nothing and lights nothing.
+    pub unlit: bool,
     /// `alphaMode` and `alphaCutoff`.
     pub alpha_mode: AlphaMode,
     /// `doubleSided`: emission leaves both faces when true, the front face only otherwise.
@@ -204,6 +207,7 @@ impl Default for Material {
             transmission: 0.0,
             transmission_texture: None,
             volume: None,
+            unlit: false,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
         }

@@ -310,3 +310,30 @@ fn a_masked_emitter_lights_only_where_its_alpha_passes_the_cutoff() {
         assert!((h - 0.5 * o).abs() <= 4.0 * sigma, "channel {c}: half-masked {h} vs {}", 0.5 * o);
     }
 }
+
+/// `KHR_materials_unlit`: the surface shows its base colour exactly, in the dark and under a
+/// white sky alike (lighting does not change it), and its emissive factor lights nothing.
+#[test]
+fn an_unlit_surface_shows_its_base_colour_whatever_lights_it() {
+    let unlit = json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [BASE[0], BASE[1], BASE[2], 1.0]},
+        "emissiveFactor": [1.0, 1.0, 1.0],
+        "extensions": {"KHR_materials_unlit": {}}
+    });
+    let planes = [Plane { y: 0.0, up: true, material: unlit, colors: None }];
+    let path = planes_scene("unlit", &planes, 1.0);
+    let scene = common::gltf::load_path(&path).unwrap();
+    assert!(scene.materials[0].unlit);
+    let prepared = worker::render::scene::prepare(&scene, &RenderSettings::default()).unwrap();
+    assert!(prepared.lights.lights.is_empty(), "an unlit surface is no light");
+    for environment in [None, Some(common::settings::Environment::Color { color: [1.0; 3] })] {
+        let settings =
+            RenderSettings { width: 8, height: 8, spp: 4, environment, ..Default::default() };
+        let film = render(&scene, &settings);
+        for p in film.mean_rgb() {
+            for c in 0..3 {
+                assert!((p[c] as f64 - BASE[c]).abs() < 1e-6, "{p:?}");
+            }
+        }
+    }
+}

@@ -1,5 +1,5 @@
 //! Materials, textures, samplers and images: the metallic-roughness model with the extensions
-//! the renderer honours (emissive strength, specular, ior, transmission, volume, texture
+//! the renderer honours (emissive strength, specular, ior, transmission, volume, unlit, texture
 //! transform), and
 //! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
 
@@ -149,6 +149,7 @@ impl Loader<'_> {
             transmission: transmission.min(1.0),
             transmission_texture,
             volume,
+            unlit: ext.is_some_and(|e| e.others.contains_key("KHR_materials_unlit")),
             alpha_mode,
             double_sided: m.double_sided,
         };

@@ -126,6 +126,12 @@ pub fn li(
         let wo = -ray.dir;
         let material = &scene.materials[tri.material as usize];
         let sp = scene.surface_point(hit.prim, b);
+        if material.unlit {
+            // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on from it.
+            let base = material::base_color(&scene.textures, material, &sp).truncate();
+            radiance += beta * base.clamp(Vec3::ZERO, Vec3::ONE);
+            break;
+        }
 
         if tri.light == UNSAMPLED {
             // A moving emitter: no light sampling reaches it, so every hit counts in full.

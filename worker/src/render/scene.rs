@@ -227,7 +227,7 @@ fn prepare_inner(
     let mut texture_means: Vec<Option<Vec4>> = vec![None; scene.textures.len()];
     for (prim, tri) in shading.iter_mut().enumerate() {
         let material = &scene.materials[tri.material as usize];
-        if material.emissive.max_element() > 0.0 {
+        if material.emissive.max_element() > 0.0 && !material.unlit {
             let p = accel.triangle(prim as u32);
             let (emission, textured) = match &material.emissive_texture {
                 Some(r) => {
@@ -322,7 +322,8 @@ fn prepare_inner(
                     .collect();
                 let (object_accel, order) = Accel::build(&local);
                 let prim_base = shading.len() as u32;
-                let emits = scene.materials[mesh.material].emissive.max_element() > 0.0;
+                let emits = scene.materials[mesh.material].emissive.max_element() > 0.0
+                    && !scene.materials[mesh.material].unlit;
                 for &o in &order {
                     let [a, b, c] = mesh.indices[o as usize];
                     let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };

@@ -56,6 +56,7 @@ impl Tables {
                 || m.normal_texture.is_some()
                 || m.emissive_texture.is_some()
                 || m.transmission_texture.is_some()
+                || m.unlit
             {
                 return None;
             }
