@@ -164,6 +164,16 @@ pub struct Material {
     pub transmission: f32,
     /// `KHR_materials_transmission.transmissionTexture` (R = transmission, linear).
     pub transmission_texture: Option<TextureRef>,
+    /// `KHR_materials_diffuse_transmission.diffuseTransmissionFactor` (0 without the
+    /// extension): the share of the diffuse light that passes to the far side (scattered as a
+    /// thin translucent sheet: leaves, paper, lampshades) instead of being reflected.
+    pub diffuse_transmission: f32,
+    /// `diffuseTransmissionTexture` (A = the factor, linear).
+    pub diffuse_transmission_texture: Option<TextureRef>,
+    /// `diffuseTransmissionColorFactor`: the colour of the diffusely transmitted light.
+    pub diffuse_transmission_color: Vec3,
+    /// `diffuseTransmissionColorTexture` (sRGB encoded).
+    pub diffuse_transmission_color_texture: Option<TextureRef>,
     /// `KHR_materials_volume` with `thicknessFactor > 0`: the mesh bounds a refractive volume
     /// (`None`: thin-walled, as without the extension).
     pub volume: Option<Volume>,
@@ -206,6 +216,10 @@ impl Default for Material {
             ior: 1.5,
             transmission: 0.0,
             transmission_texture: None,
+            diffuse_transmission: 0.0,
+            diffuse_transmission_texture: None,
+            diffuse_transmission_color: Vec3::ONE,
+            diffuse_transmission_color_texture: None,
             volume: None,
             unlit: false,
             alpha_mode: AlphaMode::Opaque,

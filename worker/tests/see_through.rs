@@ -337,3 +337,42 @@ fn an_unlit_surface_shows_its_base_colour_whatever_lights_it() {
         }
     }
 }
+
+/// `KHR_materials_diffuse_transmission`: a translucent sheet without a specular layer over the
+/// emitter passes dt x colour of the light below, Lambertian (so a pixel is dt x colour x L, less
+/// the sliver of sky the emitter leaves uncovered); out-of-range values are refused.
+#[test]
+fn a_translucent_sheet_passes_its_diffuse_transmission() {
+    let (dt, color) = (0.6, [0.3, 0.9, 0.6]);
+    let sheet = json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0},
+        "extensions": {
+            "KHR_materials_specular": {"specularFactor": 0.0},
+            "KHR_materials_diffuse_transmission": {
+                "diffuseTransmissionFactor": dt,
+                "diffuseTransmissionColorFactor": color
+            }
+        }
+    });
+    let planes = [
+        Plane { y: 0.0, up: true, material: emitter(RADIANCE, 1.0), colors: None },
+        Plane { y: 1.0, up: true, material: sheet.clone(), colors: None },
+    ];
+    let means = render_mean(&planes_scene("translucent", &planes, 2.0));
+    for c in 0..3 {
+        let expected = dt * color[c] * RADIANCE;
+        let (mean, se) = means[c];
+        assert!(
+            mean <= expected * 1.0005 + 4.0 * se && mean >= expected * 0.995 - 4.0 * se,
+            "channel {c}: {mean} +- {se} against {expected}"
+        );
+    }
+    let mut bad = sheet;
+    bad["extensions"]["KHR_materials_diffuse_transmission"]["diffuseTransmissionFactor"] =
+        json!(1.5);
+    let planes = [Plane { y: 0.0, up: true, material: bad, colors: None }];
+    let e = common::gltf::load_path(&planes_scene("translucent-bad", &planes, 2.0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("diffuseTransmissionFactor 1.5"), "{e}");
+}

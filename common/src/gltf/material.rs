@@ -65,6 +65,26 @@ impl Loader<'_> {
         let ior = ext.and_then(|e| e.ior.as_ref()).map_or(1.5, |i| i.ior.0);
         let transmission =
             ext.and_then(|e| e.transmission.as_ref()).map_or(0.0, |t| t.transmission_factor.0);
+        let (diffuse_transmission, diffuse_transmission_color, dt_textures) =
+            match ext.and_then(|e| e.others.get("KHR_materials_diffuse_transmission")) {
+                Some(v) => diffuse_transmission(v)
+                    .context(|| "KHR_materials_diffuse_transmission".into())?,
+                None => (0.0, Vec3::ONE, (None, None)),
+            };
+        let diffuse_transmission_texture = match dt_textures.0 {
+            Some(info) => self.texture_info(
+                Some(&info),
+                "KHR_materials_diffuse_transmission.diffuseTransmissionTexture",
+            )?,
+            None => None,
+        };
+        let diffuse_transmission_color_texture = match dt_textures.1 {
+            Some(info) => self.texture_info(
+                Some(&info),
+                "KHR_materials_diffuse_transmission.diffuseTransmissionColorTexture",
+            )?,
+            None => None,
+        };
         let volume = match ext.and_then(|e| e.others.get("KHR_materials_volume")) {
             Some(v) => volume(v).context(|| "KHR_materials_volume".into())?,
             None => None,
@@ -148,6 +168,10 @@ impl Loader<'_> {
             ior,
             transmission: transmission.min(1.0),
             transmission_texture,
+            diffuse_transmission,
+            diffuse_transmission_texture,
+            diffuse_transmission_color,
+            diffuse_transmission_color_texture,
             volume,
             unlit: ext.is_some_and(|e| e.others.contains_key("KHR_materials_unlit")),
             alpha_mode,
@@ -424,4 +448,44 @@ fn volume(v: &Value) -> Result<Option<Volume>, SceneError> {
     }
     let color = Vec3::new(color[0] as f32, color[1] as f32, color[2] as f32);
     Ok(Some(Volume::new(color, distance as f32)))
+}
+
+/// A `KHR_materials_diffuse_transmission` object: the factor (in [0, 1]), the colour factor (in
+/// [0, 1]) and the two texture infos.
+#[allow(clippy::type_complexity)]
+fn diffuse_transmission(
+    v: &Value,
+) -> Result<(f32, Vec3, (Option<json::texture::Info>, Option<json::texture::Info>)), SceneError> {
+    let factor = match v.get("diffuseTransmissionFactor") {
+        None => 0.0,
+        Some(x) => x.as_f64().unwrap_or(f64::NAN),
+    };
+    if !(0.0..=1.0).contains(&factor) {
+        return fail(format!("diffuseTransmissionFactor {factor} must lie in [0, 1]"));
+    }
+    let color = match v.get("diffuseTransmissionColorFactor") {
+        None => [1.0; 3],
+        Some(Value::Array(c)) if c.len() == 3 => {
+            let c: Vec<f64> = c.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
+            [c[0], c[1], c[2]]
+        }
+        Some(other) => {
+            return fail(format!("diffuseTransmissionColorFactor must be 3 numbers, not {other}"))
+        }
+    };
+    if color.iter().any(|c| !(0.0..=1.0).contains(c)) {
+        return fail(format!("diffuseTransmissionColorFactor {color:?} must lie in [0, 1]"));
+    }
+    let texture = |key: &str| -> Result<Option<json::texture::Info>, SceneError> {
+        match v.get(key) {
+            None => Ok(None),
+            Some(t) => {
+                serde_json::from_value(t.clone()).map(Some).or_else(|e| fail(format!("{key}: {e}")))
+            }
+        }
+    };
+    let textures =
+        (texture("diffuseTransmissionTexture")?, texture("diffuseTransmissionColorTexture")?);
+    let color = Vec3::new(color[0] as f32, color[1] as f32, color[2] as f32);
+    Ok((factor as f32, color, textures))
 }

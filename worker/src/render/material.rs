@@ -79,11 +79,23 @@ pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) 
     if let Some(r) = &m.transmission_texture {
         transmission *= texture::sample(textures, r, sp.uvs, false).x;
     }
-    if metallic == 0.0 && m.specular <= 0.0 && transmission <= 0.0 {
+    let mut diffuse_transmission = m.diffuse_transmission;
+    if let Some(r) = &m.diffuse_transmission_texture {
+        diffuse_transmission *= texture::sample(textures, r, sp.uvs, false).w;
+    }
+    if metallic == 0.0 && m.specular <= 0.0 && transmission <= 0.0 && diffuse_transmission <= 0.0 {
         return Bsdf::Diffuse(Diffuse { albedo: base });
     }
     let bsdf = MetalRough::new(base, metallic, roughness, m.ior, m.specular, m.specular_color);
-    Bsdf::MetalRough(bsdf.with_transmission(transmission))
+    let bsdf = bsdf.with_transmission(transmission);
+    if diffuse_transmission <= 0.0 {
+        return Bsdf::MetalRough(bsdf);
+    }
+    let mut color = m.diffuse_transmission_color;
+    if let Some(r) = &m.diffuse_transmission_color_texture {
+        color *= texture::sample(textures, r, sp.uvs, true).truncate();
+    }
+    Bsdf::MetalRough(bsdf.with_diffuse_transmission(diffuse_transmission, color))
 }
 
 /// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB).

@@ -56,6 +56,8 @@ impl Tables {
                 || m.normal_texture.is_some()
                 || m.emissive_texture.is_some()
                 || m.transmission_texture.is_some()
+                || m.diffuse_transmission_texture.is_some()
+                || m.diffuse_transmission_color_texture.is_some()
                 || m.unlit
             {
                 return None;

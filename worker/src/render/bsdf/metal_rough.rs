@@ -1,5 +1,5 @@
 //! The glTF 2.0 metallic-roughness BSDF (spec appendix B) with `KHR_materials_specular`,
-//! `KHR_materials_ior` and `KHR_materials_transmission`:
+//! `KHR_materials_ior`, `KHR_materials_transmission` and `KHR_materials_diffuse_transmission`:
 //!
 //! f = (1 - metallic) * [ (1 - s * max(F_d)) * base * ((1 - t) / pi + t * spec_t) + s * F_d * spec ]
 //!     + metallic * F_m * spec
@@ -11,8 +11,12 @@
 //! spec_t, for `wi` on the far side, is the specular lobe evaluated with `wi` mirrored through the
 //! surface plane (half vector normalize(wo + mirror(wi)), as the extension defines it), so light
 //! passes straight through, blurred by the roughness, and tinted by the base colour.
-//! Sampling picks the GGX lobe (visible normals, Heitz 2018), the mirrored GGX lobe or the cosine
-//! lobe with probabilities from their estimated albedos.
+//! Diffuse transmission (factor dt, colour c_dt) splits the diffused light: (1 - dt) of it is the
+//! Lambertian lobe above, dt of it a Lambertian lobe of colour c_dt on the far side (a thin
+//! translucent sheet), weighted like the lobe above by 1 - s * max(F_d) at the mirrored half
+//! vector.
+//! Sampling picks the GGX lobe (visible normals, Heitz 2018), the mirrored GGX lobe, the cosine
+//! lobe below or the cosine lobe above with probabilities from their estimated albedos.
 
 use std::f32::consts::FRAC_1_PI;
 
@@ -40,6 +44,11 @@ pub struct MetalRough {
     /// `transmissionFactor` in [0, 1]: the share of the light entering the surface that passes
     /// through it instead of being diffused.
     pub transmission: f32,
+    /// `diffuseTransmissionFactor` in [0, 1]: the share of the diffused light scattered to the
+    /// far side (a Lambertian lobe there) instead of back.
+    pub diffuse_transmission: f32,
+    /// `diffuseTransmissionColor`: the colour of that lobe.
+    pub diffuse_transmission_color: Vec3,
 }
 
 #[inline]
@@ -72,6 +81,19 @@ impl MetalRough {
             f0_dielectric: (specular_color * r).min(Vec3::ONE).max(Vec3::ZERO),
             specular: specular.clamp(0.0, 1.0),
             transmission: 0.0,
+            diffuse_transmission: 0.0,
+            diffuse_transmission_color: Vec3::ONE,
+        }
+    }
+
+    /// The same BSDF with `KHR_materials_diffuse_transmission`'s factor and colour (clamped to
+    /// [0, 1]).
+    pub fn with_diffuse_transmission(self, factor: f32, color: Vec3) -> Self {
+        let factor = if factor > 0.0 { factor.min(1.0) } else { 0.0 };
+        MetalRough {
+            diffuse_transmission: factor,
+            diffuse_transmission_color: color.clamp(Vec3::ZERO, Vec3::ONE),
+            ..self
         }
     }
 
@@ -84,14 +106,15 @@ impl MetalRough {
     /// Whether light can pass through to the far side.
     #[inline]
     pub fn transmits(&self) -> bool {
-        self.transmission > 0.0 && self.metallic < 1.0
+        (self.transmission > 0.0 || self.diffuse_transmission > 0.0) && self.metallic < 1.0
     }
 
-    /// Probabilities of sampling the GGX reflection lobe and the mirrored (transmission) lobe for
-    /// `wo`, from the lobes' albedos at normal-ish incidence; the cosine lobe takes the rest.
-    /// Must be the same in `sample` and `pdf`.
+    /// Probabilities of sampling the GGX reflection lobe, the mirrored (transmission) lobe and
+    /// the cosine lobe on the far side (diffuse transmission) for `wo`, from the lobes' albedos at
+    /// normal-ish incidence; the cosine lobe on `wo`'s side takes the rest. Must be the same in
+    /// `sample` and `pdf`.
     #[inline]
-    fn lobe_probabilities(&self, wo: Vec3) -> (f32, f32) {
+    fn lobe_probabilities(&self, wo: Vec3) -> (f32, f32, f32) {
         let w = schlick_weight(wo.z);
         let f_m = self.base + (Vec3::ONE - self.base) * w;
         let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
@@ -101,11 +124,17 @@ impl MetalRough {
             (1.0 - self.metallic) * (1.0 - self.specular * f_d_max) * luminance(self.base);
         // Exact for no transmission: x * 1 is x and x * 0 is 0.
         let (diff, trans) = (entering * (1.0 - self.transmission), entering * self.transmission);
-        let total = spec + diff + trans;
+        let dtrans = (1.0 - self.metallic)
+            * (1.0 - self.specular * f_d_max)
+            * (1.0 - self.transmission)
+            * self.diffuse_transmission
+            * luminance(self.diffuse_transmission_color);
+        let diff = diff * (1.0 - self.diffuse_transmission);
+        let total = spec + diff + trans + dtrans;
         if total <= 0.0 {
-            return (0.0, 0.0);
+            return (0.0, 0.0, 0.0);
         }
-        (spec / total, trans / total)
+        (spec / total, trans / total, dtrans / total)
     }
 
     /// f(wo, wi): reflection for `wi.z > 0`, transmission for `wi.z < 0`.
@@ -125,7 +154,17 @@ impl MetalRough {
             let spec_t = self.ggx.d(h) * self.ggx.g2(wo, wm) / (4.0 * wo.z * wm.z);
             let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
             let entering = 1.0 - self.specular * f_d.max_element();
-            return (1.0 - self.metallic) * entering * self.transmission * self.base * spec_t;
+            let through = (1.0 - self.metallic) * entering * self.transmission * self.base * spec_t;
+            if self.diffuse_transmission <= 0.0 {
+                return through;
+            }
+            // The diffused light's share that leaves on the far side, Lambertian there.
+            let diffused = (1.0 - self.metallic) * entering * (1.0 - self.transmission);
+            return through
+                + diffused
+                    * self.diffuse_transmission
+                    * self.diffuse_transmission_color
+                    * FRAC_1_PI;
         }
         let h = (wo + wi).normalize();
         let w = schlick_weight(wo.dot(h));
@@ -135,7 +174,8 @@ impl MetalRough {
         let diffuse = (1.0 - self.specular * f_d.max_element())
             * self.base
             * FRAC_1_PI
-            * (1.0 - self.transmission);
+            * (1.0 - self.transmission)
+            * (1.0 - self.diffuse_transmission);
         let dielectric = diffuse + self.specular * f_d * spec;
         (1.0 - self.metallic) * dielectric + self.metallic * f_m * spec
     }
@@ -146,18 +186,22 @@ impl MetalRough {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return 0.0;
         }
-        let (p_spec, p_trans) = self.lobe_probabilities(wo);
+        let (p_spec, p_trans, p_dtrans) = self.lobe_probabilities(wo);
         if wi.z < 0.0 {
-            if p_trans <= 0.0 {
+            if p_trans <= 0.0 && p_dtrans <= 0.0 {
                 return 0.0;
             }
             let h = (wo + mirror(wi)).normalize();
-            return p_trans * self.ggx.reflection_pdf(wo, h);
+            let through = p_trans * self.ggx.reflection_pdf(wo, h);
+            if p_dtrans <= 0.0 {
+                return through;
+            }
+            return through + p_dtrans * cosine_hemisphere_pdf(-wi.z);
         }
         let h = (wo + wi).normalize();
-        // max: with full transmission the two probabilities can sum to one ulp over 1.
+        // max: with full transmission the probabilities can sum to one ulp over 1.
         p_spec * self.ggx.reflection_pdf(wo, h)
-            + (1.0 - p_spec - p_trans).max(0.0) * cosine_hemisphere_pdf(wi.z)
+            + (1.0 - p_spec - p_trans - p_dtrans).max(0.0) * cosine_hemisphere_pdf(wi.z)
     }
 
     /// Samples a lobe by `u_lobe`, then a direction from it.
@@ -166,7 +210,7 @@ impl MetalRough {
         if wo.z <= 0.0 {
             return None;
         }
-        let (p_spec, p_trans) = self.lobe_probabilities(wo);
+        let (p_spec, p_trans, p_dtrans) = self.lobe_probabilities(wo);
         let (wi, lobe) = if u_lobe < p_spec {
             let h = self.ggx.sample_visible_normal(wo, u);
             (reflect(wo, h), Lobe::Glossy)
@@ -177,6 +221,8 @@ impl MetalRough {
                 return None;
             }
             (mirror(wm), Lobe::Transmission)
+        } else if u_lobe < p_spec + p_trans + p_dtrans {
+            (mirror(sample_cosine_hemisphere(u)), Lobe::Transmission)
         } else {
             (sample_cosine_hemisphere(u), Lobe::Diffuse)
         };

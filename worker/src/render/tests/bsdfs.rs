@@ -47,9 +47,16 @@ const DIELECTRIC_CASES: [(f32, f32); 6] =
 /// cos(theta) of the outgoing directions of the dielectric cases.
 const DIELECTRIC_COS_WO: [f32; 2] = [0.9, 0.3];
 
+/// (diffuse transmission, thin transmission, roughness, specular) of the diffusely transmitting
+/// `MetalRough` cases: a translucent glossy sheet, one that also passes light straight through,
+/// and a pure translucent Lambertian sheet.
+const DIFFUSE_TRANSMISSION_CASES: [(f32, f32, f32, f32); 3] =
+    [(0.5, 0.0, 0.5, 1.0), (0.6, 0.4, 0.3, 1.0), (1.0, 0.0, 1.0, 0.0)];
+
 /// Chi-square tests in this file.
 pub(super) const N_CHI2: usize = ROUGHNESS.len() * METAL_SPECULAR.len() * COS_WO.len()
     + TRANSMISSION_CASES.len() * COS_WO.len()
+    + DIFFUSE_TRANSMISSION_CASES.len() * COS_WO.len()
     + DIELECTRIC_CASES.len() * DIELECTRIC_COS_WO.len()
     + 1
     + GGX_ALPHA.len() * GGX_COS_WO.len()
@@ -411,6 +418,66 @@ fn rough_dielectric_gains_no_energy() {
             if roughness <= 0.1 {
                 assert!(mean > 0.97, "r{roughness} eta{eta} cos{cos_wo}: {mean} +- {err}");
             }
+        }
+    }
+}
+
+fn translucent(dt: f32, transmission: f32, roughness: f32, specular: f32) -> Bsdf {
+    Bsdf::MetalRough(
+        MetalRough::new(BASE, 0.0, roughness, 1.5, specular, Vec3::ONE)
+            .with_transmission(transmission)
+            .with_diffuse_transmission(dt, Vec3::new(0.3, 0.9, 0.6)),
+    )
+}
+
+#[test]
+fn diffuse_transmission_matches_pdf_over_the_sphere() {
+    for (dt, t, roughness, specular) in DIFFUSE_TRANSMISSION_CASES {
+        let bsdf = translucent(dt, t, roughness, specular);
+        assert!(bsdf.transmits());
+        for cos_wo in COS_WO {
+            let wo = wo_at(cos_wo);
+            let name = format!("diffuse_transmission_dt{dt}_t{t}_r{roughness}_coswo{cos_wo}");
+            assert_fits(
+                &name,
+                Spherical::sphere(),
+                |u| {
+                    let s = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z))?;
+                    assert!(
+                        s.pdf > 0.0 && s.pdf.is_finite(),
+                        "{name}: pdf {} at {:?}",
+                        s.pdf,
+                        s.wi
+                    );
+                    Some(s.wi)
+                },
+                |wi| bsdf.pdf(wo, wi),
+            );
+        }
+    }
+}
+
+/// A white Lambertian sheet (no specular layer) with diffuse transmission dt reflects 1 - dt of
+/// the light and passes dt to the far side, Lambertian there, at every angle.
+#[test]
+fn diffuse_transmission_splits_the_diffused_light() {
+    let mut rng = Rng::from_name("diffuse_transmission_splits_the_diffused_light");
+    for dt in [0.3f32, 1.0] {
+        let sheet = Bsdf::MetalRough(
+            MetalRough::new(Vec3::ONE, 0.0, 1.0, 1.5, 0.0, Vec3::ONE)
+                .with_diffuse_transmission(dt, Vec3::ONE),
+        );
+        for cos_wo in [1.0, 0.5, 0.05] {
+            let [(total, e_total), (through, e_through)] =
+                albedo_both_sides(&sheet, wo_at(cos_wo), 100_000, &mut rng);
+            assert!(
+                (total - 1.0).abs() < 1e-4,
+                "dt {dt} cos {cos_wo}: albedo {total} +- {e_total}"
+            );
+            assert!(
+                (through - dt as f64).abs() < 4.0 * e_through + 1e-4,
+                "dt {dt} cos {cos_wo}: through {through} +- {e_through}"
+            );
         }
     }
 }
