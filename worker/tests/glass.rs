@@ -20,24 +20,13 @@ use common::settings::{Environment, RenderSettings};
 use serde_json::{json, Value};
 use support::*;
 
-/// A box of half sizes `half` centred at `center`, faces wound counter-clockwise seen from
-/// outside, with `material`, and an orthographic camera at height `camera_y` looking down on a
-/// square of half size `view`. Returns the file's path.
-fn box_scene(
-    tag: &str,
-    half: [f32; 3],
-    center: [f32; 3],
-    material: Value,
-    camera_y: f32,
-    view: f32,
-) -> std::path::PathBuf {
-    box_scene_with(tag, half, center, material, camera_y, view, 0.0, false)
-}
-
-/// [`box_scene`] with the box turned by `tilt` radians about the z axis, and, when `edge`, an
-/// emitting half-plane (radiance 1, facing up) at y = -1 under it, lit for x > 0 only.
+/// A box of half sizes `half` centred at `center` and turned by `tilt` radians about the z axis,
+/// faces wound counter-clockwise seen from outside, with `material`; an orthographic camera at
+/// height `camera_y` looking down on a square of half size `view`; and, when `edge`, an emitting
+/// half-plane (radiance 1, facing up) at y = -1 under it, lit for x > 0 only. Returns the file's
+/// path.
 #[allow(clippy::too_many_arguments)]
-fn box_scene_with(
+fn box_scene(
     tag: &str,
     half: [f32; 3],
     center: [f32; 3],
@@ -155,8 +144,16 @@ fn white_furnace(res: u32, spp: u32) -> RenderSettings {
 /// through its sides, so paths reflect and refract, totally reflect inside, and leave anywhere.
 #[test]
 fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
-    let path =
-        box_scene("furnace", [0.6, 0.4, 0.5], [0.1, 0.0, -0.2], glass(1.5, 1.0, None), 3.0, 1.0);
+    let path = box_scene(
+        "furnace",
+        [0.6, 0.4, 0.5],
+        [0.1, 0.0, -0.2],
+        glass(1.5, 1.0, None),
+        3.0,
+        1.0,
+        0.0,
+        false,
+    );
     let scene = common::gltf::load_path(&path).unwrap();
     assert!(scene.materials[0].refracts(), "the box is a refractive volume");
     let film = render(&scene, &white_furnace(16, 64));
@@ -171,7 +168,16 @@ fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
 fn a_rough_glass_box_in_a_white_furnace_never_exceeds_white() {
     let mut material = glass(1.5, 1.0, None);
     material["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.3);
-    let path = box_scene("rough-furnace", [0.6, 0.4, 0.5], [0.1, 0.0, -0.2], material, 3.0, 1.0);
+    let path = box_scene(
+        "rough-furnace",
+        [0.6, 0.4, 0.5],
+        [0.1, 0.0, -0.2],
+        material,
+        3.0,
+        1.0,
+        0.0,
+        false,
+    );
     let scene = common::gltf::load_path(&path).unwrap();
     let film = render(&scene, &white_furnace(16, 256));
     let means = film.mean_rgb();
@@ -194,8 +200,16 @@ fn an_absorbing_slab_at_normal_incidence_gives_the_fresnel_series() {
     let distance = 0.25;
     let material = glass(ior, 1.0, Some((color, distance)));
     // The slab is far wider than the view: every path stays at normal incidence.
-    let path =
-        box_scene("slab", [50.0, thickness as f32 / 2.0, 50.0], [0.0; 3], material, 2.0, 1.0);
+    let path = box_scene(
+        "slab",
+        [50.0, thickness as f32 / 2.0, 50.0],
+        [0.0; 3],
+        material,
+        2.0,
+        1.0,
+        0.0,
+        false,
+    );
     let scene = common::gltf::load_path(&path).unwrap();
     let film = render(&scene, &white_furnace(16, 256));
     let r = ((ior - 1.0) / (ior + 1.0)).powi(2);
@@ -229,6 +243,8 @@ fn a_volume_of_thickness_zero_stays_thin_walled() {
         glass(1.5, 0.0, Some(([0.1; 3], 0.01))),
         2.0,
         1.0,
+        0.0,
+        false,
     );
     let scene = common::gltf::load_path(&path).unwrap();
     assert!(scene.materials[0].volume.is_none() && !scene.materials[0].refracts());
@@ -245,7 +261,8 @@ fn bad_volumes_are_refused_with_the_key() {
     ] {
         let mut material = glass(1.5, 1.0, None);
         material["extensions"]["KHR_materials_volume"] = volume;
-        let path = box_scene(&format!("bad-{key}"), [1.0; 3], [0.0; 3], material, 3.0, 1.0);
+        let path =
+            box_scene(&format!("bad-{key}"), [1.0; 3], [0.0; 3], material, 3.0, 1.0, 0.0, false);
         let e = common::gltf::load_path(&path).unwrap_err().to_string();
         assert!(e.contains("KHR_materials_volume") && e.contains(key), "{e}");
     }
@@ -283,16 +300,8 @@ fn a_tilted_slab_shifts_what_lies_behind_it_by_the_snell_offset() {
         let mut material = glass(ior, 1.0, None);
         material["extensions"]["KHR_materials_ior"]["ior"] = json!(ior_here);
         let half = [20.0, thickness as f32 / 2.0, 20.0];
-        let path = box_scene_with(
-            &format!("snell-{ior_here}"),
-            half,
-            [0.0; 3],
-            material,
-            3.0,
-            1.0,
-            tilt,
-            true,
-        );
+        let path =
+            box_scene(&format!("snell-{ior_here}"), half, [0.0; 3], material, 3.0, 1.0, tilt, true);
         let scene = common::gltf::load_path(&path).unwrap();
         let film = render(&scene, &settings);
         let at = edge_at(&film);

@@ -432,22 +432,28 @@ fn volume(v: &Value) -> Result<Option<Volume>, SceneError> {
     if distance.is_nan() || distance <= 0.0 {
         return fail(format!("attenuationDistance {distance} must be greater than 0"));
     }
-    let color = match v.get("attenuationColor") {
+    let color = unit_color(v, "attenuationColor")?;
+    if thickness == 0.0 {
+        return Ok(None);
+    }
+    Ok(Some(Volume::new(color, distance as f32)))
+}
+
+/// The RGB colour under `key` of an extension object, each component in [0, 1] (white when
+/// absent).
+fn unit_color(v: &Value, key: &str) -> Result<Vec3, SceneError> {
+    let color = match v.get(key) {
         None => [1.0; 3],
         Some(Value::Array(c)) if c.len() == 3 => {
             let c: Vec<f64> = c.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
             [c[0], c[1], c[2]]
         }
-        Some(other) => return fail(format!("attenuationColor must be 3 numbers, not {other}")),
+        Some(other) => return fail(format!("{key} must be 3 numbers, not {other}")),
     };
     if color.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return fail(format!("attenuationColor {color:?} must lie in [0, 1]"));
+        return fail(format!("{key} {color:?} must lie in [0, 1]"));
     }
-    if thickness == 0.0 {
-        return Ok(None);
-    }
-    let color = Vec3::new(color[0] as f32, color[1] as f32, color[2] as f32);
-    Ok(Some(Volume::new(color, distance as f32)))
+    Ok(Vec3::new(color[0] as f32, color[1] as f32, color[2] as f32))
 }
 
 /// A `KHR_materials_diffuse_transmission` object: the factor (in [0, 1]), the colour factor (in
@@ -463,19 +469,7 @@ fn diffuse_transmission(
     if !(0.0..=1.0).contains(&factor) {
         return fail(format!("diffuseTransmissionFactor {factor} must lie in [0, 1]"));
     }
-    let color = match v.get("diffuseTransmissionColorFactor") {
-        None => [1.0; 3],
-        Some(Value::Array(c)) if c.len() == 3 => {
-            let c: Vec<f64> = c.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
-            [c[0], c[1], c[2]]
-        }
-        Some(other) => {
-            return fail(format!("diffuseTransmissionColorFactor must be 3 numbers, not {other}"))
-        }
-    };
-    if color.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return fail(format!("diffuseTransmissionColorFactor {color:?} must lie in [0, 1]"));
-    }
+    let color = unit_color(v, "diffuseTransmissionColorFactor")?;
     let texture = |key: &str| -> Result<Option<json::texture::Info>, SceneError> {
         match v.get(key) {
             None => Ok(None),
@@ -486,6 +480,5 @@ fn diffuse_transmission(
     };
     let textures =
         (texture("diffuseTransmissionTexture")?, texture("diffuseTransmissionColorTexture")?);
-    let color = Vec3::new(color[0] as f32, color[1] as f32, color[2] as f32);
     Ok((factor as f32, color, textures))
 }

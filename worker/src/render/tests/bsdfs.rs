@@ -87,6 +87,21 @@ fn assert_bsdf_fits(name: &str, bsdf: &Bsdf, wo: Vec3) {
     );
 }
 
+/// Chi-square of `bsdf.sample` against `bsdf.pdf` over the whole sphere (a transmitting BSDF:
+/// `pdf` must integrate to 1 over both sides, less what no lobe can reach).
+fn assert_bsdf_fits_sphere(name: &str, bsdf: &Bsdf, wo: Vec3) {
+    assert_fits(
+        name,
+        Spherical::sphere(),
+        |u| {
+            let s = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z))?;
+            assert!(s.pdf > 0.0 && s.pdf.is_finite(), "{name}: pdf {} at {:?}", s.pdf, s.wi);
+            Some(s.wi)
+        },
+        |wi| bsdf.pdf(wo, wi),
+    );
+}
+
 #[test]
 fn diffuse_sampling_matches_pdf() {
     let bsdf = Bsdf::Diffuse(Diffuse { albedo: Vec3::new(0.2, 0.5, 0.9) });
@@ -141,21 +156,7 @@ fn transmitting_metal_rough_matches_pdf_over_the_sphere() {
         for cos_wo in COS_WO {
             let wo = wo_at(cos_wo);
             let name = format!("transmitting_t{transmission}_r{roughness}_coswo{cos_wo}");
-            assert_fits(
-                &name,
-                Spherical::sphere(),
-                |u| {
-                    let s = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z))?;
-                    assert!(
-                        s.pdf > 0.0 && s.pdf.is_finite(),
-                        "{name}: pdf {} at {:?}",
-                        s.pdf,
-                        s.wi
-                    );
-                    Some(s.wi)
-                },
-                |wi| bsdf.pdf(wo, wi),
-            );
+            assert_bsdf_fits_sphere(&name, &bsdf, wo);
         }
     }
 }
@@ -438,21 +439,7 @@ fn diffuse_transmission_matches_pdf_over_the_sphere() {
         for cos_wo in COS_WO {
             let wo = wo_at(cos_wo);
             let name = format!("diffuse_transmission_dt{dt}_t{t}_r{roughness}_coswo{cos_wo}");
-            assert_fits(
-                &name,
-                Spherical::sphere(),
-                |u| {
-                    let s = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z))?;
-                    assert!(
-                        s.pdf > 0.0 && s.pdf.is_finite(),
-                        "{name}: pdf {} at {:?}",
-                        s.pdf,
-                        s.wi
-                    );
-                    Some(s.wi)
-                },
-                |wi| bsdf.pdf(wo, wi),
-            );
+            assert_bsdf_fits_sphere(&name, &bsdf, wo);
         }
     }
 }
