@@ -103,18 +103,31 @@ pub struct TextureRef {
     pub transform: Option<TexTransform>,
 }
 
-/// The medium inside a `KHR_materials_volume` boundary: light travelling a distance `d` in it
-/// keeps `exp(-absorption * d)` of itself per channel (Beer-Lambert), where `absorption =
-/// -ln(attenuationColor) / attenuationDistance`.
+/// The medium inside a `KHR_materials_volume` boundary, homogeneous. Light travelling a distance
+/// `d` in it keeps `exp(-extinction * d)` of itself per channel unscattered (Beer-Lambert), where
+/// `extinction = -ln(attenuationColor) / attenuationDistance`; of the light it stops, the share
+/// `albedo` is scattered (`KHR_materials_volume_scatter`, by the Henyey-Greenstein phase function
+/// of mean cosine `anisotropy`) and the rest absorbed. Without scattering the extinction is all
+/// absorption, as `KHR_materials_volume` alone says.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Volume {
-    /// Absorption coefficient per channel, per unit of world distance (0: clear).
-    pub absorption: Vec3,
+    /// Extinction coefficient sigma_t per channel, per unit of world distance (0: clear).
+    pub extinction: Vec3,
+    /// Single-scattering albedo sigma_s / sigma_t per channel, in [0, 1] (0: absorbs only).
+    pub albedo: Vec3,
+    /// The phase function's mean cosine g, in (-1, 1).
+    pub anisotropy: f32,
 }
 
+/// The largest extinction a scattering medium gets, per unit of `attenuationDistance`: an
+/// `attenuationColor` channel of 0 would stop light at once (infinite extinction), which an
+/// absorbing medium can take but a random walk cannot; e^-16 (about 1e-7) of the light is left
+/// after one `attenuationDistance` instead.
+pub const MAX_SCATTERING_OPTICAL_DEPTH: f32 = 16.0;
+
 impl Volume {
-    /// From `attenuationColor` (each in [0, 1]) and `attenuationDistance` (> 0, infinite for
-    /// none).
+    /// An absorbing medium from `attenuationColor` (each in [0, 1]) and `attenuationDistance`
+    /// (> 0, infinite for none).
     pub fn new(attenuation_color: Vec3, attenuation_distance: f32) -> Volume {
         let per_channel = |c: f32| {
             if !attenuation_distance.is_finite() {
@@ -126,9 +139,46 @@ impl Volume {
                 f32::MAX
             }
         };
-        let absorption = Vec3::from_array(attenuation_color.to_array().map(per_channel));
-        Volume { absorption }
+        let extinction = Vec3::from_array(attenuation_color.to_array().map(per_channel));
+        Volume { extinction, albedo: Vec3::ZERO, anisotropy: 0.0 }
     }
+
+    /// The same medium scattering as `KHR_materials_volume_scatter` says: `multiscatterColor`
+    /// (each in [0, 1]) is the colour the medium takes after many scatterings, mapped to the
+    /// single-scattering albedo by [`single_scatter_albedo`]; `scatterAnisotropy` (in (-1, 1))
+    /// is the phase function's mean cosine. `attenuation_distance` bounds an infinite
+    /// extinction ([`MAX_SCATTERING_OPTICAL_DEPTH`]).
+    pub fn with_scattering(
+        self,
+        multiscatter_color: Vec3,
+        anisotropy: f32,
+        attenuation_distance: f32,
+    ) -> Volume {
+        let albedo = Vec3::from_array(multiscatter_color.to_array().map(single_scatter_albedo));
+        if albedo == Vec3::ZERO {
+            return Volume { anisotropy, ..self };
+        }
+        let most = MAX_SCATTERING_OPTICAL_DEPTH / attenuation_distance;
+        Volume { extinction: self.extinction.min(Vec3::splat(most)), albedo, anisotropy }
+    }
+
+    /// Whether the medium scatters light (else it only absorbs, or is clear).
+    pub fn scatters(&self) -> bool {
+        self.albedo != Vec3::ZERO && self.extinction != Vec3::ZERO
+    }
+}
+
+/// The single-scattering albedo whose medium looks, after many scatterings, like the colour
+/// `multiscatter` (Kulla and Conty 2017, the inversion `KHR_materials_volume_scatter` gives):
+/// 1 - (4.09712 + 4.20863 a - sqrt(9.59217 + 41.6808 a + 17.7126 a²))². Increasing from 0 at 0
+/// to 1 at 1 (to within rounding, clamped).
+pub fn single_scatter_albedo(multiscatter: f32) -> f32 {
+    let a = multiscatter.clamp(0.0, 1.0) as f64;
+    if a == 0.0 || a == 1.0 {
+        return a as f32; // The fit's ends, exactly.
+    }
+    let s = 4.09712 + 4.20863 * a - (9.59217 + 41.6808 * a + 17.7126 * a * a).sqrt();
+    (1.0 - s * s).clamp(0.0, 1.0) as f32
 }
 
 /// The glTF metallic-roughness material with the extensions the renderer honours.
@@ -195,6 +245,16 @@ impl Material {
             && self.transmission >= 1.0
             && self.transmission_texture.is_none()
             && self.metallic == 0.0
+    }
+
+    /// Whether the mesh is the boundary of a medium that light enters through it: a refractive
+    /// boundary, or a volume entered by diffuse transmission (no specular transmission), as
+    /// `KHR_materials_volume_scatter` recommends for dense media (skin, wax).
+    pub fn bounds_medium(&self) -> bool {
+        self.refracts()
+            || (self.volume.is_some()
+                && self.transmission == 0.0
+                && self.diffuse_transmission > 0.0)
     }
 }
 
@@ -407,5 +467,40 @@ impl Scene {
         let emits = |m: &Material| m.emissive != Vec3::ZERO;
         self.instances.iter().any(|i| emits(&self.materials[self.meshes[i.mesh].material]))
             || self.lights.iter().any(|l| l.intensity != Vec3::ZERO)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_albedo_inversion_is_monotonic_from_zero_to_one() {
+        assert_eq!(single_scatter_albedo(0.0), 0.0);
+        assert_eq!(single_scatter_albedo(1.0), 1.0);
+        let mut last = 0.0;
+        for i in 1..1000 {
+            let a = single_scatter_albedo(i as f32 / 1000.0);
+            assert!(a > last && a < 1.0, "{i}: {a}");
+            // Scattering many times darkens: the single-scattering albedo is the lighter.
+            assert!(a >= i as f32 / 1000.0, "{i}: {a}");
+            last = a;
+        }
+    }
+
+    #[test]
+    fn a_scattering_volume_bounds_an_infinite_extinction() {
+        let v = Volume::new(Vec3::new(0.0, 0.5, 1.0), 2.0);
+        assert_eq!(v.extinction.x, f32::MAX);
+        assert!(!v.scatters());
+        let s = v.with_scattering(Vec3::splat(0.5), 0.3, 2.0);
+        assert!(s.scatters());
+        assert_eq!(
+            s.extinction,
+            Vec3::new(MAX_SCATTERING_OPTICAL_DEPTH / 2.0, 0.5f32.ln() / -2.0, 0.0)
+        );
+        assert_eq!(s.anisotropy, 0.3);
+        // Black multiscatter: absorbing as before, the extinction untouched.
+        assert_eq!(v.with_scattering(Vec3::ZERO, 0.0, 2.0), v);
     }
 }

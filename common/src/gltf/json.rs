@@ -17,6 +17,7 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_transmission",
     "KHR_materials_unlit",
     "KHR_materials_volume",
+    "KHR_materials_volume_scatter",
     "KHR_texture_transform",
     // Only widens the component types accessors may use; the accessor reader takes them all.
     "KHR_mesh_quantization",

@@ -85,10 +85,22 @@ impl Loader<'_> {
             )?,
             None => None,
         };
-        let volume = match ext.and_then(|e| e.others.get("KHR_materials_volume")) {
+        let mut volume = match ext.and_then(|e| e.others.get("KHR_materials_volume")) {
             Some(v) => volume(v).context(|| "KHR_materials_volume".into())?,
             None => None,
         };
+        if let Some(v) = ext.and_then(|e| e.others.get("KHR_materials_volume_scatter")) {
+            let (color, anisotropy) =
+                volume_scatter(v).context(|| "KHR_materials_volume_scatter".into())?;
+            match (&mut volume, volume_distance(ext)) {
+                (Some(vol), Some(distance)) => {
+                    *vol = vol.with_scattering(color, anisotropy, distance);
+                }
+                _ => tracing::warn!(
+                    "material {index}: KHR_materials_volume_scatter without a volume (KHR_materials_volume with thicknessFactor > 0 and a finite attenuationDistance) scatters nothing"
+                ),
+            }
+        }
         let alpha_mode = match m.alpha_mode {
             Checked::Valid(json::material::AlphaMode::Opaque) => AlphaMode::Opaque,
             Checked::Valid(json::material::AlphaMode::Mask) => {
@@ -177,9 +189,12 @@ impl Loader<'_> {
             alpha_mode,
             double_sided: m.double_sided,
         };
-        if material.volume.is_some() && material.transmission > 0.0 && !material.refracts() {
+        if material.volume.is_some()
+            && (material.transmission > 0.0 || material.diffuse_transmission > 0.0)
+            && !material.bounds_medium()
+        {
             tracing::warn!(
-                "material {index} ({}): KHR_materials_volume with metal, or with partial or textured transmission, is rendered thin-walled for now (a fully transmitting dielectric refracts)",
+                "material {index} ({}): KHR_materials_volume with metal, or with partial or textured transmission, is rendered thin-walled for now (a fully transmitting dielectric refracts, and diffuse transmission without specular transmission enters the volume)",
                 material.name
             );
         }
@@ -437,6 +452,30 @@ fn volume(v: &Value) -> Result<Option<Volume>, SceneError> {
         return Ok(None);
     }
     Ok(Some(Volume::new(color, distance as f32)))
+}
+
+/// `KHR_materials_volume_scatter`: `multiscatterColor` (in [0, 1], black when absent) and
+/// `scatterAnisotropy` (in [-1, 1], 0 when absent; ±1, a delta, is taken as ±0.999).
+fn volume_scatter(v: &Value) -> Result<(Vec3, f32), SceneError> {
+    let color = match v.get("multiscatterColor") {
+        None => Vec3::ZERO,
+        Some(_) => unit_color(v, "multiscatterColor")?,
+    };
+    let g = match v.get("scatterAnisotropy") {
+        None => 0.0,
+        Some(Value::Number(n)) => n.as_f64().unwrap_or(f64::NAN),
+        Some(other) => return fail(format!("scatterAnisotropy must be a number, not {other}")),
+    };
+    if !(-1.0..=1.0).contains(&g) {
+        return fail(format!("scatterAnisotropy {g} must lie in [-1, 1]"));
+    }
+    Ok((color, (g as f32).clamp(-0.999, 0.999)))
+}
+
+/// The finite `attenuationDistance` of a material's `KHR_materials_volume`, if it has one.
+fn volume_distance(ext: Option<&json::extensions::material::Material>) -> Option<f32> {
+    let d = ext?.others.get("KHR_materials_volume")?.get("attenuationDistance")?.as_f64()?;
+    (d.is_finite() && d > 0.0).then_some(d as f32)
 }
 
 /// The RGB colour under `key` of an extension object, each component in [0, 1] (white when

@@ -172,6 +172,9 @@ struct Shear {
     /// `origin` and `s`, each coordinate in all four lanes (for the four-triangle test).
     origin4: [Vec4; 3],
     s4: [Vec4; 3],
+    /// The ray starts inside a medium (`Ray::interior`): no hit is taken for the surface it
+    /// leaves, however close.
+    interior: bool,
 }
 
 impl Shear {
@@ -202,6 +205,7 @@ impl Shear {
             s,
             origin4: origin.map(Vec4::splat),
             s4: s.to_array().map(Vec4::splat),
+            interior: ray.interior,
         }
     }
 
@@ -259,7 +263,7 @@ impl Shear {
         let max_e = e0.abs().max(e1.abs()).max(e2.abs());
         let delta_t =
             3.0 * (gamma(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs();
-        if t <= delta_t || t >= t_max {
+        if (t <= delta_t && !self.interior) || t >= t_max {
             return None;
         }
         Some((t, e1 * inv_det, e2 * inv_det))
@@ -323,7 +327,8 @@ impl Shear {
         let delta_t = Vec4::splat(3.0)
             * (Vec4::splat(gamma(3)) * max_e * max_zt + delta_e * max_zt + delta_z * max_e)
             * inv_det.abs();
-        candidates &= (t.cmpgt(delta_t) & t.cmplt(t_max4)).bitmask();
+        let beyond_error = if self.interior { lanes } else { t.cmpgt(delta_t).bitmask() };
+        candidates &= beyond_error & t.cmplt(t_max4).bitmask();
         let t = t.to_array();
         let hit = |lane: usize| Hit {
             prim: block.first + lane as u32,
@@ -1059,6 +1064,36 @@ mod tests {
             assert!(accel.intersect(&down, f32::INFINITY).is_some(), "scale {scale}: down");
             assert!(accel.occluded(&down, f32::INFINITY), "scale {scale}: occlusion");
         }
+    }
+
+    #[test]
+    fn rays_from_inside_a_medium_find_surfaces_however_close() {
+        // A triangle 100 wide: its rounding-error bound on t is about 1e-4 for a ray from near
+        // its middle. A surface ray that close is taken to be leaving it; a ray scattered inside
+        // a medium (on no surface) must hit it, as the brute-force test does.
+        let tri =
+            [Vec3::new(-50.0, 1.0, -50.0), Vec3::new(50.0, 1.0, -50.0), Vec3::new(0.0, 1.0, 50.0)];
+        let (accel, _) = Accel::build(&[tri, tri.map(|p| p - Vec3::Y * 3.0)]);
+        for depth in [1e-3f32, 1e-4, 2e-5, 4e-6] {
+            let origin = Vec3::new(0.1, 1.0 - depth, 0.2);
+            let dir = Vec3::new(0.6, 0.3, 0.2).normalize();
+            let interior = Ray::interior(origin, dir);
+            let hit = accel.intersect(&interior, f32::INFINITY).expect("hit");
+            assert_eq!(
+                hit.prim,
+                accel.intersect_brute_force(&interior, f32::INFINITY).unwrap().prim
+            );
+            let expected = depth / dir.y;
+            assert!(
+                (hit.t - expected).abs() < 0.05 * expected + 2e-6,
+                "depth {depth}: t {}",
+                hit.t
+            );
+            assert!(accel.occluded(&interior, f32::INFINITY), "depth {depth}");
+        }
+        // The guard stays for rays from surfaces.
+        let surface = Ray::new(Vec3::new(0.1, 1.0 - 1e-6, 0.2), Vec3::new(0.6, 0.3, 0.2));
+        assert!(accel.intersect(&surface, f32::INFINITY).is_none_or(|h| h.t > 1.0));
     }
 
     #[test]

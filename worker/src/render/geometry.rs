@@ -14,12 +14,22 @@ pub struct Ray {
     pub origin: Vec3,
     /// Direction (unit length for camera and bounce rays).
     pub dir: Vec3,
+    /// Whether the origin lies inside a medium, on no surface: the intersector then finds
+    /// surfaces however close, instead of taking hits within its rounding-error bound for the
+    /// surface a ray leaves (which would let a ray scattered just inside a volume slip out
+    /// through its boundary).
+    pub interior: bool,
 }
 
 impl Ray {
-    /// A new ray.
+    /// A ray from a camera or a surface.
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
-        Ray { origin, dir }
+        Ray { origin, dir, interior: false }
+    }
+
+    /// A ray from a point inside a medium (a scattering event), on no surface.
+    pub fn interior(origin: Vec3, dir: Vec3) -> Self {
+        Ray { origin, dir, interior: true }
     }
 }
 

@@ -5,8 +5,16 @@
 //! whatever happens (light, lobe, direction, roulette; one it does not need is skipped, not
 //! drawn, and a path that ends takes no more), so dimension `k` always means the same thing for
 //! every sample of every pixel. The light sample's first coordinate also chooses the light, so
-//! its strata span all lights together.
+//! its strata span all lights together. In a scene with scattering media each bounce takes two
+//! more first, for the free flight; scenes without them keep the layout of four.
+//!
+//! Media: a path knows the volume it travels in, entered through its boundary's front face and
+//! left through a back face (volumes do not nest: leaving one is entering air). An absorbing
+//! medium weights each segment by its transmittance; a scattering one samples where the light
+//! is first scattered, and a scattering is a bounce (it counts toward `max_depth` and Russian
+//! roulette) whose direction the phase function picks.
 
+use common::scene::Volume;
 use glam::{Vec2, Vec3};
 
 use super::{
@@ -16,6 +24,7 @@ use super::{
     material,
     motion::Pose,
     sampler::Sampler,
+    sampling::sample_henyey_greenstein,
     scene::{PreparedScene, NONE, UNSAMPLED},
 };
 
@@ -82,16 +91,56 @@ pub fn li(
     // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
     // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
     let mut eta_scale = 1.0f32;
-    // The refractive volume the ray travels in (its material), `None` outside every volume.
+    // The volume the ray travels in (its boundary's material), `None` outside every volume.
     let mut medium: Option<u32> = None;
     let lights = &scene.lights;
     loop {
         stats.rays += 1;
         let hit = scene.intersect(&ray, f32::INFINITY, pose);
-        if let Some(m) = medium {
-            // Beer-Lambert along the segment inside the volume (an escape is endless).
+        // In a scene with scattering media every bounce starts with two numbers for the free
+        // flight, drawn in a scattering medium and skipped elsewhere; other scenes take none.
+        let scattering = match medium {
+            Some(m) if scene.scattering_media => {
+                scene.materials[m as usize].volume.filter(Volume::scatters)
+            }
+            _ => None,
+        };
+        let mut scattered_at = None;
+        if let Some(v) = &scattering {
             let distance = hit.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
-            beta *= transmittance(scene, m, distance);
+            let (weight, at) = free_flight(v, distance, sampler.next_2d());
+            beta *= weight;
+            scattered_at = at;
+        } else {
+            if scene.scattering_media {
+                sampler.skip(2);
+            }
+            if let Some(m) = medium {
+                // Beer-Lambert along the segment inside the volume (an escape is endless).
+                let distance = hit.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
+                beta *= transmittance(scene, m, distance);
+            }
+        }
+        if let (Some(t), Some(v)) = (scattered_at, &scattering) {
+            // A scattering event inside the medium: the phase function, sampled exactly (its
+            // value over its density is 1), picks the new direction. No light is sampled from
+            // here (a light outside lies beyond the boundary, which a shadow ray cannot cross),
+            // so whatever the new direction finds counts in full.
+            if depth >= scene.max_depth || beta == Vec3::ZERO || !beta.is_finite() {
+                break;
+            }
+            let dir = ray.dir.normalize();
+            let p = ray.origin + dir * t;
+            sampler.skip(3); // The light sample and the lobe choice.
+            let wi = Frame::from_z(dir)
+                .to_world(sample_henyey_greenstein(v.anisotropy, sampler.next_2d()));
+            prev_bsdf_pdf = f32::INFINITY;
+            ray = Ray::interior(p, wi);
+            depth += 1;
+            if !roulette(sampler, depth, &mut beta, eta_scale) {
+                break;
+            }
+            continue;
         }
         let Some(hit) = hit else {
             if let (Some(env), Some(env_idx)) = (&scene.environment, lights.environment) {
@@ -225,8 +274,8 @@ pub fn li(
                                 }
                             }
                             // The shadow ray travels in the far side's volume when it
-                            // crosses a refractive boundary, else in the path's.
-                            let through = if wi_local.z < 0.0 && bsdf.refracts() {
+                            // crosses into a medium, else in the path's.
+                            let through = if wi_local.z < 0.0 && material.bounds_medium() {
                                 front.then_some(tri.material)
                             } else {
                                 medium
@@ -270,35 +319,76 @@ pub fn li(
         prev_bsdf_pdf = if bs.lobe.is_delta() { f32::INFINITY } else { bs.pdf };
         if bs.lobe.enters_far_side() {
             eta_scale *= bs.eta * bs.eta;
+        }
+        if bs.wi.z < 0.0 && material.bounds_medium() {
             // Into the volume through its front face, out of it through the back.
             medium = front.then_some(tri.material);
         }
         ray = Ray::new(offset_ray_origin(p, p_error, ng, wi), wi);
         depth += 1;
-
-        // Russian roulette once paths have a few bounces.
-        if depth <= RR_MIN_DEPTH {
-            sampler.skip(1);
-        } else {
-            let u_rr = sampler.next_1d();
-            let q = (1.0 - (beta * eta_scale).max_element() * RR_SURVIVAL_SCALE).max(0.0);
-            if u_rr < q {
-                break;
-            }
-            beta /= 1.0 - q;
+        if !roulette(sampler, depth, &mut beta, eta_scale) {
+            break;
         }
     }
     radiance
+}
+
+/// Russian roulette once paths have a few bounces; its number is skipped before. Whether the
+/// path goes on (its throughput `beta` divided by the survival probability).
+#[inline]
+fn roulette(sampler: &mut Sampler, depth: u32, beta: &mut Vec3, eta_scale: f32) -> bool {
+    if depth <= RR_MIN_DEPTH {
+        sampler.skip(1);
+        return true;
+    }
+    let u_rr = sampler.next_1d();
+    let q = (1.0 - (*beta * eta_scale).max_element() * RR_SURVIVAL_SCALE).max(0.0);
+    if u_rr < q {
+        return false;
+    }
+    *beta /= 1.0 - q;
+    true
+}
+
+/// Where light travelling `distance` (world units, infinite for an escape) through the
+/// scattering medium `v` is first scattered, from numbers `u`, and the weight (value over
+/// density) of what was sampled: a scattering at the returned distance, or (`None`) none before
+/// `distance`. The extinction differs per channel, so `u.x` picks the channel whose
+/// exponential the distance is drawn from, and the density is the mean of the three channels'
+/// (one-sample multiple importance sampling over the channels, balance heuristic): the weight is
+/// sigma_s T(t) / mean(sigma_t T(t)) for a scattering, T(d) / mean(T(d)) for none, each exactly
+/// the albedo and 1 in a grey medium.
+#[inline]
+fn free_flight(v: &Volume, distance: f32, u: Vec2) -> (Vec3, Option<f32>) {
+    let channel = ((u.x * 3.0) as usize).min(2);
+    let sigma = v.extinction[channel];
+    let t = if sigma > 0.0 { -(1.0 - u.y).ln() / sigma } else { f32::INFINITY };
+    let tr = |d: f32| {
+        // exp(-0 x inf) would be NaN: a clear channel passes everything at any distance.
+        Vec3::from_array(
+            v.extinction.to_array().map(|s| if s == 0.0 { 1.0 } else { (-s * d).exp() }),
+        )
+    };
+    if t < distance {
+        let tr = tr(t);
+        let pdf = (v.extinction * tr).element_sum() / 3.0;
+        let weight = if pdf > 0.0 { v.extinction * v.albedo * tr / pdf } else { Vec3::ZERO };
+        (weight, Some(t))
+    } else {
+        let tr = tr(distance);
+        let pdf = tr.element_sum() / 3.0;
+        (if pdf > 0.0 { tr / pdf } else { Vec3::ZERO }, None)
+    }
 }
 
 /// What a distance `distance` inside the volume of material `m` lets through.
 #[inline]
 fn transmittance(scene: &PreparedScene, m: u32, distance: f32) -> Vec3 {
     match &scene.materials[m as usize].volume {
-        Some(v) if v.absorption != Vec3::ZERO => {
+        Some(v) if v.extinction != Vec3::ZERO => {
             // exp(-0 x inf) would be NaN: a clear channel passes everything at any distance.
             let through = |a: f32| if a == 0.0 { 1.0 } else { (-a * distance).exp() };
-            Vec3::new(through(v.absorption.x), through(v.absorption.y), through(v.absorption.z))
+            Vec3::new(through(v.extinction.x), through(v.extinction.y), through(v.extinction.z))
         }
         _ => Vec3::ONE,
     }

@@ -184,10 +184,11 @@ impl<'a> Pose<'a> {
                 continue;
             }
             let p = self.placed(i);
-            let local = Ray::new(
-                p.to_object.transform_point3(ray.origin),
-                p.to_object.transform_vector3(ray.dir),
-            );
+            let local = Ray {
+                origin: p.to_object.transform_point3(ray.origin),
+                dir: p.to_object.transform_vector3(ray.dir),
+                ..*ray
+            };
             let base = inst.prim_base;
             let hit = inst
                 .accel
@@ -207,10 +208,11 @@ impl<'a> Pose<'a> {
                 return false;
             }
             let p = self.placed(i);
-            let local = Ray::new(
-                p.to_object.transform_point3(ray.origin),
-                p.to_object.transform_vector3(ray.dir),
-            );
+            let local = Ray {
+                origin: p.to_object.transform_point3(ray.origin),
+                dir: p.to_object.transform_vector3(ray.dir),
+                ..*ray
+            };
             let base = inst.prim_base;
             inst.accel
                 .occluded_filtered(&local, t_max, |h| accept(&Hit { prim: h.prim + base, ..*h }))

@@ -72,6 +72,9 @@ pub struct PreparedScene {
     /// Whether any material is alpha-tested per point (MASK with a texture or vertex colours),
     /// so that rays must ask the material before accepting a hit.
     pub alpha_tested: bool,
+    /// Whether any material bounds a scattering medium, so that paths sample free flights
+    /// (and each bounce takes the two sampler numbers for them).
+    pub scattering_media: bool,
     /// Lights and the distribution to choose them.
     pub lights: LightSampler,
     /// What escaping rays see (also a light in `lights`), if anything.
@@ -399,6 +402,10 @@ fn prepare_inner(
         materials: scene.materials.clone(),
         textures: scene.textures.clone(),
         alpha_tested,
+        scattering_media: scene
+            .materials
+            .iter()
+            .any(|m| m.bounds_medium() && m.volume.is_some_and(|v| v.scatters())),
         lights,
         environment,
         environment_visible,

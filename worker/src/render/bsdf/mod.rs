@@ -106,13 +106,6 @@ impl Bsdf {
         }
     }
 
-    /// Whether light crossing to the far side enters another medium (a refractive boundary),
-    /// rather than passing a thin wall.
-    #[inline]
-    pub fn refracts(&self) -> bool {
-        matches!(self, Bsdf::Dielectric(_))
-    }
-
     /// Whether `sample` uses its lobe-choice number (a single-lobe BSDF does not).
     #[inline]
     pub fn chooses_lobe(&self) -> bool {
