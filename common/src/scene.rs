@@ -181,6 +181,48 @@ pub fn single_scatter_albedo(multiscatter: f32) -> f32 {
     (1.0 - s * s).clamp(0.0, 1.0) as f32
 }
 
+/// `KHR_materials_clearcoat`: a clear GGX coat of index 1.5 over the material, weighted by
+/// `factor` x `texture.r` and its Fresnel reflectance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Clearcoat {
+    /// `clearcoatFactor` in (0, 1].
+    pub factor: f32,
+    /// `clearcoatTexture` (R = factor, linear).
+    pub texture: Option<TextureRef>,
+    /// `clearcoatRoughnessFactor` in [0, 1] (perceptual; GGX alpha = roughness²).
+    pub roughness: f32,
+    /// `clearcoatRoughnessTexture` (G = roughness, linear).
+    pub roughness_texture: Option<TextureRef>,
+    /// `clearcoatNormalTexture` and its `scale`: the coat's own normal map (without one the
+    /// coat follows the surface's normal before the base's normal map).
+    pub normal_texture: Option<(TextureRef, f32)>,
+}
+
+/// `KHR_materials_sheen`: a layer of fibres (the "Charlie" microfacet sheen) over the material.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sheen {
+    /// `sheenColorFactor`, linear RGB, each in [0, 1], not all 0.
+    pub color: Vec3,
+    /// `sheenColorTexture` (RGB, sRGB encoded).
+    pub color_texture: Option<TextureRef>,
+    /// `sheenRoughnessFactor` in [0, 1].
+    pub roughness: f32,
+    /// `sheenRoughnessTexture` (A = roughness, linear).
+    pub roughness_texture: Option<TextureRef>,
+}
+
+/// `KHR_materials_anisotropy`: the specular lobe stretched along a direction in the tangent
+/// plane.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Anisotropy {
+    /// `anisotropyStrength` in (0, 1].
+    pub strength: f32,
+    /// `anisotropyRotation` in radians, counter-clockwise from the tangent.
+    pub rotation: f32,
+    /// `anisotropyTexture` (RG = direction in [-1, 1] in tangent space, B = strength, linear).
+    pub texture: Option<TextureRef>,
+}
+
 /// The glTF metallic-roughness material with the extensions the renderer honours.
 #[derive(Clone, Debug)]
 pub struct Material {
@@ -227,6 +269,12 @@ pub struct Material {
     /// `KHR_materials_volume` with `thicknessFactor > 0`: the mesh bounds a refractive volume
     /// (`None`: thin-walled, as without the extension).
     pub volume: Option<Volume>,
+    /// `KHR_materials_clearcoat` with a factor above 0 (`None`: no coat).
+    pub clearcoat: Option<Clearcoat>,
+    /// `KHR_materials_sheen` with a colour factor above 0 (`None`: no sheen).
+    pub sheen: Option<Sheen>,
+    /// `KHR_materials_anisotropy` with a strength above 0 (`None`: isotropic).
+    pub anisotropy: Option<Anisotropy>,
     /// `KHR_materials_unlit`: the surface shows its base colour (factor, texture, vertex colour)
     /// to whatever looks at it, whatever lights it; it reflects nothing and lights nothing.
     pub unlit: bool,
@@ -281,6 +329,9 @@ impl Default for Material {
             diffuse_transmission_color: Vec3::ONE,
             diffuse_transmission_color_texture: None,
             volume: None,
+            clearcoat: None,
+            sheen: None,
+            anisotropy: None,
             unlit: false,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,

@@ -10,10 +10,13 @@ use super::SceneError;
 /// Extensions this loader honours; any other extension in `extensionsRequired` is an error.
 pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_lights_punctual",
+    "KHR_materials_anisotropy",
+    "KHR_materials_clearcoat",
     "KHR_materials_diffuse_transmission",
     "KHR_materials_emissive_strength",
     "KHR_materials_specular",
     "KHR_materials_ior",
+    "KHR_materials_sheen",
     "KHR_materials_transmission",
     "KHR_materials_unlit",
     "KHR_materials_volume",

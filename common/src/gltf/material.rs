@@ -1,6 +1,6 @@
 //! Materials, textures, samplers and images: the metallic-roughness model with the extensions
-//! the renderer honours (emissive strength, specular, ior, transmission, volume, unlit, texture
-//! transform), and
+//! the renderer honours (emissive strength, specular, ior, transmission, diffuse transmission,
+//! volume, clearcoat, sheen, anisotropy, unlit, texture transform), and
 //! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
 
 use std::io::Cursor;
@@ -13,7 +13,10 @@ use serde_json::Value;
 
 use super::{fail, Context, Image, Loader, SceneError};
 use crate::budget;
-use crate::scene::{AlphaMode, Material, TexTransform, Texture, TextureRef, Volume, Wrap};
+use crate::scene::{
+    AlphaMode, Anisotropy, Clearcoat, Material, Sheen, TexTransform, Texture, TextureRef, Volume,
+    Wrap,
+};
 
 impl Loader<'_> {
     /// The materials of the scene: every glTF material a loaded mesh uses, in file order, then
@@ -101,6 +104,18 @@ impl Loader<'_> {
                 ),
             }
         }
+        let clearcoat = match ext.and_then(|e| e.others.get("KHR_materials_clearcoat")) {
+            Some(v) => self.clearcoat(v).context(|| "KHR_materials_clearcoat".into())?,
+            None => None,
+        };
+        let sheen = match ext.and_then(|e| e.others.get("KHR_materials_sheen")) {
+            Some(v) => self.sheen(v).context(|| "KHR_materials_sheen".into())?,
+            None => None,
+        };
+        let anisotropy = match ext.and_then(|e| e.others.get("KHR_materials_anisotropy")) {
+            Some(v) => self.anisotropy(v).context(|| "KHR_materials_anisotropy".into())?,
+            None => None,
+        };
         let alpha_mode = match m.alpha_mode {
             Checked::Valid(json::material::AlphaMode::Opaque) => AlphaMode::Opaque,
             Checked::Valid(json::material::AlphaMode::Mask) => {
@@ -147,21 +162,7 @@ impl Loader<'_> {
             None => None,
         };
         let normal_texture = match &m.normal_texture {
-            Some(n) => {
-                let transform =
-                    n.extensions.as_ref().and_then(|e| e.others.get("KHR_texture_transform"));
-                let transform = transform
-                    .map(parse_transform)
-                    .transpose()
-                    .context(|| "normalTexture".into())?;
-                let r = self
-                    .texture_ref(n.index.value(), n.tex_coord, transform)
-                    .context(|| "normalTexture".into())?;
-                if !n.scale.is_finite() {
-                    return fail(format!("normalTexture: invalid scale {}", n.scale));
-                }
-                r.map(|r| (r, n.scale))
-            }
+            Some(n) => self.normal_texture(n, "normalTexture")?,
             None => None,
         };
 
@@ -185,6 +186,9 @@ impl Loader<'_> {
             diffuse_transmission_color,
             diffuse_transmission_color_texture,
             volume,
+            clearcoat,
+            sheen,
+            anisotropy,
             unlit: ext.is_some_and(|e| e.others.contains_key("KHR_materials_unlit")),
             alpha_mode,
             double_sided: m.double_sided,
@@ -199,6 +203,81 @@ impl Loader<'_> {
             );
         }
         Ok(material)
+    }
+
+    /// A `normalTextureInfo` with its `KHR_texture_transform`, and its scale.
+    fn normal_texture(
+        &mut self,
+        n: &json::material::NormalTexture,
+        slot: &str,
+    ) -> Result<Option<(TextureRef, f32)>, SceneError> {
+        let transform = n.extensions.as_ref().and_then(|e| e.others.get("KHR_texture_transform"));
+        let transform = transform.map(parse_transform).transpose().context(|| slot.to_string())?;
+        let r = self
+            .texture_ref(n.index.value(), n.tex_coord, transform)
+            .context(|| slot.to_string())?;
+        if !n.scale.is_finite() {
+            return fail(format!("{slot}: invalid scale {}", n.scale));
+        }
+        Ok(r.map(|r| (r, n.scale)))
+    }
+
+    /// A `KHR_materials_clearcoat` object: `None` when `clearcoatFactor` is 0 (the spec's "the
+    /// whole clearcoat layer is disabled").
+    fn clearcoat(&mut self, v: &Value) -> Result<Option<Clearcoat>, SceneError> {
+        let factor = unit_number(v, "clearcoatFactor", 0.0)?;
+        let roughness = unit_number(v, "clearcoatRoughnessFactor", 0.0)?;
+        let texture = ext_texture(v, "clearcoatTexture")?;
+        let roughness_texture = ext_texture(v, "clearcoatRoughnessTexture")?;
+        let normal: Option<json::material::NormalTexture> = match v.get("clearcoatNormalTexture") {
+            None => None,
+            Some(t) => Some(
+                serde_json::from_value(t.clone())
+                    .or_else(|e| fail(format!("clearcoatNormalTexture: {e}")))?,
+            ),
+        };
+        if factor == 0.0 {
+            return Ok(None);
+        }
+        let texture = self.texture_info(texture.as_ref(), "clearcoatTexture")?;
+        let roughness_texture =
+            self.texture_info(roughness_texture.as_ref(), "clearcoatRoughnessTexture")?;
+        let normal_texture = match &normal {
+            Some(n) => self.normal_texture(n, "clearcoatNormalTexture")?,
+            None => None,
+        };
+        Ok(Some(Clearcoat { factor, texture, roughness, roughness_texture, normal_texture }))
+    }
+
+    /// A `KHR_materials_sheen` object: `None` when `sheenColorFactor` is black (the spec's "the
+    /// whole sheen layer is disabled").
+    fn sheen(&mut self, v: &Value) -> Result<Option<Sheen>, SceneError> {
+        let color = unit_color_or(v, "sheenColorFactor", [0.0; 3])?;
+        let roughness = unit_number(v, "sheenRoughnessFactor", 0.0)?;
+        let color_texture = ext_texture(v, "sheenColorTexture")?;
+        let roughness_texture = ext_texture(v, "sheenRoughnessTexture")?;
+        if color == Vec3::ZERO {
+            return Ok(None);
+        }
+        let color_texture = self.texture_info(color_texture.as_ref(), "sheenColorTexture")?;
+        let roughness_texture =
+            self.texture_info(roughness_texture.as_ref(), "sheenRoughnessTexture")?;
+        Ok(Some(Sheen { color, color_texture, roughness, roughness_texture }))
+    }
+
+    /// A `KHR_materials_anisotropy` object: `None` when `anisotropyStrength` is 0.
+    fn anisotropy(&mut self, v: &Value) -> Result<Option<Anisotropy>, SceneError> {
+        let strength = unit_number(v, "anisotropyStrength", 0.0)?;
+        let rotation = number(v, "anisotropyRotation", 0.0)?;
+        if !rotation.is_finite() {
+            return fail(format!("anisotropyRotation {rotation} must be finite"));
+        }
+        let texture = ext_texture(v, "anisotropyTexture")?;
+        if strength == 0.0 {
+            return Ok(None);
+        }
+        let texture = self.texture_info(texture.as_ref(), "anisotropyTexture")?;
+        Ok(Some(Anisotropy { strength, rotation: rotation as f32, texture }))
     }
 
     /// A `textureInfo` with its `KHR_texture_transform`.
@@ -461,11 +540,7 @@ fn volume_scatter(v: &Value) -> Result<(Vec3, f32), SceneError> {
         None => Vec3::ZERO,
         Some(_) => unit_color(v, "multiscatterColor")?,
     };
-    let g = match v.get("scatterAnisotropy") {
-        None => 0.0,
-        Some(Value::Number(n)) => n.as_f64().unwrap_or(f64::NAN),
-        Some(other) => return fail(format!("scatterAnisotropy must be a number, not {other}")),
-    };
+    let g = number(v, "scatterAnisotropy", 0.0)?;
     if !(-1.0..=1.0).contains(&g) {
         return fail(format!("scatterAnisotropy {g} must lie in [-1, 1]"));
     }
@@ -478,11 +553,45 @@ fn volume_distance(ext: Option<&json::extensions::material::Material>) -> Option
     (d.is_finite() && d > 0.0).then_some(d as f32)
 }
 
+/// The number under `key` of an extension object (`default` when absent).
+fn number(v: &Value, key: &str, default: f64) -> Result<f64, SceneError> {
+    match v.get(key) {
+        None => Ok(default),
+        Some(Value::Number(n)) => Ok(n.as_f64().unwrap_or(f64::NAN)),
+        Some(other) => fail(format!("{key} must be a number, not {other}")),
+    }
+}
+
+/// The number under `key` of an extension object, in [0, 1] (`default` when absent).
+fn unit_number(v: &Value, key: &str, default: f64) -> Result<f32, SceneError> {
+    let x = number(v, key, default)?;
+    if !(0.0..=1.0).contains(&x) {
+        return fail(format!("{key} {x} must lie in [0, 1]"));
+    }
+    Ok(x as f32)
+}
+
+/// The `textureInfo` under `key` of an extension object, if present.
+fn ext_texture(v: &Value, key: &str) -> Result<Option<json::texture::Info>, SceneError> {
+    match v.get(key) {
+        None => Ok(None),
+        Some(t) => {
+            serde_json::from_value(t.clone()).map(Some).or_else(|e| fail(format!("{key}: {e}")))
+        }
+    }
+}
+
 /// The RGB colour under `key` of an extension object, each component in [0, 1] (white when
 /// absent).
 fn unit_color(v: &Value, key: &str) -> Result<Vec3, SceneError> {
+    unit_color_or(v, key, [1.0; 3])
+}
+
+/// The RGB colour under `key` of an extension object, each component in [0, 1] (`default` when
+/// absent).
+fn unit_color_or(v: &Value, key: &str, default: [f64; 3]) -> Result<Vec3, SceneError> {
     let color = match v.get(key) {
-        None => [1.0; 3],
+        None => default,
         Some(Value::Array(c)) if c.len() == 3 => {
             let c: Vec<f64> = c.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
             [c[0], c[1], c[2]]
@@ -509,15 +618,9 @@ fn diffuse_transmission(
         return fail(format!("diffuseTransmissionFactor {factor} must lie in [0, 1]"));
     }
     let color = unit_color(v, "diffuseTransmissionColorFactor")?;
-    let texture = |key: &str| -> Result<Option<json::texture::Info>, SceneError> {
-        match v.get(key) {
-            None => Ok(None),
-            Some(t) => {
-                serde_json::from_value(t.clone()).map(Some).or_else(|e| fail(format!("{key}: {e}")))
-            }
-        }
-    };
-    let textures =
-        (texture("diffuseTransmissionTexture")?, texture("diffuseTransmissionColorTexture")?);
+    let textures = (
+        ext_texture(v, "diffuseTransmissionTexture")?,
+        ext_texture(v, "diffuseTransmissionColorTexture")?,
+    );
     Ok((factor as f32, color, textures))
 }

@@ -763,3 +763,79 @@ fn one_image_is_decoded_once_and_charged_from_its_header() {
     doc["images"] = json!([{ "uri": uri }]);
     assert_names(&load_err(&doc), &["10.00 G decoded texels (image 0, 100000x100000)"]);
 }
+
+#[test]
+fn layered_extensions_load_and_bad_values_are_named() {
+    let mut png = Vec::new();
+    image::RgbaImage::from_raw(1, 1, vec![255, 128, 0, 255])
+        .expect("image")
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("encode");
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    doc["meshes"][0]["primitives"][0]["material"] = json!(0);
+    doc["extensionsUsed"] =
+        json!(["KHR_materials_clearcoat", "KHR_materials_sheen", "KHR_materials_anisotropy"]);
+    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(&png))}]);
+    doc["textures"] = json!([{"source": 0}]);
+    doc["materials"] = json!([{"name": "layers", "extensions": {
+        "KHR_materials_clearcoat": {"clearcoatFactor": 0.8, "clearcoatTexture": {"index": 0},
+            "clearcoatRoughnessFactor": 0.25, "clearcoatRoughnessTexture": {"index": 0},
+            "clearcoatNormalTexture": {"index": 0, "scale": 0.5}},
+        "KHR_materials_sheen": {"sheenColorFactor": [0.5, 0.25, 1.0], "sheenColorTexture": {"index": 0},
+            "sheenRoughnessFactor": 0.3, "sheenRoughnessTexture": {"index": 0}},
+        "KHR_materials_anisotropy": {"anisotropyStrength": 0.6, "anisotropyRotation": -1.5,
+            "anisotropyTexture": {"index": 0}}
+    }}]);
+    let scene = load(&doc).expect("loads");
+    let m = &scene.materials[0];
+    let c = m.clearcoat.expect("clearcoat");
+    assert_eq!((c.factor, c.roughness), (0.8, 0.25));
+    assert!(c.texture.is_some() && c.roughness_texture.is_some());
+    assert_eq!(c.normal_texture.map(|(_, scale)| scale), Some(0.5));
+    let s = m.sheen.expect("sheen");
+    assert_eq!((s.color, s.roughness), (Vec3::new(0.5, 0.25, 1.0), 0.3));
+    assert!(s.color_texture.is_some() && s.roughness_texture.is_some());
+    let a = m.anisotropy.expect("anisotropy");
+    assert_eq!((a.strength, a.rotation), (0.6, -1.5));
+    assert!(a.texture.is_some());
+
+    // Factors of 0 (the defaults) disable each layer.
+    let good = doc.clone();
+    doc["materials"][0]["extensions"] = json!({
+        "KHR_materials_clearcoat": {"clearcoatRoughnessFactor": 0.5},
+        "KHR_materials_sheen": {"sheenRoughnessFactor": 0.5},
+        "KHR_materials_anisotropy": {"anisotropyRotation": 1.0}
+    });
+    let scene = load(&doc).expect("loads");
+    let m = &scene.materials[0];
+    assert!(m.clearcoat.is_none() && m.sheen.is_none() && m.anisotropy.is_none());
+    // A required extension is accepted.
+    let mut required = good.clone();
+    required["extensionsRequired"] = json!(["KHR_materials_clearcoat", "KHR_materials_sheen"]);
+    load(&required).expect("required layered extensions load");
+
+    // Out-of-range and malformed values are refused, naming the material, the extension and the
+    // key.
+    let bad = [
+        ("KHR_materials_clearcoat", "clearcoatFactor", json!(-0.5)),
+        ("KHR_materials_clearcoat", "clearcoatFactor", json!(1.5)),
+        ("KHR_materials_clearcoat", "clearcoatRoughnessFactor", json!(2.0)),
+        ("KHR_materials_clearcoat", "clearcoatFactor", json!("1")),
+        ("KHR_materials_clearcoat", "clearcoatNormalTexture", json!({"index": 7})),
+        ("KHR_materials_clearcoat", "clearcoatTexture", json!({"scale": 1})),
+        ("KHR_materials_sheen", "sheenColorFactor", json!([0.5, -0.1, 0.2])),
+        ("KHR_materials_sheen", "sheenColorFactor", json!([0.5, 0.2])),
+        ("KHR_materials_sheen", "sheenRoughnessFactor", json!(-1)),
+        ("KHR_materials_anisotropy", "anisotropyStrength", json!(1.01)),
+        ("KHR_materials_anisotropy", "anisotropyStrength", json!(-0.2)),
+        ("KHR_materials_anisotropy", "anisotropyRotation", json!(null)),
+        ("KHR_materials_anisotropy", "anisotropyTexture", json!({"index": 9})),
+    ];
+    for (ext, key, value) in bad {
+        let mut doc = good.clone();
+        doc["materials"][0]["extensions"][ext][key] = value.clone();
+        let err = load_err(&doc);
+        assert_names(&err, &["material 0", ext, key]);
+        println!("{ext}.{key} = {value}: {err}");
+    }
+}

@@ -18,7 +18,7 @@ use common::scene::Volume;
 use glam::{Vec2, Vec3};
 
 use super::{
-    bsdf::Bsdf,
+    bsdf::{Bsdf, Layered},
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
     light::Light,
     material,
@@ -224,15 +224,34 @@ pub fn li(
         } else {
             ng
         };
+        // The surface's normal before the normal map: a clear coat's, unless it has its own map.
+        let ns_surface = ns;
         if let Some(tangent_normal) = material::normal_map(&scene.textures, material, &sp) {
             ns = perturb_normal(scene, hit.prim, [p0, p1, p2], ns, tangent_normal).unwrap_or(ns);
         }
-        let frame = Frame::from_z(ns);
+        // An anisotropic material's frame has its +x along the direction of anisotropy.
+        let frame = match material::anisotropy(&scene.textures, material, &sp) {
+            Some((_, direction)) => match tangent_basis(scene, hit.prim, [p0, p1, p2], ns) {
+                Some((t, bt)) => Frame::from_z_and_tangent(ns, t * direction.x + bt * direction.y),
+                None => Frame::from_z(ns),
+            },
+            None => Frame::from_z(ns),
+        };
         let wo_local = frame.to_local(wo);
         if wo_local.z <= 0.0 {
             break; // Grazing with a bent normal: no consistent reflection.
         }
-        let bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front);
+        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front);
+        if let Bsdf::Layered(Layered { coat: Some(coat), .. }) = &mut bsdf {
+            let nc = match material::clearcoat_normal_map(&scene.textures, material, &sp) {
+                Some(tangent_normal) => {
+                    perturb_normal(scene, hit.prim, [p0, p1, p2], ns_surface, tangent_normal)
+                        .unwrap_or(ns_surface)
+                }
+                None => ns_surface,
+            };
+            coat.normal = frame.to_local(nc);
+        }
         let transmits = bsdf.transmits();
 
         // Next-event estimation. A bounce's numbers are drawn where they are used, in the
@@ -394,15 +413,30 @@ fn transmittance(scene: &PreparedScene, m: u32, distance: f32) -> Vec3 {
     }
 }
 
-/// Applies a tangent-space normal from a normal map. The tangent frame comes from the
-/// triangle's texture-coordinate derivatives (dp/du, dp/dv), orthogonalised against `ns`.
+/// Applies a tangent-space normal from a normal map in the frame of [`tangent_basis`].
 fn perturb_normal(
+    scene: &PreparedScene,
+    prim: u32,
+    tri: [Vec3; 3],
+    ns: Vec3,
+    tangent_normal: Vec3,
+) -> Option<Vec3> {
+    let (t, bt) = tangent_basis(scene, prim, tri, ns)?;
+    let n =
+        (t * tangent_normal.x + bt * tangent_normal.y + ns * tangent_normal.z).try_normalize()?;
+    (n.dot(ns) > 0.0).then_some(n)
+}
+
+/// The tangent and bitangent of texture space at a point of triangle `prim` with shading normal
+/// `ns`: from the triangle's texture-coordinate derivatives (dp/du, dp/dv), orthogonalised
+/// against `ns` (the mesh's TANGENT attribute is not read). `None` without texture coordinates
+/// or where they are degenerate.
+fn tangent_basis(
     scene: &PreparedScene,
     prim: u32,
     [p0, p1, p2]: [Vec3; 3],
     ns: Vec3,
-    tangent_normal: Vec3,
-) -> Option<Vec3> {
+) -> Option<(Vec3, Vec3)> {
     let uvs = scene.uvs.first().filter(|uv| !uv.is_empty())?;
     let [i0, i1, i2] = scene.shading[prim as usize].vertices.map(|v| v as usize);
     let (duv1, duv2) = (uvs[i1] - uvs[i0], uvs[i2] - uvs[i0]);
@@ -416,7 +450,5 @@ fn perturb_normal(
     // glTF's v runs down the image, so the bitangent points along -dp/dv.
     let handedness = if ns.cross(t).dot(dpdv) < 0.0 { 1.0 } else { -1.0 };
     let bt = ns.cross(t) * handedness;
-    let n =
-        (t * tangent_normal.x + bt * tangent_normal.y + ns * tangent_normal.z).try_normalize()?;
-    (n.dot(ns) > 0.0).then_some(n)
+    Some((t, bt))
 }

@@ -1,11 +1,12 @@
 //! Materials at a hit: the glTF material's factors, textures and vertex colours resolved into a
-//! `Bsdf`, an emitted radiance, an alpha coverage and a normal-map perturbation.
+//! `Bsdf`, an emitted radiance, an alpha coverage, a normal-map perturbation (the base's and the
+//! clear coat's) and an anisotropy direction.
 
 use common::scene::{AlphaMode, Material, Texture};
 use glam::{Vec2, Vec3, Vec4};
 
 use super::{
-    bsdf::{Bsdf, Dielectric, Diffuse, MetalRough},
+    bsdf::{anisotropic, Bsdf, Coat, Dielectric, Diffuse, Layered, MetalRough, Sheen},
     sampling::{Ggx, MIN_ALPHA},
     texture,
 };
@@ -56,6 +57,8 @@ pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
 /// counter-clockwise) or from the back. A material with no metal, no specular layer and no
 /// transmission is pure Lambert, the cheap path (the Cornell box and furnace scenes are all
 /// such). A refractive volume's boundary is a dielectric whose inside is the back face's side.
+/// A material with a clear coat, a sheen or anisotropy is `Layered` (its coat normal is +z here:
+/// the integrator sets it from [`clearcoat_normal_map`]).
 #[inline]
 pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
@@ -83,19 +86,85 @@ pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) 
     if let Some(r) = &m.diffuse_transmission_texture {
         diffuse_transmission *= texture::sample(textures, r, sp.uvs, false).w;
     }
-    if metallic == 0.0 && m.specular <= 0.0 && transmission <= 0.0 && diffuse_transmission <= 0.0 {
+    let layered = m.clearcoat.is_some() || m.sheen.is_some() || m.anisotropy.is_some();
+    if !layered
+        && metallic == 0.0
+        && m.specular <= 0.0
+        && transmission <= 0.0
+        && diffuse_transmission <= 0.0
+    {
         return Bsdf::Diffuse(Diffuse { albedo: base });
     }
     let bsdf = MetalRough::new(base, metallic, roughness, m.ior, m.specular, m.specular_color);
-    let bsdf = bsdf.with_transmission(transmission);
-    if diffuse_transmission <= 0.0 {
-        return Bsdf::MetalRough(bsdf);
+    let mut bsdf = bsdf.with_transmission(transmission);
+    if diffuse_transmission > 0.0 {
+        let mut color = m.diffuse_transmission_color;
+        if let Some(r) = &m.diffuse_transmission_color_texture {
+            color *= texture::sample(textures, r, sp.uvs, true).truncate();
+        }
+        bsdf = bsdf.with_diffuse_transmission(diffuse_transmission, color);
     }
-    let mut color = m.diffuse_transmission_color;
-    if let Some(r) = &m.diffuse_transmission_color_texture {
-        color *= texture::sample(textures, r, sp.uvs, true).truncate();
+    if layered {
+        return Bsdf::Layered(layers(textures, m, sp, bsdf));
     }
-    Bsdf::MetalRough(bsdf.with_diffuse_transmission(diffuse_transmission, color))
+    Bsdf::MetalRough(bsdf)
+}
+
+/// The base `bsdf` with the material's anisotropy, under its sheen and clear coat.
+fn layers(textures: &[Texture], m: &Material, sp: &SurfacePoint, bsdf: MetalRough) -> Layered {
+    let strength = anisotropy(textures, m, sp).map_or(0.0, |(strength, _)| strength);
+    let sheen = m.sheen.as_ref().map(|s| {
+        let (mut color, mut roughness) = (s.color, s.roughness);
+        if let Some(r) = &s.color_texture {
+            color *= texture::sample(textures, r, sp.uvs, true).truncate();
+        }
+        if let Some(r) = &s.roughness_texture {
+            roughness *= texture::sample(textures, r, sp.uvs, false).w;
+        }
+        Sheen::new(color, roughness)
+    });
+    let coat = m.clearcoat.as_ref().and_then(|c| {
+        let (mut weight, mut roughness) = (c.factor, c.roughness);
+        if let Some(r) = &c.texture {
+            weight *= texture::sample(textures, r, sp.uvs, false).x;
+        }
+        if let Some(r) = &c.roughness_texture {
+            roughness *= texture::sample(textures, r, sp.uvs, false).y;
+        }
+        (weight > 0.0).then(|| Coat {
+            weight: weight.min(1.0),
+            ggx: Ggx::new(roughness.clamp(0.0, 1.0).powi(2)),
+            normal: Vec3::Z,
+        })
+    });
+    Layered { base: anisotropic(bsdf, strength), sheen, coat }
+}
+
+/// `KHR_materials_anisotropy` at the point, if the material has it: the strength in [0, 1] and
+/// the direction of the stretched roughness in tangent space (x along the tangent, y along the
+/// bitangent), a unit vector: the texture's RG (or +x) rotated counter-clockwise by
+/// `anisotropyRotation`.
+#[inline]
+pub fn anisotropy(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<(f32, Vec2)> {
+    let a = m.anisotropy.as_ref()?;
+    let (mut strength, mut direction) = (a.strength, Vec2::X);
+    if let Some(r) = &a.texture {
+        let t = texture::sample(textures, r, sp.uvs, false);
+        // A texel with no direction (RG at the middle) keeps the tangent.
+        direction = Vec2::new(2.0 * t.x - 1.0, 2.0 * t.y - 1.0).try_normalize().unwrap_or(Vec2::X);
+        strength *= t.z;
+    }
+    let (sin, cos) = a.rotation.sin_cos();
+    let direction =
+        Vec2::new(cos * direction.x - sin * direction.y, sin * direction.x + cos * direction.y);
+    Some((strength.clamp(0.0, 1.0), direction))
+}
+
+/// The clear coat's tangent-space normal from its own normal map (z up), if it has one.
+#[inline]
+pub fn clearcoat_normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<Vec3> {
+    let (r, scale) = m.clearcoat.as_ref()?.normal_texture.as_ref()?;
+    tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)
 }
 
 /// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB).
@@ -111,7 +180,12 @@ pub fn emission(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec3 {
 #[inline]
 pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<Vec3> {
     let (r, scale) = m.normal_texture.as_ref()?;
-    let t = texture::sample(textures, r, sp.uvs, false);
+    tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)
+}
+
+/// A normal-map texel to a tangent-space normal, x and y scaled by `scale`.
+#[inline]
+fn tangent_normal(t: Vec4, scale: f32) -> Option<Vec3> {
     let n = Vec3::new((2.0 * t.x - 1.0) * scale, (2.0 * t.y - 1.0) * scale, 2.0 * t.z - 1.0);
     n.try_normalize()
 }

@@ -38,7 +38,8 @@ pub struct Tables {
 impl Tables {
     /// The tables of a scene being prepared, or `None` when it needs something only the
     /// scalar renderer does (`scalar_only`: something moves within the shutter, is
-    /// alpha-tested or has vertex colours).
+    /// alpha-tested or has vertex colours; or a material is textured, glossy, unlit, or has a
+    /// clear coat, a sheen or anisotropy).
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
@@ -59,13 +60,16 @@ impl Tables {
                 || m.diffuse_transmission_texture.is_some()
                 || m.diffuse_transmission_color_texture.is_some()
                 || m.unlit
+                || m.clearcoat.is_some()
+                || m.sheen.is_some()
+                || m.anisotropy.is_some()
             {
                 return None;
             }
             // Without textures or vertex colours every point of the material is this one.
             match material::bsdf(textures, m, &SurfacePoint::PLAIN, true) {
                 Bsdf::Diffuse(d) => albedo.push(d.albedo),
-                Bsdf::MetalRough(_) | Bsdf::Dielectric(_) => return None,
+                Bsdf::MetalRough(_) | Bsdf::Dielectric(_) | Bsdf::Layered(_) => return None,
             }
             emission.push(material::emission(textures, m, &SurfacePoint::PLAIN));
         }

@@ -17,6 +17,9 @@
 //! vector.
 //! Sampling picks the GGX lobe (visible normals, Heitz 2018), the mirrored GGX lobe, the cosine
 //! lobe below or the cosine lobe above with probabilities from their estimated albedos.
+//! The microfacet distribution is a type parameter: isotropic [`Ggx`] by default, or
+//! [`AnisoGgx`](crate::render::sampling::AnisoGgx) for `KHR_materials_anisotropy` (see
+//! `layered.rs`).
 
 use std::f32::consts::FRAC_1_PI;
 
@@ -25,18 +28,18 @@ use glam::{Vec2, Vec3};
 use super::{BsdfSample, Lobe};
 use crate::render::{
     geometry::reflect,
-    sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, Ggx},
+    sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, Ggx, Microfacet},
 };
 
 /// The glTF metallic-roughness BRDF at a point.
 #[derive(Clone, Copy, Debug)]
-pub struct MetalRough {
+pub struct MetalRough<M = Ggx> {
     /// Base colour (linear).
     pub base: Vec3,
     /// Metalness in [0, 1].
     pub metallic: f32,
     /// Microfacet distribution (alpha = roughness²).
-    pub ggx: Ggx,
+    pub ggx: M,
     /// Dielectric reflectance at normal incidence, per channel.
     pub f0_dielectric: Vec3,
     /// `specularFactor`.
@@ -85,6 +88,22 @@ impl MetalRough {
             diffuse_transmission_color: Vec3::ONE,
         }
     }
+}
+
+impl<M: Microfacet> MetalRough<M> {
+    /// The same BSDF with another microfacet distribution.
+    pub fn with_microfacet<N: Microfacet>(self, ggx: N) -> MetalRough<N> {
+        MetalRough {
+            base: self.base,
+            metallic: self.metallic,
+            ggx,
+            f0_dielectric: self.f0_dielectric,
+            specular: self.specular,
+            transmission: self.transmission,
+            diffuse_transmission: self.diffuse_transmission,
+            diffuse_transmission_color: self.diffuse_transmission_color,
+        }
+    }
 
     /// The same BSDF with `KHR_materials_diffuse_transmission`'s factor and colour (clamped to
     /// [0, 1]).
@@ -115,6 +134,23 @@ impl MetalRough {
     /// `sample` and `pdf`.
     #[inline]
     fn lobe_probabilities(&self, wo: Vec3) -> (f32, f32, f32) {
+        let (spec, trans, dtrans, total) = self.lobe_weights(wo);
+        if total <= 0.0 {
+            return (0.0, 0.0, 0.0);
+        }
+        (spec / total, trans / total, dtrans / total)
+    }
+
+    /// The estimated albedo of the whole BSDF for `wo` (what `lobe_probabilities` divides by).
+    #[inline]
+    pub fn albedo_estimate(&self, wo: Vec3) -> f32 {
+        self.lobe_weights(wo).3
+    }
+
+    /// The estimated albedos of the GGX lobe, the mirrored lobe and the far side's cosine lobe
+    /// for `wo`, and of all lobes together.
+    #[inline]
+    fn lobe_weights(&self, wo: Vec3) -> (f32, f32, f32, f32) {
         let w = schlick_weight(wo.z);
         let f_m = self.base + (Vec3::ONE - self.base) * w;
         let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
@@ -131,10 +167,7 @@ impl MetalRough {
             * luminance(self.diffuse_transmission_color);
         let diff = diff * (1.0 - self.diffuse_transmission);
         let total = spec + diff + trans + dtrans;
-        if total <= 0.0 {
-            return (0.0, 0.0, 0.0);
-        }
-        (spec / total, trans / total, dtrans / total)
+        (spec, trans, dtrans, total)
     }
 
     /// f(wo, wi): reflection for `wi.z > 0`, transmission for `wi.z < 0`.

@@ -8,11 +8,17 @@
 
 mod dielectric;
 mod diffuse;
+mod layered;
 mod metal_rough;
+mod sheen;
 
 pub use dielectric::{fresnel_dielectric, refract, Dielectric};
 pub use diffuse::Diffuse;
+pub use layered::{anisotropic, Coat, Layered};
 pub use metal_rough::MetalRough;
+#[cfg(test)]
+pub(crate) use sheen::albedo as sheen_albedo;
+pub use sheen::Sheen;
 
 use glam::{Vec2, Vec3};
 
@@ -73,6 +79,8 @@ pub enum Bsdf {
     MetalRough(MetalRough),
     /// A refractive boundary, smooth or rough.
     Dielectric(Dielectric),
+    /// The glTF BRDF with a clear coat, a sheen or anisotropy (`layered.rs`).
+    Layered(Layered),
 }
 
 impl Bsdf {
@@ -83,6 +91,7 @@ impl Bsdf {
             Bsdf::Diffuse(b) => b.eval(wo, wi),
             Bsdf::MetalRough(b) => b.eval(wo, wi),
             Bsdf::Dielectric(b) => b.eval(wo, wi),
+            Bsdf::Layered(b) => b.eval(wo, wi),
         }
     }
 
@@ -93,6 +102,7 @@ impl Bsdf {
             Bsdf::Diffuse(b) => b.pdf(wo, wi),
             Bsdf::MetalRough(b) => b.pdf(wo, wi),
             Bsdf::Dielectric(b) => b.pdf(wo, wi),
+            Bsdf::Layered(b) => b.pdf(wo, wi),
         }
     }
 
@@ -103,6 +113,7 @@ impl Bsdf {
             Bsdf::Diffuse(_) => false,
             Bsdf::MetalRough(b) => b.transmits(),
             Bsdf::Dielectric(_) => true,
+            Bsdf::Layered(b) => b.transmits(),
         }
     }
 
@@ -119,6 +130,7 @@ impl Bsdf {
             Bsdf::Diffuse(b) => b.sample(wo, u),
             Bsdf::MetalRough(b) => b.sample(wo, u_lobe, u),
             Bsdf::Dielectric(b) => b.sample(wo, u_lobe, u),
+            Bsdf::Layered(b) => b.sample(wo, u_lobe, u),
         }
     }
 }

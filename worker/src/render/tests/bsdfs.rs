@@ -1,14 +1,15 @@
 //! Tests of the BSDFs: chi-square of `sample` against `pdf` for `Diffuse`, `MetalRough` (with and
-//! without transmission) and GGX visible-normal reflection, the agreement of `sample` with
-//! `eval`/`pdf`, and energy (albedo).
+//! without transmission), the layered BSDF (clear coat, sheen, anisotropy) and GGX visible-normal
+//! reflection (isotropic and anisotropic), the agreement of `sample` with `eval`/`pdf`, and
+//! energy (albedo).
 
 use glam::{Vec2, Vec3};
 
 use super::chi2::{assert_fits, Rng, Spherical};
 use crate::render::{
-    bsdf::{Bsdf, Dielectric, Diffuse, Lobe, MetalRough},
+    bsdf::{anisotropic, Bsdf, Coat, Dielectric, Diffuse, Layered, Lobe, MetalRough, Sheen},
     geometry::reflect,
-    sampling::Ggx,
+    sampling::{AnisoGgx, Ggx, Microfacet},
 };
 
 /// Perceptual roughness of the `MetalRough` chi-square cases (0.05 is alpha = 0.0025, a lobe a
@@ -53,8 +54,16 @@ const DIELECTRIC_COS_WO: [f32; 2] = [0.9, 0.3];
 const DIFFUSE_TRANSMISSION_CASES: [(f32, f32, f32, f32); 3] =
     [(0.5, 0.0, 0.5, 1.0), (0.6, 0.4, 0.3, 1.0), (1.0, 0.0, 1.0, 0.0)];
 
+/// (alpha_x, alpha_y) of the anisotropic GGX visible-normal cases.
+const ANISO_ALPHA: [(f32, f32); 3] = [(0.05, 0.4), (0.6, 0.1), (1.0, 0.3)];
+
+/// Number of `layered_cases`.
+const N_LAYERED: usize = 7;
+
 /// Chi-square tests in this file.
 pub(super) const N_CHI2: usize = ROUGHNESS.len() * METAL_SPECULAR.len() * COS_WO.len()
+    + N_LAYERED * COS_WO.len()
+    + ANISO_ALPHA.len() * GGX_COS_WO.len()
     + TRANSMISSION_CASES.len() * COS_WO.len()
     + DIFFUSE_TRANSMISSION_CASES.len() * COS_WO.len()
     + DIELECTRIC_CASES.len() * DIELECTRIC_COS_WO.len()
@@ -465,6 +474,200 @@ fn diffuse_transmission_splits_the_diffused_light() {
                 (through - dt as f64).abs() < 4.0 * e_through + 1e-4,
                 "dt {dt} cos {cos_wo}: through {through} +- {e_through}"
             );
+        }
+    }
+}
+
+/// A layered BSDF over `base` with anisotropy `strength`, an optional sheen (colour, roughness)
+/// and an optional coat (weight, roughness, normal).
+fn layered(
+    base: MetalRough,
+    strength: f32,
+    sheen: Option<(Vec3, f32)>,
+    coat: Option<(f32, f32, Vec3)>,
+) -> Bsdf {
+    Bsdf::Layered(Layered {
+        base: anisotropic(base, strength),
+        sheen: sheen.map(|(color, roughness)| Sheen::new(color, roughness)),
+        coat: coat.map(|(weight, roughness, normal)| Coat {
+            weight,
+            ggx: Ggx::new(roughness * roughness),
+            normal: normal.normalize(),
+        }),
+    })
+}
+
+/// The layered chi-square cases: coats (one with a normal of its own), sheens, anisotropy, and
+/// all three over a transmitting base.
+fn layered_cases() -> [(&'static str, Bsdf); N_LAYERED] {
+    let dielectric = |roughness| MetalRough::new(BASE, 0.0, roughness, 1.5, 1.0, Vec3::ONE);
+    let metal = |roughness| MetalRough::new(BASE, 1.0, roughness, 1.5, 1.0, Vec3::ONE);
+    let lambert = MetalRough::new(BASE, 0.0, 1.0, 1.5, 0.0, Vec3::ONE);
+    let tilted = Vec3::new(0.3, -0.2, 0.93);
+    [
+        ("coat_c1_r0.1", layered(dielectric(0.6), 0.0, None, Some((1.0, 0.1, Vec3::Z)))),
+        ("coat_c0.7_r0.4_tilted", layered(metal(0.3), 0.0, None, Some((0.7, 0.4, tilted)))),
+        ("sheen_r0.5", layered(lambert, 0.0, Some((Vec3::new(0.9, 0.6, 0.3), 0.5)), None)),
+        (
+            "sheen_r0.1_coat_c0.5_r0.2",
+            layered(dielectric(0.5), 0.0, Some((Vec3::ONE, 0.1)), Some((0.5, 0.2, Vec3::Z))),
+        ),
+        ("aniso_s0.8_metal_r0.4", layered(metal(0.4), 0.8, None, None)),
+        ("aniso_s0.5_dielectric_r0.1", layered(dielectric(0.1), 0.5, None, None)),
+        (
+            "aniso_s1_sheen_coat_transmitting",
+            layered(
+                dielectric(0.2).with_transmission(0.5).with_diffuse_transmission(0.3, Vec3::ONE),
+                1.0,
+                Some((Vec3::new(0.2, 0.8, 0.5), 0.7)),
+                Some((0.8, 0.3, tilted)),
+            ),
+        ),
+    ]
+}
+
+#[test]
+fn layered_sampling_matches_pdf_over_the_sphere() {
+    for (name, bsdf) in layered_cases() {
+        for cos_wo in COS_WO {
+            assert_bsdf_fits_sphere(&format!("layered_{name}_coswo{cos_wo}"), &bsdf, wo_at(cos_wo));
+        }
+    }
+}
+
+#[test]
+fn layered_sample_agrees_with_eval_and_pdf() {
+    let mut rng = Rng::from_name("layered_sample_agrees_with_eval_and_pdf");
+    for (name, bsdf) in layered_cases() {
+        for cos_wo in [1.0, 0.7, 0.3, 0.05, 0.01] {
+            let wo = wo_at(cos_wo);
+            for _ in 0..20_000 {
+                let u = rng.next_vec3();
+                let Some(s) = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z)) else { continue };
+                let case = || format!("{name} wo {wo:?} u {u:?}: {s:?}");
+                let side_ok = s.wi.z > 0.0 || (s.wi.z < 0.0 && bsdf.transmits());
+                assert!((s.wi.length() - 1.0).abs() < 1e-5 && side_ok, "{}", case());
+                assert!(s.pdf > 0.0 && s.pdf.is_finite(), "{}", case());
+                assert!(s.f.is_finite() && s.f.min_element() >= 0.0, "{}", case());
+                let (f, pdf) = (bsdf.eval(wo, s.wi), bsdf.pdf(wo, s.wi));
+                assert_eq!((s.f, s.pdf), (f, pdf), "{}", case());
+            }
+        }
+    }
+}
+
+#[test]
+fn anisotropic_ggx_visible_normal_reflection_matches_pdf() {
+    for (ax, ay) in ANISO_ALPHA {
+        let ggx = AnisoGgx::new(ax, ay);
+        for cos_wo in GGX_COS_WO {
+            let wo = wo_at(cos_wo);
+            assert_fits(
+                &format!("aniso_ggx_reflection_a{ax}_{ay}_coswo{cos_wo}"),
+                Spherical::sphere(),
+                |u| {
+                    let h = ggx.sample_visible_normal(wo, Vec2::new(u.x, u.y));
+                    assert!(h.z > 0.0 && wo.dot(h) >= 0.0, "invisible normal {h:?} for {wo:?}");
+                    Some(reflect(wo, h))
+                },
+                |wi| {
+                    let h = wo + wi;
+                    if h.length_squared() < 1e-12 {
+                        return 0.0;
+                    }
+                    ggx.reflection_pdf(wo, h.normalize())
+                },
+            );
+        }
+    }
+}
+
+/// A white sheen or coat over a white Lambertian base (no specular layer, albedo exactly 1)
+/// takes from the base what it reflects: the albedo stays at most 1 at every angle, and with a
+/// sheen alone (whose albedo scaling is its tabulated albedo) it is 1 within the table's error.
+#[test]
+fn layers_over_white_lambert_gain_no_energy() {
+    let mut rng = Rng::from_name("layers_over_white_lambert_gain_no_energy");
+    let white = MetalRough::new(Vec3::ONE, 0.0, 1.0, 1.5, 0.0, Vec3::ONE);
+    let n = 200_000;
+    for roughness in [0.0f32, 0.1, 0.3, 0.6, 1.0] {
+        let sheen = layered(white, 0.0, Some((Vec3::ONE, roughness)), None);
+        let coat = layered(white, 0.0, None, Some((1.0, roughness, Vec3::Z)));
+        let both =
+            layered(white, 0.0, Some((Vec3::ONE, roughness)), Some((1.0, roughness, Vec3::Z)));
+        for cos_wo in [1.0, 0.7, 0.3, 0.1, 0.02] {
+            let wo = wo_at(cos_wo);
+            for (name, bsdf) in [("sheen", &sheen), ("coat", &coat), ("sheen and coat", &both)] {
+                let (mean, error) = albedo(bsdf, wo, n, &mut rng);
+                println!("{name} r{roughness} coswo{cos_wo}: albedo {mean:.5} +- {error:.5}");
+                // The table's bilinear error (under 2e-3, `sheen.rs`) on top of the noise.
+                assert!(
+                    mean <= 1.0 + 4.0 * error + 2e-3,
+                    "{name} r{roughness} cos {cos_wo}: {mean} +- {error}"
+                );
+                if name == "sheen" {
+                    assert!(
+                        (mean - 1.0).abs() <= 4.0 * error + 5e-3,
+                        "{name} r{roughness} cos {cos_wo}: {mean} +- {error}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The sheen's tabulated albedo matches a Monte Carlo estimate of the lobe itself (sampled
+/// through the layered BSDF with a black base, so only the sheen reflects).
+#[test]
+fn sheen_albedo_table_matches_the_lobe() {
+    let mut rng = Rng::from_name("sheen_albedo_table_matches_the_lobe");
+    let black = MetalRough::new(Vec3::ZERO, 0.0, 1.0, 1.5, 0.0, Vec3::ONE);
+    for roughness in [0.1f32, 0.4, 0.9] {
+        let bsdf = layered(black, 0.0, Some((Vec3::ONE, roughness)), None);
+        for cos_wo in [0.9f32, 0.5, 0.15] {
+            let (mean, error) = albedo(&bsdf, wo_at(cos_wo), 200_000, &mut rng);
+            let table = crate::render::bsdf::sheen_albedo(cos_wo, roughness) as f64;
+            assert!(
+                (mean - table).abs() <= 4.0 * error + 0.01 * table + 1e-3,
+                "r{roughness} cos {cos_wo}: {mean} +- {error} vs table {table}"
+            );
+        }
+    }
+}
+
+/// A white anisotropic conductor reflects at most what arrives, at any strength.
+#[test]
+fn anisotropic_conductor_gains_no_energy() {
+    let mut rng = Rng::from_name("anisotropic_conductor_gains_no_energy");
+    for roughness in [0.1f32, 0.5] {
+        for strength in [0.5f32, 1.0] {
+            let metal = MetalRough::new(Vec3::ONE, 1.0, roughness, 1.5, 1.0, Vec3::ONE);
+            let bsdf = layered(metal, strength, None, None);
+            for cos_wo in [1.0, 0.5, 0.1] {
+                let (mean, error) = albedo(&bsdf, wo_at(cos_wo), 200_000, &mut rng);
+                assert!(
+                    mean <= 1.0 + 4.0 * error + 1e-6,
+                    "r{roughness} s{strength} cos {cos_wo}: {mean} +- {error}"
+                );
+            }
+        }
+    }
+}
+
+/// With strength 0 anisotropic GGX is the isotropic lobe: the same f and pdf within rounding.
+#[test]
+fn zero_anisotropy_is_the_isotropic_brdf() {
+    let mut rng = Rng::from_name("zero_anisotropy_is_the_isotropic_brdf");
+    for roughness in [0.2f32, 0.7] {
+        let base = MetalRough::new(BASE, 0.5, roughness, 1.5, 1.0, Vec3::ONE);
+        let (iso, aniso) = (Bsdf::MetalRough(base), layered(base, 0.0, None, None));
+        let wo = wo_at(0.6);
+        for _ in 0..1000 {
+            let u = rng.next_vec3();
+            let Some(s) = iso.sample(wo, u.x, Vec2::new(u.y, u.z)) else { continue };
+            let (f, pdf) = (aniso.eval(wo, s.wi), aniso.pdf(wo, s.wi));
+            assert!((f - s.f).abs().max_element() <= 1e-4 * s.f.max_element(), "{f} vs {}", s.f);
+            assert!((pdf - s.pdf).abs() <= 1e-4 * s.pdf, "{pdf} vs {}", s.pdf);
         }
     }
 }
