@@ -8,8 +8,10 @@
 //! its strata span all lights together. In a scene with scattering media each bounce takes two
 //! more first, for the free flight; scenes without them keep the layout of four.
 //!
-//! Media: a path knows the volume it travels in, entered through its boundary's front face and
-//! left through a back face (volumes do not nest: leaving one is entering air). An absorbing
+//! Media: a path knows the volumes it is inside (`media::MediumStack`: entered through a
+//! boundary's front face, left through a back face, the last entered current, false interfaces
+//! passed without a bounce), and a refractive boundary's relative index is that of the two media
+//! it separates. An absorbing
 //! medium weights each segment by its transmittance; a scattering one samples where the light
 //! is first scattered, and a scattering is a bounce (it counts toward `max_depth` and Russian
 //! roulette) whose direction the phase function picks.
@@ -22,6 +24,7 @@ use super::{
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
     light::Light,
     material,
+    media::{self, free_flight, transmittance, Crossing, MediumStack},
     motion::Pose,
     sampler::Sampler,
     sampling::sample_henyey_greenstein,
@@ -45,6 +48,11 @@ pub struct Stats {
 /// scales of 2, 4 and 5 and depths of 1 and 3 did no better.
 pub(crate) const RR_MIN_DEPTH: u32 = 2;
 pub(crate) const RR_SURVIVAL_SCALE: f32 = 3.0;
+
+/// How many false interfaces (volume boundaries with the same medium on both sides) a path
+/// passes before it is ended: far more than any sensible nesting, few enough that a pathological
+/// mesh cannot hold a path.
+const MAX_FALSE_INTERFACES: u32 = 256;
 
 /// 1 - ShadowEpsilon: shadow rays toward a point stop just short of it.
 pub(crate) const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
@@ -91,12 +99,15 @@ pub fn li(
     // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
     // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
     let mut eta_scale = 1.0f32;
-    // The volume the ray travels in (its boundary's material), `None` outside every volume.
-    let mut medium: Option<u32> = None;
+    // The volumes the path is inside (each by its boundary's material), the current one on top.
+    let mut media = MediumStack::default();
+    // False interfaces passed (bounded, so that no geometry can hold a path forever).
+    let mut passed = 0u32;
     let lights = &scene.lights;
     loop {
         stats.rays += 1;
         let hit = scene.intersect(&ray, f32::INFINITY, pose);
+        let medium = media.current();
         // In a scene with scattering media every bounce starts with two numbers for the free
         // flight, drawn in a scattering medium and skipped elsewhere; other scenes take none.
         let scattering = match medium {
@@ -115,10 +126,10 @@ pub fn li(
             if scene.scattering_media {
                 sampler.skip(2);
             }
-            if let Some(m) = medium {
+            if let Some(v) = medium.and_then(|m| scene.materials[m as usize].volume.as_ref()) {
                 // Beer-Lambert along the segment inside the volume (an escape is endless).
                 let distance = hit.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
-                beta *= transmittance(scene, m, distance);
+                beta *= transmittance(v, distance);
             }
         }
         if let (Some(t), Some(v)) = (scattered_at, &scattering) {
@@ -174,6 +185,26 @@ pub fn li(
         };
         let wo = -ray.dir;
         let material = &scene.materials[tri.material as usize];
+        // The front face is the one the winding makes counter-clockwise.
+        let front = ng.dot(wo) > 0.0;
+        // A volume's boundary is crossed through its front face into it, through its back face
+        // out of it; where the medium is the same on both sides light passes unchanged.
+        let boundary = material.volume.is_some() && material.bounds_medium();
+        let mut beyond = None;
+        if boundary {
+            match media.crossing(tri.material, front) {
+                Crossing::Real { beyond: b } => beyond = b,
+                Crossing::False => {
+                    media.cross(tri.material, front);
+                    passed += 1;
+                    if passed > MAX_FALSE_INTERFACES {
+                        break;
+                    }
+                    ray = Ray::new(offset_ray_origin(p, p_error, ng, ray.dir), ray.dir);
+                    continue;
+                }
+            }
+        }
         let sp = scene.surface_point(hit.prim, b);
         if material.unlit {
             // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on from it.
@@ -207,9 +238,7 @@ pub fn li(
             break;
         }
 
-        // Shading frame on wo's side of the surface (surfaces reflect on both faces); the front
-        // face is the one the winding makes counter-clockwise.
-        let front = ng.dot(wo) > 0.0;
+        // Shading frame on wo's side of the surface (surfaces reflect on both faces).
         let ng = if front { ng } else { -ng };
         let mut ns = if tri.smooth {
             let [a, bb, c] = tri.vertices;
@@ -241,7 +270,14 @@ pub fn li(
         if wo_local.z <= 0.0 {
             break; // Grazing with a bent normal: no consistent reflection.
         }
-        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front);
+        // A refractive boundary's relative index: the volume's against the medium on its
+        // other side, the current one entering it, the one beyond leaving it.
+        let other_ior = if boundary {
+            media::ior(&scene.materials, if front { medium } else { beyond })
+        } else {
+            1.0
+        };
+        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, other_ior);
         if let Bsdf::Layered(Layered { coat: Some(coat), .. }) = &mut bsdf {
             let nc = match material::clearcoat_normal_map(&scene.textures, material, &sp) {
                 Some(tangent_normal) => {
@@ -294,14 +330,20 @@ pub fn li(
                             }
                             // The shadow ray travels in the far side's volume when it
                             // crosses into a medium, else in the path's.
-                            let through = if wi_local.z < 0.0 && material.bounds_medium() {
-                                front.then_some(tri.material)
+                            let through = if wi_local.z < 0.0 && boundary {
+                                if front {
+                                    Some(tri.material)
+                                } else {
+                                    beyond
+                                }
                             } else {
                                 medium
                             };
-                            if let Some(m) = through {
+                            if let Some(v) =
+                                through.and_then(|m| scene.materials[m as usize].volume.as_ref())
+                            {
                                 let distance = ls.point.map_or(f32::INFINITY, |q| (q - p).length());
-                                li *= transmittance(scene, m, distance);
+                                li *= transmittance(v, distance);
                             }
                             let light_pdf = ls.pdf * choice_pdf;
                             let weight = if ls.is_delta {
@@ -339,9 +381,8 @@ pub fn li(
         if bs.lobe.enters_far_side() {
             eta_scale *= bs.eta * bs.eta;
         }
-        if bs.wi.z < 0.0 && material.bounds_medium() {
-            // Into the volume through its front face, out of it through the back.
-            medium = front.then_some(tri.material);
+        if bs.wi.z < 0.0 && boundary {
+            media.cross(tri.material, front);
         }
         ray = Ray::new(offset_ray_origin(p, p_error, ng, wi), wi);
         depth += 1;
@@ -367,50 +408,6 @@ fn roulette(sampler: &mut Sampler, depth: u32, beta: &mut Vec3, eta_scale: f32) 
     }
     *beta /= 1.0 - q;
     true
-}
-
-/// Where light travelling `distance` (world units, infinite for an escape) through the
-/// scattering medium `v` is first scattered, from numbers `u`, and the weight (value over
-/// density) of what was sampled: a scattering at the returned distance, or (`None`) none before
-/// `distance`. The extinction differs per channel, so `u.x` picks the channel whose
-/// exponential the distance is drawn from, and the density is the mean of the three channels'
-/// (one-sample multiple importance sampling over the channels, balance heuristic): the weight is
-/// sigma_s T(t) / mean(sigma_t T(t)) for a scattering, T(d) / mean(T(d)) for none, each exactly
-/// the albedo and 1 in a grey medium.
-#[inline]
-fn free_flight(v: &Volume, distance: f32, u: Vec2) -> (Vec3, Option<f32>) {
-    let channel = ((u.x * 3.0) as usize).min(2);
-    let sigma = v.extinction[channel];
-    let t = if sigma > 0.0 { -(1.0 - u.y).ln() / sigma } else { f32::INFINITY };
-    let tr = |d: f32| {
-        // exp(-0 x inf) would be NaN: a clear channel passes everything at any distance.
-        Vec3::from_array(
-            v.extinction.to_array().map(|s| if s == 0.0 { 1.0 } else { (-s * d).exp() }),
-        )
-    };
-    if t < distance {
-        let tr = tr(t);
-        let pdf = (v.extinction * tr).element_sum() / 3.0;
-        let weight = if pdf > 0.0 { v.extinction * v.albedo * tr / pdf } else { Vec3::ZERO };
-        (weight, Some(t))
-    } else {
-        let tr = tr(distance);
-        let pdf = tr.element_sum() / 3.0;
-        (if pdf > 0.0 { tr / pdf } else { Vec3::ZERO }, None)
-    }
-}
-
-/// What a distance `distance` inside the volume of material `m` lets through.
-#[inline]
-fn transmittance(scene: &PreparedScene, m: u32, distance: f32) -> Vec3 {
-    match &scene.materials[m as usize].volume {
-        Some(v) if v.extinction != Vec3::ZERO => {
-            // exp(-0 x inf) would be NaN: a clear channel passes everything at any distance.
-            let through = |a: f32| if a == 0.0 { 1.0 } else { (-a * distance).exp() };
-            Vec3::new(through(v.extinction.x), through(v.extinction.y), through(v.extinction.z))
-        }
-        _ => Vec3::ONE,
-    }
 }
 
 /// Applies a tangent-space normal from a normal map in the frame of [`tangent_basis`].

@@ -60,7 +60,13 @@ pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
 /// A material with a clear coat, a sheen or anisotropy is `Layered` (its coat normal is +z here:
 /// the integrator sets it from [`clearcoat_normal_map`]).
 #[inline]
-pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) -> Bsdf {
+pub fn bsdf(
+    textures: &[Texture],
+    m: &Material,
+    sp: &SurfacePoint,
+    front: bool,
+    other_ior: f32,
+) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
     if let Some(r) = &m.metallic_roughness_texture {
@@ -69,9 +75,11 @@ pub fn bsdf(textures: &[Texture], m: &Material, sp: &SurfacePoint, front: bool) 
         metallic *= t.z;
     }
     if m.refracts() {
-        // ior 0 (the extension's "no refraction") is 1: an index-matched boundary.
+        // ior 0 (the extension's "no refraction") is 1: an index-matched boundary. The relative
+        // index is the far side's over the near side's: `other_ior` is the medium's on the side
+        // that is not this volume's (1 for air).
         let ior = if m.ior > 0.0 { m.ior } else { 1.0 };
-        let eta = if front { ior } else { 1.0 / ior };
+        let eta = if front { ior / other_ior } else { other_ior / ior };
         // Below GGX's smallest alpha the boundary is a mirror: the delta lobes, exactly.
         let alpha = roughness.clamp(0.0, 1.0).powi(2);
         let ggx = (alpha >= MIN_ALPHA).then(|| Ggx::new(alpha));

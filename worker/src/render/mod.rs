@@ -14,6 +14,7 @@ pub mod integrator;
 mod lanes;
 pub mod light;
 pub mod material;
+pub mod media;
 pub mod motion;
 pub mod sah_build;
 pub mod sampler;

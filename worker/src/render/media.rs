@@ -1,0 +1,215 @@
+//! Media: the homogeneous volumes inside closed meshes (`KHR_materials_volume`), what a path
+//! knows of the ones it is in, and how light travels through them.
+//!
+//! **Nesting.** Volumes may overlap and nest (a liquid in a glass, an ice cube in water, a bubble
+//! in glass): a path keeps a stack of the volumes it has entered (each by its material), and the
+//! medium it travels in is the one it entered last. A boundary is crossed through its front face
+//! (the side its winding makes counter-clockwise) into the volume and through its back face out
+//! of it; a crossing that leaves the medium the same on both sides is a false interface, which
+//! light passes without a change of direction, a bounce or a Fresnel reflection:
+//! - entering volume M is real unless M is already the current medium (two overlapping meshes of
+//!   one material are their union);
+//! - leaving M is real when M is the current medium (the medium beyond is the one entered
+//!   before it) and false when M was entered earlier than the current medium (the boundary lies
+//!   inside the medium entered later); leaving an M the path never entered (a camera inside a
+//!   volume, a mesh with a gap) is real, into the current medium.
+//!
+//! So a liquid modelled, as artists do, to overlap the glass's inner wall slightly meets the
+//! glass-to-liquid interface (relative index n_liquid / n_glass) at the first of the two
+//! surfaces it crosses and passes the second. Coincident surfaces are ambiguous (which is hit
+//! first is decided by rounding) and should overlap instead. The stack holds
+//! `MediumStack::CAPACITY` volumes; a volume entered beyond that is ignored.
+//!
+//! **Transport.** An absorbing medium keeps exp(-sigma_t d) of the light over a distance d; a
+//! scattering one samples free flights per channel ([`free_flight`]).
+
+use common::scene::{Material, Volume};
+use glam::{Vec2, Vec3};
+
+/// The volumes a path is inside, the last entered on top.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MediumStack {
+    entered: [u32; MediumStack::CAPACITY],
+    len: usize,
+}
+
+/// What crossing a volume's boundary does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Crossing {
+    /// A real interface between the current medium and `beyond` (`None`: air).
+    Real { beyond: Option<u32> },
+    /// The medium is the same on both sides: light passes unchanged.
+    False,
+}
+
+impl MediumStack {
+    /// How many nested volumes a path tracks.
+    pub const CAPACITY: usize = 8;
+
+    /// The medium the path travels in (`None`: air).
+    #[inline]
+    pub fn current(&self) -> Option<u32> {
+        self.len.checked_sub(1).map(|i| self.entered[i])
+    }
+
+    /// What crossing the boundary of volume `m` through its front face (`front`, entering) or
+    /// its back face (leaving) would be, without crossing it.
+    #[inline]
+    pub fn crossing(&self, m: u32, front: bool) -> Crossing {
+        let current = self.current();
+        if front {
+            return if current == Some(m) {
+                Crossing::False
+            } else {
+                Crossing::Real { beyond: Some(m) }
+            };
+        }
+        match self.position(m) {
+            // On top: into the medium entered before it.
+            Some(i) if i + 1 == self.len => {
+                let below = i.checked_sub(1).map(|j| self.entered[j]);
+                if below == Some(m) {
+                    Crossing::False
+                } else {
+                    Crossing::Real { beyond: below }
+                }
+            }
+            Some(_) => Crossing::False,
+            None => Crossing::Real { beyond: current },
+        }
+    }
+
+    /// Crosses the boundary of volume `m`: entering pushes it, leaving removes its last entry.
+    #[inline]
+    pub fn cross(&mut self, m: u32, front: bool) {
+        if front {
+            if self.len < Self::CAPACITY {
+                self.entered[self.len] = m;
+                self.len += 1;
+            }
+        } else if let Some(i) = self.position(m) {
+            self.entered.copy_within(i + 1..self.len, i);
+            self.len -= 1;
+        }
+    }
+
+    /// The index of the last entry of `m`.
+    #[inline]
+    fn position(&self, m: u32) -> Option<usize> {
+        self.entered[..self.len].iter().rposition(|&e| e == m)
+    }
+}
+
+/// The index of refraction of the medium bounded by material `m`'s volume (`None`: air, 1).
+/// `ior` 0 (the extension's "no refraction") is 1.
+#[inline]
+pub fn ior(materials: &[Material], m: Option<u32>) -> f32 {
+    match m {
+        Some(m) => {
+            let ior = materials[m as usize].ior;
+            if ior > 0.0 {
+                ior
+            } else {
+                1.0
+            }
+        }
+        None => 1.0,
+    }
+}
+
+/// What a distance `distance` inside `volume` lets through unscattered, per channel.
+#[inline]
+pub fn transmittance(volume: &Volume, distance: f32) -> Vec3 {
+    if volume.extinction == Vec3::ZERO {
+        return Vec3::ONE;
+    }
+    // exp(-0 x inf) would be NaN: a clear channel passes everything at any distance.
+    let through = |a: f32| if a == 0.0 { 1.0 } else { (-a * distance).exp() };
+    Vec3::new(
+        through(volume.extinction.x),
+        through(volume.extinction.y),
+        through(volume.extinction.z),
+    )
+}
+
+/// Where light travelling `distance` (world units, infinite for an escape) through the
+/// scattering medium `v` is first scattered, from numbers `u`, and the weight (value over
+/// density) of what was sampled: a scattering at the returned distance, or (`None`) none before
+/// `distance`. The extinction differs per channel, so `u.x` picks the channel whose
+/// exponential the distance is drawn from, and the density is the mean of the three channels'
+/// (one-sample multiple importance sampling over the channels, balance heuristic): the weight is
+/// sigma_s T(t) / mean(sigma_t T(t)) for a scattering, T(d) / mean(T(d)) for none, each exactly
+/// the albedo and 1 in a grey medium.
+#[inline]
+pub fn free_flight(v: &Volume, distance: f32, u: Vec2) -> (Vec3, Option<f32>) {
+    let channel = ((u.x * 3.0) as usize).min(2);
+    let sigma = v.extinction[channel];
+    let t = if sigma > 0.0 { -(1.0 - u.y).ln() / sigma } else { f32::INFINITY };
+    if t < distance {
+        let tr = transmittance(v, t);
+        let pdf = (v.extinction * tr).element_sum() / 3.0;
+        let weight = if pdf > 0.0 { v.extinction * v.albedo * tr / pdf } else { Vec3::ZERO };
+        (weight, Some(t))
+    } else {
+        let tr = transmittance(v, distance);
+        let pdf = tr.element_sum() / 3.0;
+        (if pdf > 0.0 { tr / pdf } else { Vec3::ZERO }, None)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_liquid_overlapping_a_glass_wall_meets_one_real_interface_each_way() {
+        let (glass, liquid) = (1, 2);
+        let mut s = MediumStack::default();
+        // Down through the glass's outer wall, the liquid's surface inside the wall, the
+        // glass's inner wall (inside the liquid), ...
+        assert_eq!(s.crossing(glass, true), Crossing::Real { beyond: Some(glass) });
+        s.cross(glass, true);
+        assert_eq!(s.crossing(liquid, true), Crossing::Real { beyond: Some(liquid) });
+        s.cross(liquid, true);
+        assert_eq!(s.crossing(glass, false), Crossing::False);
+        s.cross(glass, false);
+        assert_eq!(s.current(), Some(liquid));
+        // ... then out at the bottom: the glass's inner wall (real: liquid to glass), the
+        // liquid's surface inside the glass (false), the glass's outer wall (real: to air).
+        assert_eq!(s.crossing(glass, true), Crossing::Real { beyond: Some(glass) });
+        s.cross(glass, true);
+        assert_eq!(s.crossing(liquid, false), Crossing::False);
+        s.cross(liquid, false);
+        assert_eq!(s.crossing(glass, false), Crossing::Real { beyond: None });
+        s.cross(glass, false);
+        assert_eq!(s.current(), None);
+    }
+
+    #[test]
+    fn overlapping_meshes_of_one_material_are_their_union() {
+        let mut s = MediumStack::default();
+        s.cross(4, true);
+        assert_eq!(s.crossing(4, true), Crossing::False);
+        s.cross(4, true);
+        assert_eq!(s.crossing(4, false), Crossing::False);
+        s.cross(4, false);
+        assert_eq!(s.crossing(4, false), Crossing::Real { beyond: None });
+        s.cross(4, false);
+        assert_eq!(s.current(), None);
+    }
+
+    #[test]
+    fn leaving_a_volume_never_entered_is_real_and_an_overfull_stack_ignores_the_rest() {
+        let mut s = MediumStack::default();
+        assert_eq!(s.crossing(7, false), Crossing::Real { beyond: None });
+        s.cross(7, false);
+        assert_eq!(s.current(), None);
+        for m in 0..MediumStack::CAPACITY as u32 + 3 {
+            s.cross(m, true);
+        }
+        assert_eq!(s.current(), Some(MediumStack::CAPACITY as u32 - 1));
+        // An ignored volume's back face is then real, into the current medium.
+        let ignored = MediumStack::CAPACITY as u32 + 1;
+        assert_eq!(s.crossing(ignored, false), Crossing::Real { beyond: s.current() });
+    }
+}

@@ -1,0 +1,235 @@
+//! Nested volumes through the whole renderer: a liquid in a glass, modelled as artists do (the
+//! liquid's mesh overlaps the glass's inner wall a little), on scenes whose answer is known.
+//!
+//! - A layered slab at normal incidence (glass wall, liquid, glass wall) under an orthographic
+//!   camera in a white environment: R + T of the incoherent multiple-reflection series of its
+//!   three interfaces (air-glass, glass-liquid, liquid-glass, glass-air: relative indices from
+//!   both media) with each layer's Beer-Lambert transmittance, computed by the adding method.
+//!   Wrong relative indices (the liquid against air) or a false interface taken as real (the
+//!   glass's inner wall inside the liquid) change the reflections, and the wrong medium's
+//!   absorption changes the transmittance.
+//! - A furnace: glass holding a liquid of another index holding a bubble of air, in a white
+//!   environment, is exactly 1 in every pixel: the 1 / eta² radiance scales of the crossings
+//!   telescope to 1 only if every interface's relative index is the two media's.
+
+mod support;
+
+use common::settings::{Environment, RenderSettings};
+use serde_json::{json, Value};
+use support::*;
+
+/// An axis-aligned box shell: its corners, and whether its faces look inward (a cavity).
+struct Shell {
+    min: [f32; 3],
+    max: [f32; 3],
+    inward: bool,
+}
+
+/// A scene of meshes, each made of box shells with one material and turned by `tilt` radians
+/// about the z axis, seen straight down by an orthographic camera at height `camera_y` over a
+/// 2 x 2 square. Returns the file's path.
+fn shells_scene(
+    tag: &str,
+    meshes: Vec<(Vec<Shell>, Value)>,
+    camera_y: f32,
+    tilt: f64,
+) -> std::path::PathBuf {
+    let half_turn = (tilt / 2.0).sin_cos();
+    let mut bytes: Vec<u8> = Vec::new();
+    let (mut accessors, mut views, mut json_meshes, mut materials, mut nodes) =
+        (vec![], vec![], vec![], vec![], vec![]);
+    for (i, (shells, material)) in meshes.into_iter().enumerate() {
+        let mut positions: Vec<[f32; 3]> = Vec::new();
+        let mut indices: Vec<u32> = Vec::new();
+        for s in &shells {
+            let base = positions.len() as u32;
+            for c in 0..8 {
+                positions.push([
+                    if c & 1 == 1 { s.max[0] } else { s.min[0] },
+                    if c & 2 == 2 { s.max[1] } else { s.min[1] },
+                    if c & 4 == 4 { s.max[2] } else { s.min[2] },
+                ]);
+            }
+            // Each face counter-clockwise seen from outside the box.
+            let faces: [[u32; 4]; 6] = [
+                [0, 4, 6, 2],
+                [1, 3, 7, 5],
+                [0, 1, 5, 4],
+                [2, 6, 7, 3],
+                [0, 2, 3, 1],
+                [4, 5, 7, 6],
+            ];
+            for q in faces {
+                let tri = [[q[0], q[1], q[2]], [q[0], q[2], q[3]]];
+                for mut t in tri {
+                    if s.inward {
+                        t.swap(1, 2);
+                    }
+                    indices.extend(t.map(|v| v + base));
+                }
+            }
+        }
+        let (lo, hi) = positions.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| {
+            (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
+        });
+        let p_start = bytes.len();
+        bytes.extend(positions.iter().flatten().flat_map(|v| v.to_le_bytes()));
+        let i_start = bytes.len();
+        bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+        views.push(json!({"buffer": 0, "byteOffset": p_start, "byteLength": i_start - p_start}));
+        views
+            .push(json!({"buffer": 0, "byteOffset": i_start, "byteLength": bytes.len() - i_start}));
+        accessors.push(json!({"bufferView": 2 * i, "componentType": 5126, "count": positions.len(), "type": "VEC3", "min": lo, "max": hi}));
+        accessors.push(json!({"bufferView": 2 * i + 1, "componentType": 5125, "count": indices.len(), "type": "SCALAR"}));
+        json_meshes.push(json!({"primitives": [{"attributes": {"POSITION": 2 * i}, "indices": 2 * i + 1, "material": i}]}));
+        materials.push(material);
+        nodes.push(json!({"mesh": i, "rotation": [0.0, 0.0, half_turn.0, half_turn.1]}));
+    }
+    let camera = nodes.len();
+    nodes.push(json!({"camera": 0, "translation": [0.0, camera_y, 0.0],
+        "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}));
+    let json = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": (0..=camera).collect::<Vec<_>>()}],
+        "nodes": nodes,
+        "cameras": [{"type": "orthographic", "orthographic": {"xmag": 1.0, "ymag": 1.0, "znear": 0.01, "zfar": 100.0}}],
+        "meshes": json_meshes,
+        "materials": materials,
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+    });
+    let dir = std::env::temp_dir().join(format!("renderfarm-nested-{}-{tag}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("shells.gltf");
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    path
+}
+
+/// A smooth, fully transmitting volume of index `ior` absorbing to `color` over `distance`.
+fn dielectric(ior: f64, attenuation: Option<([f64; 3], f64)>) -> Value {
+    let mut volume = json!({"thicknessFactor": 1.0});
+    if let Some((color, distance)) = attenuation {
+        volume["attenuationColor"] = json!(color);
+        volume["attenuationDistance"] = json!(distance);
+    }
+    json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
+        "extensions": {
+            "KHR_materials_transmission": {"transmissionFactor": 1.0},
+            "KHR_materials_volume": volume,
+            "KHR_materials_ior": {"ior": ior}
+        }
+    })
+}
+
+fn white_furnace(res: u32, spp: u32) -> RenderSettings {
+    RenderSettings {
+        width: res,
+        height: res,
+        spp,
+        max_depth: 256,
+        environment: Some(Environment::Color { color: [1.0; 3] }),
+        ..Default::default()
+    }
+}
+
+/// A wide glass slab with a cavity between y = -half_liquid and half_liquid, walls `wall`
+/// thick, and a liquid box overlapping the cavity's walls by `overlap`.
+fn glass_with_liquid(half_liquid: f32, wall: f32, overlap: f32) -> (Vec<Shell>, Vec<Shell>) {
+    let outer = half_liquid + wall;
+    let glass = vec![
+        Shell { min: [-50.0, -outer, -50.0], max: [50.0, outer, 50.0], inward: false },
+        Shell { min: [-40.0, -half_liquid, -40.0], max: [40.0, half_liquid, 40.0], inward: true },
+    ];
+    let (l, h) = (40.0 + overlap, half_liquid + overlap);
+    let liquid = vec![Shell { min: [-l, -h, -l], max: [l, h, l], inward: false }];
+    (glass, liquid)
+}
+
+/// R + T at normal incidence of a stack of layers between air above and below, each (index,
+/// transmittance through it), by the adding method for incoherent light: an interface between
+/// indices a and b reflects r = ((a - b) / (a + b))² from either side, and a layer of
+/// transmittance tau over a system that reflects R_b and transmits T_b gives, seen through the
+/// interface above it, R = r + (1 - r)² tau² R_b / (1 - r tau² R_b) and
+/// T = (1 - r) tau T_b / (1 - r tau² R_b).
+fn stack_r_plus_t(layers: &[(f64, f64)]) -> f64 {
+    let r_between = |a: f64, b: f64| ((a - b) / (a + b)).powi(2);
+    let last = layers.last().unwrap().0;
+    let (mut rb, mut tb) = (r_between(last, 1.0), 1.0 - r_between(last, 1.0));
+    for (k, &(n, tau)) in layers.iter().enumerate().rev() {
+        let above = if k == 0 { 1.0 } else { layers[k - 1].0 };
+        let r = r_between(above, n);
+        let denom = 1.0 - r * tau * tau * rb;
+        (rb, tb) = (r + (1.0 - r).powi(2) * tau * tau * rb / denom, (1.0 - r) * tau * tb / denom);
+    }
+    rb + tb
+}
+
+/// Glass (1.5, tinted) holding water (1.33, tinted otherwise), overlapping the glass's inner
+/// walls by 1e-4: each channel's image mean is the adding method's R + T within four standard
+/// errors.
+#[test]
+fn a_liquid_in_glass_at_normal_incidence_gives_the_layered_fresnel_series() {
+    let (n_glass, n_liquid) = (1.5f64, 1.33f64);
+    let (glass_color, liquid_color, distance) = ([0.9, 0.7, 0.5], [0.4, 0.8, 0.95], 0.5);
+    let (half_liquid, wall, overlap) = (0.15f32, 0.1f32, 1e-4f32);
+    let (glass, liquid) = glass_with_liquid(half_liquid, wall, overlap);
+    let path = shells_scene(
+        "layered",
+        vec![
+            (glass, dielectric(n_glass, Some((glass_color, distance)))),
+            (liquid, dielectric(n_liquid, Some((liquid_color, distance)))),
+        ],
+        2.0,
+        0.0,
+    );
+    let scene = common::gltf::load_path(&path).unwrap();
+    let film = render(&scene, &white_furnace(8, 512));
+    let n = film.pixels.len() as f64;
+    let means = film.mean_rgb();
+    for c in 0..3 {
+        let tau = |color: [f64; 3], thickness: f32| {
+            (color[c].ln() / distance * thickness as f64).exp() // exp(-sigma d)
+        };
+        let expected = stack_r_plus_t(&[
+            (n_glass, tau(glass_color, wall)),
+            (n_liquid, tau(liquid_color, 2.0 * half_liquid)),
+            (n_glass, tau(glass_color, wall)),
+        ]);
+        let mean = means.iter().map(|p| p[c] as f64).sum::<f64>() / n;
+        let var: f64 = film.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / n;
+        let se = (var / n).sqrt();
+        eprintln!("channel {c}: {mean:.5} against {expected:.5} (standard error {se:.1e})");
+        assert!(
+            (mean - expected).abs() < 4.0 * se + 2e-4,
+            "channel {c}: {mean} against {expected}"
+        );
+    }
+}
+
+/// Clear glass holding clear water holding a bubble of air (ior 1), the liquid overlapping the
+/// glass's inner walls, tilted so that light refracts at angles and totally reflects, in the
+/// white furnace: every pixel is 1.
+#[test]
+fn glass_holding_water_holding_a_bubble_in_a_white_furnace_is_exactly_white() {
+    let (glass, liquid) = glass_with_liquid(0.3, 0.15, 1e-3);
+    let bubble = vec![Shell { min: [-0.2, -0.1, -0.15], max: [0.1, 0.15, 0.2], inward: false }];
+    let path = shells_scene(
+        "furnace",
+        vec![
+            (glass, dielectric(1.5, None)),
+            (liquid, dielectric(1.33, None)),
+            (bubble, dielectric(1.0, None)),
+        ],
+        2.0,
+        0.5,
+    );
+    let scene = common::gltf::load_path(&path).unwrap();
+    let film = render(&scene, &white_furnace(16, 64));
+    let worst =
+        film.mean_rgb().iter().flatten().map(|&v| (v as f64 - 1.0).abs()).fold(0.0, f64::max);
+    eprintln!("the worst pixel is {worst:.1e} away from 1");
+    assert!(worst < 1e-4, "a pixel is {worst} away from 1");
+}
