@@ -269,6 +269,9 @@ pub struct Material {
     /// `KHR_materials_volume` with `thicknessFactor > 0`: the mesh bounds a refractive volume
     /// (`None`: thin-walled, as without the extension).
     pub volume: Option<Volume>,
+    /// `KHR_materials_dispersion.dispersion`, 20 / Abbe number (0: none): a refractive volume's
+    /// index varies with the wavelength.
+    pub dispersion: f32,
     /// `KHR_materials_clearcoat` with a factor above 0 (`None`: no coat).
     pub clearcoat: Option<Clearcoat>,
     /// `KHR_materials_sheen` with a colour factor above 0 (`None`: no sheen).
@@ -329,6 +332,7 @@ impl Default for Material {
             diffuse_transmission_color: Vec3::ONE,
             diffuse_transmission_color_texture: None,
             volume: None,
+            dispersion: 0.0,
             clearcoat: None,
             sheen: None,
             anisotropy: None,

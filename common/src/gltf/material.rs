@@ -116,6 +116,19 @@ impl Loader<'_> {
             Some(v) => self.anisotropy(v).context(|| "KHR_materials_anisotropy".into())?,
             None => None,
         };
+        let dispersion = match ext.and_then(|e| e.others.get("KHR_materials_dispersion")) {
+            Some(v) => {
+                let d =
+                    number(v, "dispersion", 0.0).context(|| "KHR_materials_dispersion".into())?;
+                if !(d.is_finite() && d >= 0.0) {
+                    return fail(format!(
+                        "KHR_materials_dispersion: dispersion {d} must be finite and not negative"
+                    ));
+                }
+                d as f32
+            }
+            None => 0.0,
+        };
         let alpha_mode = match m.alpha_mode {
             Checked::Valid(json::material::AlphaMode::Opaque) => AlphaMode::Opaque,
             Checked::Valid(json::material::AlphaMode::Mask) => {
@@ -189,10 +202,17 @@ impl Loader<'_> {
             clearcoat,
             sheen,
             anisotropy,
+            dispersion,
             unlit: ext.is_some_and(|e| e.others.contains_key("KHR_materials_unlit")),
             alpha_mode,
             double_sided: m.double_sided,
         };
+        if material.dispersion > 0.0 && !material.refracts() {
+            tracing::warn!(
+                "material {index} ({}): KHR_materials_dispersion bends light by colour only in a refractive volume (KHR_materials_volume with full transmission); ignored",
+                material.name
+            );
+        }
         if material.volume.is_some()
             && (material.transmission > 0.0 || material.diffuse_transmission > 0.0)
             && !material.bounds_medium()

@@ -6,7 +6,8 @@
 //! drawn, and a path that ends takes no more), so dimension `k` always means the same thing for
 //! every sample of every pixel. The light sample's first coordinate also chooses the light, so
 //! its strata span all lights together. In a scene with scattering media each bounce takes two
-//! more first, for the free flight; scenes without them keep the layout of four.
+//! more first, for the free flight; scenes without them keep the layout of four. In a scene with
+//! dispersion a path starts with one number for the wavelength it may take on.
 //!
 //! Media: a path knows the volumes it is inside (`media::MediumStack`: entered through a
 //! boundary's front face, left through a back face, the last entered current, false interfaces
@@ -29,6 +30,7 @@ use super::{
     sampler::Sampler,
     sampling::sample_henyey_greenstein,
     scene::{PreparedScene, NONE, UNSAMPLED},
+    spectrum,
 };
 
 /// Counters kept per task (never logged per ray).
@@ -103,6 +105,10 @@ pub fn li(
     let mut media = MediumStack::default();
     // False interfaces passed (bounded, so that no geometry can hold a path forever).
     let mut passed = 0u32;
+    // In a scene with dispersion, the number for the wavelength the path takes on at its first
+    // dispersive boundary (drawn first, whether used or not); the wavelength once taken.
+    let u_wavelength = if scene.dispersive { sampler.next_1d() } else { 0.0 };
+    let mut wavelength: Option<f32> = None;
     let lights = &scene.lights;
     loop {
         stats.rays += 1;
@@ -271,13 +277,29 @@ pub fn li(
             break; // Grazing with a bent normal: no consistent reflection.
         }
         // A refractive boundary's relative index: the volume's against the medium on its
-        // other side, the current one entering it, the one beyond leaving it.
-        let other_ior = if boundary {
-            media::ior(&scene.materials, if front { medium } else { beyond })
+        // other side, the current one entering it, the one beyond leaving it. A dispersive one
+        // first gives the path its wavelength, and the path the colour of that light.
+        let iors = if boundary {
+            let other = if front { medium } else { beyond };
+            let dispersive =
+                |m: Option<u32>| m.is_some_and(|m| scene.materials[m as usize].dispersion > 0.0);
+            if wavelength.is_none()
+                && scene.dispersive
+                && material.refracts()
+                && (material.dispersion > 0.0 || dispersive(other))
+            {
+                let (lambda, weight) = spectrum::sample_wavelength(u_wavelength);
+                wavelength = Some(lambda);
+                beta *= weight;
+            }
+            [
+                media::ior(&scene.materials, Some(tri.material), wavelength),
+                media::ior(&scene.materials, other, wavelength),
+            ]
         } else {
-            1.0
+            [1.0; 2]
         };
-        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, other_ior);
+        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, iors);
         if let Bsdf::Layered(Layered { coat: Some(coat), .. }) = &mut bsdf {
             let nc = match material::clearcoat_normal_map(&scene.textures, material, &sp) {
                 Some(tangent_normal) => {

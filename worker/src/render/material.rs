@@ -65,7 +65,7 @@ pub fn bsdf(
     m: &Material,
     sp: &SurfacePoint,
     front: bool,
-    other_ior: f32,
+    iors: [f32; 2],
 ) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
@@ -75,10 +75,9 @@ pub fn bsdf(
         metallic *= t.z;
     }
     if m.refracts() {
-        // ior 0 (the extension's "no refraction") is 1: an index-matched boundary. The relative
-        // index is the far side's over the near side's: `other_ior` is the medium's on the side
-        // that is not this volume's (1 for air).
-        let ior = if m.ior > 0.0 { m.ior } else { 1.0 };
+        // The relative index is the far side's over the near side's: `iors` are this volume's
+        // and that of the medium on its other side (1 for air), as `media::ior` gives them.
+        let [ior, other_ior] = iors;
         let eta = if front { ior / other_ior } else { other_ior / ior };
         // Below GGX's smallest alpha the boundary is a mirror: the delta lobes, exactly.
         let alpha = roughness.clamp(0.0, 1.0).powi(2);

@@ -26,6 +26,8 @@
 use common::scene::{Material, Volume};
 use glam::{Vec2, Vec3};
 
+use super::spectrum;
+
 /// The volumes a path is inside, the last entered on top.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct MediumStack {
@@ -100,17 +102,20 @@ impl MediumStack {
     }
 }
 
-/// The index of refraction of the medium bounded by material `m`'s volume (`None`: air, 1).
-/// `ior` 0 (the extension's "no refraction") is 1.
+/// The index of refraction of the medium bounded by material `m`'s volume (`None`: air, 1),
+/// at `wavelength` (nanometres) for a dispersive one once the path has chosen one. `ior` 0
+/// (the extension's "no refraction") is 1.
 #[inline]
-pub fn ior(materials: &[Material], m: Option<u32>) -> f32 {
+pub fn ior(materials: &[Material], m: Option<u32>, wavelength: Option<f32>) -> f32 {
     match m {
         Some(m) => {
-            let ior = materials[m as usize].ior;
-            if ior > 0.0 {
-                ior
-            } else {
-                1.0
+            let material = &materials[m as usize];
+            let ior = if material.ior > 0.0 { material.ior } else { 1.0 };
+            match wavelength {
+                Some(lambda) if material.dispersion > 0.0 => {
+                    spectrum::dispersive_ior(ior, material.dispersion, lambda)
+                }
+                _ => ior,
             }
         }
         None => 1.0,

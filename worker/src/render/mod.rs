@@ -20,6 +20,7 @@ pub mod sah_build;
 pub mod sampler;
 pub mod sampling;
 pub mod scene;
+pub mod spectrum;
 pub mod texture;
 pub mod wavefront;
 pub mod wavefront_tables;

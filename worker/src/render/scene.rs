@@ -75,6 +75,9 @@ pub struct PreparedScene {
     /// Whether any material bounds a scattering medium, so that paths sample free flights
     /// (and each bounce takes the two sampler numbers for them).
     pub scattering_media: bool,
+    /// Whether any refractive volume is dispersive, so that each path draws a number for the
+    /// wavelength it takes on at its first dispersive boundary.
+    pub dispersive: bool,
     /// Lights and the distribution to choose them.
     pub lights: LightSampler,
     /// What escaping rays see (also a light in `lights`), if anything.
@@ -402,6 +405,7 @@ fn prepare_inner(
         materials: scene.materials.clone(),
         textures: scene.textures.clone(),
         alpha_tested,
+        dispersive: scene.materials.iter().any(|m| m.refracts() && m.dispersion > 0.0),
         scattering_media: scene
             .materials
             .iter()
