@@ -223,6 +223,26 @@ pub struct Anisotropy {
     pub texture: Option<TextureRef>,
 }
 
+/// `KHR_materials_iridescence`: a thin dielectric film on the material, whose interference
+/// replaces the Fresnel reflectance of its specular lobes, mixed by `factor` x `texture.r`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Iridescence {
+    /// `iridescenceFactor` in (0, 1].
+    pub factor: f32,
+    /// `iridescenceTexture` (R = factor, linear).
+    pub texture: Option<TextureRef>,
+    /// `iridescenceIor`: the film's index of refraction, at least 1.
+    pub ior: f32,
+    /// `iridescenceThicknessMinimum` in nanometres, at least 0: the thickness where the
+    /// thickness texture reads 0.
+    pub thickness_min: f32,
+    /// `iridescenceThicknessMaximum` in nanometres, at least 0: the thickness where it reads 1,
+    /// and everywhere without a texture.
+    pub thickness_max: f32,
+    /// `iridescenceThicknessTexture` (G = mix from the minimum to the maximum, linear).
+    pub thickness_texture: Option<TextureRef>,
+}
+
 /// The glTF metallic-roughness material with the extensions the renderer honours.
 #[derive(Clone, Debug)]
 pub struct Material {
@@ -275,6 +295,8 @@ pub struct Material {
     pub sheen: Option<Sheen>,
     /// `KHR_materials_anisotropy` with a strength above 0 (`None`: isotropic).
     pub anisotropy: Option<Anisotropy>,
+    /// `KHR_materials_iridescence` with a factor above 0 (`None`: no thin film).
+    pub iridescence: Option<Iridescence>,
     /// `KHR_materials_unlit`: the surface shows its base colour (factor, texture, vertex colour)
     /// to whatever looks at it, whatever lights it; it reflects nothing and lights nothing.
     pub unlit: bool,
@@ -332,6 +354,7 @@ impl Default for Material {
             clearcoat: None,
             sheen: None,
             anisotropy: None,
+            iridescence: None,
             unlit: false,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
