@@ -29,6 +29,9 @@ pub struct Scene {
     /// Nodes whose meshes would deform (skins, morph targets): rendered in their rest pose,
     /// which is only right for a still image.
     pub deforming: Vec<String>,
+    /// `KHR_materials_variants`: the names of the material variants, in file order
+    /// (`Mesh::variant_materials` refers to them by index).
+    pub variants: Vec<String>,
 }
 
 /// One glTF primitive's triangles in local space.
@@ -50,6 +53,10 @@ pub struct Mesh {
     pub indices: Vec<[u32; 3]>,
     /// Index into `Scene::materials`.
     pub material: usize,
+    /// `KHR_materials_variants` mappings: (index into `Scene::variants`, index into
+    /// `Scene::materials`), the material the mesh takes in that variant (`material` in the
+    /// others).
+    pub variant_materials: Vec<(usize, usize)>,
 }
 
 /// A mesh placed in the world by a node.
@@ -504,6 +511,26 @@ impl Scene {
             )),
             _ => Ok(()),
         }
+    }
+
+    /// Gives every mesh the material its `KHR_materials_variants` mapping names for variant
+    /// `name` (meshes without one keep their default material); an unknown name is an error
+    /// listing the scene's variants.
+    pub fn apply_variant(&mut self, name: &str) -> Result<(), String> {
+        let Some(index) = self.variants.iter().position(|v| v == name) else {
+            let names = if self.variants.is_empty() {
+                "the scene has none".to_string()
+            } else {
+                format!("the scene has: {}", self.variants.join(", "))
+            };
+            return Err(format!("variant: no material variant named '{name}' ({names})"));
+        };
+        for mesh in &mut self.meshes {
+            if let Some(&(_, material)) = mesh.variant_materials.iter().find(|(v, _)| *v == index) {
+                mesh.material = material;
+            }
+        }
+        Ok(())
     }
 
     /// Whether anything in the scene moves over time.

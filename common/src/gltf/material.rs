@@ -23,6 +23,8 @@ impl Loader<'_> {
     /// the default material if a mesh has none. Sets `Mesh::material` accordingly.
     pub(crate) fn load_materials(&mut self) -> Result<Vec<Material>, SceneError> {
         let mut used: Vec<usize> = self.mesh_materials.iter().flatten().copied().collect();
+        // A variant's materials are loaded whether or not a mesh uses them by default.
+        used.extend(self.mesh_variant_materials.iter().flatten().map(|&(_, m)| m));
         used.sort_unstable();
         used.dedup();
         let mut materials = Vec::with_capacity(used.len() + 1);
@@ -32,6 +34,12 @@ impl Loader<'_> {
         let default_index = materials.len();
         if self.mesh_materials.iter().any(Option::is_none) {
             materials.push(Material::default());
+        }
+        for (mesh, mappings) in self.meshes.iter_mut().zip(&self.mesh_variant_materials) {
+            mesh.variant_materials = mappings
+                .iter()
+                .map(|&(variant, m)| (variant, used.binary_search(&m).unwrap_or(default_index)))
+                .collect();
         }
         for (mesh, gltf_material) in self.meshes.iter_mut().zip(&self.mesh_materials) {
             mesh.material = match gltf_material {

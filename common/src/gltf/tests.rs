@@ -893,3 +893,52 @@ fn iridescence_loads_and_bad_values_are_named() {
         println!("{key} = {value}: {err}");
     }
 }
+
+#[test]
+fn material_variants_swap_materials_and_unknown_names_are_listed() {
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    doc["extensionsUsed"] = json!(["KHR_materials_variants"]);
+    doc["extensions"] =
+        json!({"KHR_materials_variants": {"variants": [{"name": "red"}, {"name": "blue"}]}});
+    doc["materials"] = json!([
+        {"name": "red", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 0.0, 0.0, 1.0]}},
+        {"name": "blue", "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 1.0, 1.0]}}
+    ]);
+    let prim = &mut doc["meshes"][0]["primitives"][0];
+    prim["material"] = json!(0);
+    prim["extensions"] = json!({"KHR_materials_variants": {"mappings": [
+        {"material": 1, "variants": [1]},
+        {"material": 0, "variants": [0]}
+    ]}});
+    let scene = load(&doc).expect("loads");
+    assert_eq!(scene.variants, ["red", "blue"]);
+    let color = |s: &Scene| s.materials[s.meshes[0].material].name.clone();
+    // The blue material is loaded though no mesh uses it by default.
+    assert_eq!(color(&scene), "red");
+    let mut blue = scene.clone();
+    blue.apply_variant("blue").expect("a known variant");
+    assert_eq!(color(&blue), "blue");
+    let mut red = scene.clone();
+    red.apply_variant("red").expect("a known variant");
+    assert_eq!(color(&red), "red");
+    let err = scene.clone().apply_variant("green").expect_err("an unknown variant");
+    assert_names(&err, &["green", "red, blue"]);
+
+    // Bad mappings and names are refused naming the extension and what is wrong.
+    let bad = [
+        (
+            "/meshes/0/primitives/0/extensions/KHR_materials_variants/mappings/0/variants/0",
+            json!(2),
+        ),
+        ("/meshes/0/primitives/0/extensions/KHR_materials_variants/mappings/0/material", json!(5)),
+        ("/extensions/KHR_materials_variants/variants/1/name", json!("red")),
+        ("/extensions/KHR_materials_variants/variants", json!({})),
+    ];
+    for (pointer, value) in bad {
+        let mut doc = doc.clone();
+        *doc.pointer_mut(pointer).expect("pointer") = value;
+        let err = load_err(&doc);
+        assert_names(&err, &["KHR_materials_variants"]);
+        println!("{pointer}: {err}");
+    }
+}
