@@ -29,6 +29,9 @@ pub struct Scene {
     /// Nodes whose meshes would deform (skins, morph targets): rendered in their rest pose,
     /// which is only right for a still image.
     pub deforming: Vec<String>,
+    /// `KHR_materials_variants`: the names of the material variants, in file order
+    /// (`Mesh::variant_materials` refers to them by index).
+    pub variants: Vec<String>,
 }
 
 /// One glTF primitive's triangles in local space.
@@ -50,6 +53,10 @@ pub struct Mesh {
     pub indices: Vec<[u32; 3]>,
     /// Index into `Scene::materials`.
     pub material: usize,
+    /// `KHR_materials_variants` mappings: (index into `Scene::variants`, index into
+    /// `Scene::materials`), the material the mesh takes in that variant (`material` in the
+    /// others).
+    pub variant_materials: Vec<(usize, usize)>,
 }
 
 /// A mesh placed in the world by a node.
@@ -223,6 +230,26 @@ pub struct Anisotropy {
     pub texture: Option<TextureRef>,
 }
 
+/// `KHR_materials_iridescence`: a thin dielectric film on the material, whose interference
+/// replaces the Fresnel reflectance of its specular lobes, mixed by `factor` x `texture.r`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Iridescence {
+    /// `iridescenceFactor` in (0, 1].
+    pub factor: f32,
+    /// `iridescenceTexture` (R = factor, linear).
+    pub texture: Option<TextureRef>,
+    /// `iridescenceIor`: the film's index of refraction, at least 1.
+    pub ior: f32,
+    /// `iridescenceThicknessMinimum` in nanometres, at least 0: the thickness where the
+    /// thickness texture reads 0.
+    pub thickness_min: f32,
+    /// `iridescenceThicknessMaximum` in nanometres, at least 0: the thickness where it reads 1,
+    /// and everywhere without a texture.
+    pub thickness_max: f32,
+    /// `iridescenceThicknessTexture` (G = mix from the minimum to the maximum, linear).
+    pub thickness_texture: Option<TextureRef>,
+}
+
 /// The glTF metallic-roughness material with the extensions the renderer honours.
 #[derive(Clone, Debug)]
 pub struct Material {
@@ -278,6 +305,8 @@ pub struct Material {
     pub sheen: Option<Sheen>,
     /// `KHR_materials_anisotropy` with a strength above 0 (`None`: isotropic).
     pub anisotropy: Option<Anisotropy>,
+    /// `KHR_materials_iridescence` with a factor above 0 (`None`: no thin film).
+    pub iridescence: Option<Iridescence>,
     /// `KHR_materials_unlit`: the surface shows its base colour (factor, texture, vertex colour)
     /// to whatever looks at it, whatever lights it; it reflects nothing and lights nothing.
     pub unlit: bool,
@@ -336,6 +365,7 @@ impl Default for Material {
             clearcoat: None,
             sheen: None,
             anisotropy: None,
+            iridescence: None,
             unlit: false,
             alpha_mode: AlphaMode::Opaque,
             double_sided: false,
@@ -485,6 +515,26 @@ impl Scene {
             )),
             _ => Ok(()),
         }
+    }
+
+    /// Gives every mesh the material its `KHR_materials_variants` mapping names for variant
+    /// `name` (meshes without one keep their default material); an unknown name is an error
+    /// listing the scene's variants.
+    pub fn apply_variant(&mut self, name: &str) -> Result<(), String> {
+        let Some(index) = self.variants.iter().position(|v| v == name) else {
+            let names = if self.variants.is_empty() {
+                "the scene has none".to_string()
+            } else {
+                format!("the scene has: {}", self.variants.join(", "))
+            };
+            return Err(format!("variant: no material variant named '{name}' ({names})"));
+        };
+        for mesh in &mut self.meshes {
+            if let Some(&(_, material)) = mesh.variant_materials.iter().find(|(v, _)| *v == index) {
+                mesh.material = material;
+            }
+        }
+        Ok(())
     }
 
     /// Whether anything in the scene moves over time.

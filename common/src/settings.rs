@@ -33,6 +33,9 @@ pub struct RenderSettings {
     pub seed: u64,
     /// Name of the camera node (or camera) to render; default: the scene's first camera.
     pub camera: Option<String>,
+    /// Name of the `KHR_materials_variants` variant to render; default: the scene's default
+    /// materials.
+    pub variant: Option<String>,
     /// Thin lens.
     pub lens: Lens,
     /// Shutter interval as fractions of the frame interval.
@@ -58,6 +61,7 @@ impl Default for RenderSettings {
             max_depth: 64,
             seed: 0,
             camera: None,
+            variant: None,
             lens: Lens::default(),
             shutter: Shutter::default(),
             frames: Frames::default(),
@@ -240,6 +244,11 @@ impl RenderSettings {
 
     /// Checks every value and names the first key that is wrong.
     pub fn validate(&self) -> Result<(), SettingsError> {
+        if let Some(v) = &self.variant {
+            if v.is_empty() || v.chars().any(char::is_control) {
+                return Err(err("variant", format!("{v:?} is not a variant name")));
+            }
+        }
         if self.width == 0 || self.width > MAX_RESOLUTION {
             return Err(err("width", format!("{} is not in 1..={MAX_RESOLUTION}", self.width)));
         }
@@ -321,6 +330,16 @@ mod tests {
         let s = RenderSettings::from_json("{}").unwrap();
         assert_eq!((s.width, s.height, s.spp, s.max_depth, s.tile_size), (640, 480, 256, 64, 32));
         assert_eq!(s.environment, None);
+    }
+
+    #[test]
+    fn a_variant_name_is_validated_by_key() {
+        let s = RenderSettings::from_json(r#"{"variant": "blue"}"#).unwrap();
+        assert_eq!(s.variant.as_deref(), Some("blue"));
+        for bad in [r#"{"variant": ""}"#, r#"{"variant": "a\nb"}"#] {
+            let e = RenderSettings::from_json(bad).unwrap_err();
+            assert!(e.contains("variant"), "{e}");
+        }
     }
 
     #[test]

@@ -59,6 +59,10 @@ struct SettingsArgs {
     /// Multiplier of the environment map's radiance.
     #[arg(long, value_name = "X")]
     env_intensity: Option<f32>,
+    /// Render the scene's `KHR_materials_variants` variant of this name; the same as
+    /// `"variant": NAME` in the settings.
+    #[arg(long, value_name = "NAME")]
+    variant: Option<String>,
 }
 
 impl SettingsArgs {
@@ -86,6 +90,9 @@ impl SettingsArgs {
         s.height = self.height.unwrap_or(s.height);
         s.seed = self.seed.unwrap_or(s.seed);
         s.max_depth = self.max_depth.unwrap_or(s.max_depth);
+        if let Some(name) = &self.variant {
+            s.variant = Some(name.clone());
+        }
         if let Some(file) = &self.env {
             let (intensity, rotation_deg, visible) = match &s.environment {
                 Some(Environment::Map { intensity, rotation_deg, visible, .. }) => {

@@ -1,5 +1,5 @@
 //! The layered material extensions (`KHR_materials_clearcoat`, `KHR_materials_sheen`,
-//! `KHR_materials_anisotropy`) through the whole renderer, in the white furnace: the shipped
+//! `KHR_materials_anisotropy`, `KHR_materials_iridescence`) through the whole renderer, in the white furnace: the shipped
 //! furnace sphere made white Lambert (albedo exactly 1) under a sheen, a coat or both, lit by a
 //! uniform white environment. The spec's albedo scaling takes from the base what a layer
 //! reflects, so no pixel may exceed 1 beyond its noise; with a sheen alone (whose scaling is its
@@ -24,14 +24,15 @@ fn layered_furnace(tag: &str, extensions: Value) -> common::scene::Scene {
             "KHR_materials_specular",
             "KHR_materials_sheen",
             "KHR_materials_clearcoat",
-            "KHR_materials_anisotropy"
+            "KHR_materials_anisotropy",
+            "KHR_materials_iridescence"
         ]);
     });
     common::gltf::load_path(&path).unwrap()
 }
 
-/// Renders `scene` in the white furnace and checks every pixel against 1; returns the mean over
-/// the pixels that see the sphere.
+/// Renders `scene` in the white furnace and checks every pixel's every channel against 1;
+/// returns the mean of the first channel over the pixels that see the sphere.
 fn furnace_mean(name: &str, scene: &common::scene::Scene) -> f64 {
     let mut settings = settings("furnace");
     (settings.width, settings.height, settings.spp) = (24, 24, 128);
@@ -40,10 +41,13 @@ fn furnace_mean(name: &str, scene: &common::scene::Scene) -> f64 {
     let film = render_prepared(&prepared, &settings);
     let (mut sum, mut n) = (0.0, 0);
     for (i, p) in film.pixels.iter().enumerate() {
-        let (m, se) = (p.mean()[0], p.variance_of_mean()[0].sqrt());
-        assert!(m <= 1.0 + 5.0 * se + 2e-3, "{name}: pixel {i} is {m} +- {se}");
+        for k in 0..3 {
+            let (m, se) = (p.mean()[k], p.variance_of_mean()[k].sqrt());
+            assert!(m <= 1.0 + 5.0 * se + 2e-3, "{name}: pixel {i} channel {k} is {m} +- {se}");
+        }
+        let se = p.variance_of_mean()[0].sqrt();
         if se > 0.0 {
-            sum += m;
+            sum += p.mean()[0];
             n += 1;
         }
     }
@@ -87,4 +91,33 @@ fn every_layer_at_once_makes_no_light() {
     );
     let mean = furnace_mean("all", &scene);
     assert!(mean <= 1.0 + 2e-3, "all layers: the sphere's mean is {mean}");
+}
+
+#[test]
+fn an_iridescent_film_makes_no_light() {
+    // A film over a white metal (whose film Fresnel is at most 1 in every channel) under a coat,
+    // and over the white Lambert base without a specular layer (the film alone reflects there,
+    // and the base below loses the largest channel of what it reflects).
+    for (tag, metallic, film) in [
+        (
+            "metal",
+            1.0,
+            json!({"iridescenceFactor": 0.8, "iridescenceIor": 1.3, "iridescenceThicknessMaximum": 700.0}),
+        ),
+        ("lambert", 0.0, json!({"iridescenceFactor": 1.0, "iridescenceIor": 1.8})),
+    ] {
+        let mut scene = layered_furnace(
+            &format!("film-{tag}"),
+            json!({
+                "KHR_materials_iridescence": film,
+                "KHR_materials_clearcoat": {"clearcoatFactor": 0.5, "clearcoatRoughnessFactor": 0.2}
+            }),
+        );
+        let m = &mut scene.materials[0];
+        (m.metallic, m.roughness) = (metallic, 0.4);
+        assert!(m.iridescence.is_some(), "{tag}: the film is loaded");
+        let mean = furnace_mean(tag, &scene);
+        println!("film over {tag}: the sphere's mean is {mean}");
+        assert!(mean <= 1.0 + 2e-3, "film over {tag}: the sphere's mean is {mean}");
+    }
 }

@@ -1,6 +1,6 @@
 //! Materials, textures, samplers and images: the metallic-roughness model with the extensions
 //! the renderer honours (emissive strength, specular, ior, transmission, diffuse transmission,
-//! volume, clearcoat, sheen, anisotropy, unlit, texture transform), and
+//! volume, clearcoat, sheen, anisotropy, iridescence, unlit, texture transform), and
 //! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
 
 use std::io::Cursor;
@@ -14,8 +14,8 @@ use serde_json::Value;
 use super::{fail, Context, Image, Loader, SceneError};
 use crate::budget;
 use crate::scene::{
-    AlphaMode, Anisotropy, Clearcoat, Material, Sheen, TexTransform, Texture, TextureRef, Volume,
-    Wrap,
+    AlphaMode, Anisotropy, Clearcoat, Iridescence, Material, Sheen, TexTransform, Texture,
+    TextureRef, Volume, Wrap,
 };
 
 impl Loader<'_> {
@@ -23,6 +23,8 @@ impl Loader<'_> {
     /// the default material if a mesh has none. Sets `Mesh::material` accordingly.
     pub(crate) fn load_materials(&mut self) -> Result<Vec<Material>, SceneError> {
         let mut used: Vec<usize> = self.mesh_materials.iter().flatten().copied().collect();
+        // A variant's materials are loaded whether or not a mesh uses them by default.
+        used.extend(self.mesh_variant_materials.iter().flatten().map(|&(_, m)| m));
         used.sort_unstable();
         used.dedup();
         let mut materials = Vec::with_capacity(used.len() + 1);
@@ -32,6 +34,12 @@ impl Loader<'_> {
         let default_index = materials.len();
         if self.mesh_materials.iter().any(Option::is_none) {
             materials.push(Material::default());
+        }
+        for (mesh, mappings) in self.meshes.iter_mut().zip(&self.mesh_variant_materials) {
+            mesh.variant_materials = mappings
+                .iter()
+                .map(|&(variant, m)| (variant, used.binary_search(&m).unwrap_or(default_index)))
+                .collect();
         }
         for (mesh, gltf_material) in self.meshes.iter_mut().zip(&self.mesh_materials) {
             mesh.material = match gltf_material {
@@ -129,6 +137,10 @@ impl Loader<'_> {
             }
             None => 0.0,
         };
+        let iridescence = match ext.and_then(|e| e.others.get("KHR_materials_iridescence")) {
+            Some(v) => self.iridescence(v).context(|| "KHR_materials_iridescence".into())?,
+            None => None,
+        };
         let alpha_mode = match m.alpha_mode {
             Checked::Valid(json::material::AlphaMode::Opaque) => AlphaMode::Opaque,
             Checked::Valid(json::material::AlphaMode::Mask) => {
@@ -203,6 +215,7 @@ impl Loader<'_> {
             sheen,
             anisotropy,
             dispersion,
+            iridescence,
             unlit: ext.is_some_and(|e| e.others.contains_key("KHR_materials_unlit")),
             alpha_mode,
             double_sided: m.double_sided,
@@ -298,6 +311,34 @@ impl Loader<'_> {
         }
         let texture = self.texture_info(texture.as_ref(), "anisotropyTexture")?;
         Ok(Some(Anisotropy { strength, rotation: rotation as f32, texture }))
+    }
+
+    /// A `KHR_materials_iridescence` object: `None` when `iridescenceFactor` is 0 (the spec's
+    /// "the iridescence extension has no effect on the material").
+    fn iridescence(&mut self, v: &Value) -> Result<Option<Iridescence>, SceneError> {
+        let factor = unit_number(v, "iridescenceFactor", 0.0)?;
+        let ior = number(v, "iridescenceIor", 1.3)?;
+        if !(ior.is_finite() && ior >= 1.0) {
+            return fail(format!("iridescenceIor {ior} must be finite and at least 1"));
+        }
+        let thickness_min = thickness(v, "iridescenceThicknessMinimum", 100.0)?;
+        let thickness_max = thickness(v, "iridescenceThicknessMaximum", 400.0)?;
+        let texture = ext_texture(v, "iridescenceTexture")?;
+        let thickness_texture = ext_texture(v, "iridescenceThicknessTexture")?;
+        if factor == 0.0 {
+            return Ok(None);
+        }
+        let texture = self.texture_info(texture.as_ref(), "iridescenceTexture")?;
+        let thickness_texture =
+            self.texture_info(thickness_texture.as_ref(), "iridescenceThicknessTexture")?;
+        Ok(Some(Iridescence {
+            factor,
+            texture,
+            ior: ior as f32,
+            thickness_min,
+            thickness_max,
+            thickness_texture,
+        }))
     }
 
     /// A `textureInfo` with its `KHR_texture_transform`.
@@ -580,6 +621,16 @@ fn number(v: &Value, key: &str, default: f64) -> Result<f64, SceneError> {
         Some(Value::Number(n)) => Ok(n.as_f64().unwrap_or(f64::NAN)),
         Some(other) => fail(format!("{key} must be a number, not {other}")),
     }
+}
+
+/// A thin film's thickness in nanometres under `key` of an extension object: finite and not
+/// negative (`default` when absent).
+fn thickness(v: &Value, key: &str, default: f64) -> Result<f32, SceneError> {
+    let x = number(v, key, default)?;
+    if !(x.is_finite() && x >= 0.0 && x as f32 <= f32::MAX) {
+        return fail(format!("{key} {x} must be a finite thickness in nanometres, at least 0"));
+    }
+    Ok(x as f32)
 }
 
 /// The number under `key` of an extension object, in [0, 1] (`default` when absent).

@@ -24,13 +24,53 @@ impl Loader<'_> {
         }
         let built =
             self.build_primitive(mesh, prim).context(|| format!("mesh {mesh} primitive {prim}"))?;
+        let mappings = self
+            .variant_mappings(mesh, prim)
+            .context(|| format!("mesh {mesh} primitive {prim}: KHR_materials_variants"))?;
         let index = built.map(|(m, material)| {
             self.meshes.push(m);
             self.mesh_materials.push(material);
+            self.mesh_variant_materials.push(mappings);
             self.meshes.len() - 1
         });
         self.mesh_map.insert((mesh, prim), index);
         Ok(index)
+    }
+
+    /// The primitive's `KHR_materials_variants` mappings as (variant, glTF material) pairs; a
+    /// variant mapped twice takes its first mapping.
+    fn variant_mappings(
+        &self,
+        mesh: usize,
+        prim: usize,
+    ) -> Result<Vec<(usize, usize)>, SceneError> {
+        let prim = &self.root.meshes[mesh].primitives[prim];
+        let ext = prim.extensions.as_ref().and_then(|e| e.others.get("KHR_materials_variants"));
+        let Some(ext) = ext else { return Ok(Vec::new()) };
+        let Some(mappings) = ext.get("mappings").and_then(|m| m.as_array()) else {
+            return fail("mappings must be an array");
+        };
+        let index = |v: &serde_json::Value, what: &str, len: usize| match v.as_u64() {
+            Some(i) if (i as usize) < len => Ok(i as usize),
+            _ => fail(format!("{what} {v} does not exist (the file has {len})")),
+        };
+        let mut pairs: Vec<(usize, usize)> = Vec::new();
+        for (k, mapping) in mappings.iter().enumerate() {
+            let material = mapping.get("material").unwrap_or(&serde_json::Value::Null);
+            let material = index(material, "material", self.root.materials.len())
+                .context(|| format!("mappings[{k}]"))?;
+            let Some(variants) = mapping.get("variants").and_then(|v| v.as_array()) else {
+                return fail(format!("mappings[{k}]: variants must be an array of indices"));
+            };
+            for v in variants {
+                let v = index(v, "variant", self.variants.len())
+                    .context(|| format!("mappings[{k}]"))?;
+                if !pairs.iter().any(|(known, _)| *known == v) {
+                    pairs.push((v, material));
+                }
+            }
+        }
+        Ok(pairs)
     }
 
     fn build_primitive(
@@ -184,7 +224,8 @@ impl Loader<'_> {
             uvs,
             colors,
             indices,
-            material: 0, // set once the used materials are known
+            material: 0,                   // set once the used materials are known
+            variant_materials: Vec::new(), // likewise
         };
         Ok(Some((mesh, material)))
     }

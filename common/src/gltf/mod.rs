@@ -199,6 +199,10 @@ struct Loader<'a> {
     meshes: Vec<Mesh>,
     /// The glTF material of each entry of `meshes` (`None` = default material).
     mesh_materials: Vec<Option<usize>>,
+    /// The `KHR_materials_variants` mappings of each entry of `meshes`: (variant, glTF material).
+    mesh_variant_materials: Vec<Vec<(usize, usize)>>,
+    /// The root's `KHR_materials_variants` names.
+    variants: Vec<String>,
     /// (glTF mesh, primitive) -> index in `meshes`, `None` when the primitive has no triangles.
     mesh_map: HashMap<(usize, usize), Option<usize>>,
     instances: Vec<Instance>,
@@ -286,6 +290,8 @@ impl<'a> Loader<'a> {
             images: HashMap::new(),
             meshes: Vec::new(),
             mesh_materials: Vec::new(),
+            mesh_variant_materials: Vec::new(),
+            variants: Vec::new(),
             mesh_map: HashMap::new(),
             instances: Vec::new(),
             cameras: Vec::new(),
@@ -301,7 +307,30 @@ impl<'a> Loader<'a> {
         }
     }
 
+    /// The root's `KHR_materials_variants.variants` names (none without the extension); each
+    /// must be a distinct string.
+    fn variant_names(&self) -> Result<Vec<String>, SceneError> {
+        let ext =
+            self.root.extensions.as_ref().and_then(|e| e.others.get("KHR_materials_variants"));
+        let Some(ext) = ext else { return Ok(Vec::new()) };
+        let Some(list) = ext.get("variants").and_then(|v| v.as_array()) else {
+            return fail("variants must be an array");
+        };
+        let mut names: Vec<String> = Vec::with_capacity(list.len());
+        for (i, v) in list.iter().enumerate() {
+            let Some(name) = v.get("name").and_then(|n| n.as_str()) else {
+                return fail(format!("variants[{i}]: name must be a string"));
+            };
+            if names.iter().any(|n| n == name) {
+                return fail(format!("variants[{i}]: the name '{name}' is used twice"));
+            }
+            names.push(name.to_string());
+        }
+        Ok(names)
+    }
+
     fn load(mut self) -> Result<Scene, SceneError> {
+        self.variants = self.variant_names().context(|| "KHR_materials_variants".into())?;
         self.load_nodes()?;
         let materials = self.load_materials()?;
         let parents = nodes::node_parents(self.root)?;
@@ -315,6 +344,7 @@ impl<'a> Loader<'a> {
             cameras: std::mem::take(&mut self.cameras),
             lights: std::mem::take(&mut self.lights),
             deforming: std::mem::take(&mut self.deforming),
+            variants: std::mem::take(&mut self.variants),
         };
         if scene.cameras.is_empty() {
             scene.cameras.push(nodes::default_camera(&scene));

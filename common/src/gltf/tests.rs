@@ -839,3 +839,106 @@ fn layered_extensions_load_and_bad_values_are_named() {
         println!("{ext}.{key} = {value}: {err}");
     }
 }
+
+#[test]
+fn iridescence_loads_and_bad_values_are_named() {
+    let mut png = Vec::new();
+    image::RgbaImage::from_raw(1, 1, vec![255, 128, 0, 255])
+        .expect("image")
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("encode");
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    doc["meshes"][0]["primitives"][0]["material"] = json!(0);
+    doc["extensionsUsed"] = json!(["KHR_materials_iridescence"]);
+    doc["extensionsRequired"] = json!(["KHR_materials_iridescence"]);
+    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(&png))}]);
+    doc["textures"] = json!([{"source": 0}]);
+    doc["materials"] = json!([{"name": "film", "extensions": {
+        "KHR_materials_iridescence": {"iridescenceFactor": 0.7, "iridescenceTexture": {"index": 0},
+            "iridescenceIor": 1.8, "iridescenceThicknessMinimum": 250.0,
+            "iridescenceThicknessMaximum": 120.0, "iridescenceThicknessTexture": {"index": 0}}
+    }}]);
+    let scene = load(&doc).expect("loads");
+    let i = scene.materials[0].iridescence.expect("iridescence");
+    // The minimum may exceed the maximum (the spec allows it).
+    assert_eq!((i.factor, i.ior, i.thickness_min, i.thickness_max), (0.7, 1.8, 250.0, 120.0));
+    assert!(i.texture.is_some() && i.thickness_texture.is_some());
+
+    // The spec's defaults; a factor of 0 (the default) disables the film.
+    let good = doc.clone();
+    doc["materials"][0]["extensions"]["KHR_materials_iridescence"] =
+        json!({"iridescenceFactor": 1.0});
+    let i = load(&doc).expect("loads").materials[0].iridescence.expect("iridescence");
+    assert_eq!((i.factor, i.ior, i.thickness_min, i.thickness_max), (1.0, 1.3, 100.0, 400.0));
+    doc["materials"][0]["extensions"]["KHR_materials_iridescence"] = json!({"iridescenceIor": 2.0});
+    assert!(load(&doc).expect("loads").materials[0].iridescence.is_none());
+
+    let bad = [
+        ("iridescenceFactor", json!(1.5)),
+        ("iridescenceFactor", json!(-0.1)),
+        ("iridescenceFactor", json!("1")),
+        ("iridescenceIor", json!(0.9)),
+        ("iridescenceIor", json!(-1.3)),
+        ("iridescenceThicknessMinimum", json!(-1.0)),
+        ("iridescenceThicknessMaximum", json!(-400.0)),
+        ("iridescenceThicknessMaximum", json!(1e300)),
+        ("iridescenceTexture", json!({"index": 4})),
+        ("iridescenceThicknessTexture", json!({"texCoord": 0})),
+    ];
+    for (key, value) in bad {
+        let mut doc = good.clone();
+        doc["materials"][0]["extensions"]["KHR_materials_iridescence"][key] = value.clone();
+        let err = load_err(&doc);
+        assert_names(&err, &["material 0", "KHR_materials_iridescence", key]);
+        println!("{key} = {value}: {err}");
+    }
+}
+
+#[test]
+fn material_variants_swap_materials_and_unknown_names_are_listed() {
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    doc["extensionsUsed"] = json!(["KHR_materials_variants"]);
+    doc["extensions"] =
+        json!({"KHR_materials_variants": {"variants": [{"name": "red"}, {"name": "blue"}]}});
+    doc["materials"] = json!([
+        {"name": "red", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 0.0, 0.0, 1.0]}},
+        {"name": "blue", "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 1.0, 1.0]}}
+    ]);
+    let prim = &mut doc["meshes"][0]["primitives"][0];
+    prim["material"] = json!(0);
+    prim["extensions"] = json!({"KHR_materials_variants": {"mappings": [
+        {"material": 1, "variants": [1]},
+        {"material": 0, "variants": [0]}
+    ]}});
+    let scene = load(&doc).expect("loads");
+    assert_eq!(scene.variants, ["red", "blue"]);
+    let color = |s: &Scene| s.materials[s.meshes[0].material].name.clone();
+    // The blue material is loaded though no mesh uses it by default.
+    assert_eq!(color(&scene), "red");
+    let mut blue = scene.clone();
+    blue.apply_variant("blue").expect("a known variant");
+    assert_eq!(color(&blue), "blue");
+    let mut red = scene.clone();
+    red.apply_variant("red").expect("a known variant");
+    assert_eq!(color(&red), "red");
+    let err = scene.clone().apply_variant("green").expect_err("an unknown variant");
+    assert_names(&err, &["green", "red, blue"]);
+
+    // Bad mappings and names are refused naming the extension and what is wrong.
+    let bad = [
+        (
+            "/meshes/0/primitives/0/extensions/KHR_materials_variants/mappings/0/variants/0",
+            json!(2),
+        ),
+        ("/meshes/0/primitives/0/extensions/KHR_materials_variants/mappings/0/material", json!(5)),
+        ("/extensions/KHR_materials_variants/variants/1/name", json!("red")),
+        ("/extensions/KHR_materials_variants/variants", json!({})),
+    ];
+    for (pointer, value) in bad {
+        let mut doc = doc.clone();
+        *doc.pointer_mut(pointer).expect("pointer") = value;
+        let err = load_err(&doc);
+        assert_names(&err, &["KHR_materials_variants"]);
+        println!("{pointer}: {err}");
+    }
+}

@@ -92,8 +92,8 @@ pub fn validate_upload(
     })
 }
 
-/// The scene-dependent checks of a job: the named camera exists and the environment map, if
-/// any, is in the bundle and decodes. Slow: call it outside the farm lock.
+/// The scene-dependent checks of a job: the named camera and material variant exist and the
+/// environment map, if any, is in the bundle and decodes. Slow: call it outside the farm lock.
 pub fn validate_job_scene(
     bundle_bytes: &[u8],
     settings: &RenderSettings,
@@ -115,6 +115,11 @@ pub fn validate_job_scene(
                 names.join(", ")
             )));
         }
+    }
+    if let Some(name) = &settings.variant {
+        let mut scene =
+            bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        scene.apply_variant(name).map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
     }
     if let Some(Environment::Map { map, .. }) = &settings.environment {
         bundle

@@ -6,7 +6,7 @@ use common::scene::{AlphaMode, Material, Texture};
 use glam::{Vec2, Vec3, Vec4};
 
 use super::{
-    bsdf::{anisotropic, Bsdf, Coat, Dielectric, Diffuse, Layered, MetalRough, Sheen},
+    bsdf::{anisotropic, Bsdf, Coat, Dielectric, Diffuse, Layered, MetalRough, Sheen, ThinFilm},
     sampling::{Ggx, MIN_ALPHA},
     texture,
 };
@@ -57,8 +57,8 @@ pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
 /// counter-clockwise) or from the back. A material with no metal, no specular layer and no
 /// transmission is pure Lambert, the cheap path (the Cornell box and furnace scenes are all
 /// such). A refractive volume's boundary is a dielectric whose inside is the back face's side.
-/// A material with a clear coat, a sheen or anisotropy is `Layered` (its coat normal is +z here:
-/// the integrator sets it from [`clearcoat_normal_map`]).
+/// A material with a clear coat, a sheen, anisotropy or iridescence is `Layered` (its coat normal
+/// is +z here: the integrator sets it from [`clearcoat_normal_map`]).
 #[inline]
 pub fn bsdf(
     textures: &[Texture],
@@ -93,7 +93,10 @@ pub fn bsdf(
     if let Some(r) = &m.diffuse_transmission_texture {
         diffuse_transmission *= texture::sample(textures, r, sp.uvs, false).w;
     }
-    let layered = m.clearcoat.is_some() || m.sheen.is_some() || m.anisotropy.is_some();
+    let layered = m.clearcoat.is_some()
+        || m.sheen.is_some()
+        || m.anisotropy.is_some()
+        || m.iridescence.is_some();
     if !layered
         && metallic == 0.0
         && m.specular <= 0.0
@@ -117,7 +120,7 @@ pub fn bsdf(
     Bsdf::MetalRough(bsdf)
 }
 
-/// The base `bsdf` with the material's anisotropy, under its sheen and clear coat.
+/// The base `bsdf` with the material's anisotropy and thin film, under its sheen and clear coat.
 fn layers(textures: &[Texture], m: &Material, sp: &SurfacePoint, bsdf: MetalRough) -> Layered {
     let strength = anisotropy(textures, m, sp).map_or(0.0, |(strength, _)| strength);
     let sheen = m.sheen.as_ref().map(|s| {
@@ -144,7 +147,26 @@ fn layers(textures: &[Texture], m: &Material, sp: &SurfacePoint, bsdf: MetalRoug
             normal: Vec3::Z,
         })
     });
-    Layered { base: anisotropic(bsdf, strength), sheen, coat }
+    let iridescence = m.iridescence.as_ref().and_then(|i| {
+        let mut weight = i.factor;
+        if let Some(r) = &i.texture {
+            weight *= texture::sample(textures, r, sp.uvs, false).x;
+        }
+        let thickness = match &i.thickness_texture {
+            Some(r) => {
+                let t = texture::sample(textures, r, sp.uvs, false).y;
+                i.thickness_min + (i.thickness_max - i.thickness_min) * t
+            }
+            None => i.thickness_max,
+        };
+        // A film of thickness 0 is no film: the base's own Fresnel.
+        (weight > 0.0 && thickness > 0.0).then(|| ThinFilm {
+            weight: weight.min(1.0),
+            ior: i.ior,
+            thickness,
+        })
+    });
+    Layered { base: anisotropic(bsdf, strength), sheen, coat, iridescence }
 }
 
 /// `KHR_materials_anisotropy` at the point, if the material has it: the strength in [0, 1] and

@@ -115,6 +115,17 @@ fn prepare_inner(
     env_map: Option<&EnvMap>,
     shutter: Option<(f64, f64)>,
 ) -> Result<PreparedScene, PrepareError> {
+    // A material variant is part of the settings: the meshes it maps take its materials.
+    let varied;
+    let scene = match &settings.variant {
+        Some(name) => {
+            let mut s = scene.clone();
+            s.apply_variant(name).map_err(|e| PrepareError(format!("settings.{e}")))?;
+            varied = s;
+            &varied
+        }
+        None => scene,
+    };
     let camera_model = match &settings.camera {
         Some(name) => scene
             .cameras

@@ -39,7 +39,7 @@ impl Tables {
     /// The tables of a scene being prepared, or `None` when it needs something only the
     /// scalar renderer does (`scalar_only`: something moves within the shutter, is
     /// alpha-tested or has vertex colours; or a material is textured, glossy, unlit, or has a
-    /// clear coat, a sheen or anisotropy).
+    /// clear coat, a sheen, anisotropy or iridescence).
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
@@ -63,6 +63,7 @@ impl Tables {
                 || m.clearcoat.is_some()
                 || m.sheen.is_some()
                 || m.anisotropy.is_some()
+                || m.iridescence.is_some()
             {
                 return None;
             }

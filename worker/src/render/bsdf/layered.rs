@@ -17,6 +17,9 @@
 //!   `wo` to the shading normal, times the largest channel of its colour (the spec's simplified
 //!   scaling, again energy-conserving for every `wo`).
 //!
+//! - `KHR_materials_iridescence` replaces the Schlick Fresnel of the base's specular lobes by a
+//!   thin film's (`thin_film.rs`), in its reflection, its albedo scaling and its lobe choice.
+//!
 //! Sampling picks the coat (GGX visible normals around nc), the sheen (uniform hemisphere) or
 //! the base (its own lobe choice, with the lobe number rescaled) in proportion to c F_c(wo),
 //! (1 - c F_c) max(sheenColor) E and (1 - c F_c) (1 - max(sheenColor) E) times the base's
@@ -24,7 +27,7 @@
 
 use glam::{Vec2, Vec3};
 
-use super::{BsdfSample, Lobe, MetalRough, Sheen};
+use super::{metal_rough::probabilities, BsdfSample, Lobe, MetalRough, Sheen, ThinFilm};
 use crate::render::{
     geometry::{reflect, Frame},
     sampling::{sample_uniform_hemisphere, uniform_hemisphere_pdf, AnisoGgx, Ggx},
@@ -64,6 +67,8 @@ pub struct Layered {
     pub sheen: Option<Sheen>,
     /// The coat over the sheen and the base.
     pub coat: Option<Coat>,
+    /// The thin film on the base (`None`: the base's Schlick Fresnel).
+    pub iridescence: Option<ThinFilm>,
 }
 
 impl Layered {
@@ -81,13 +86,34 @@ impl Layered {
         (coat, sheen)
     }
 
+    /// The base's Fresnel terms (s F_d, F_m) at `cos` = |wo.h|, with the thin film.
+    #[inline]
+    fn film_fresnel(&self, film: &ThinFilm, cos: f32) -> (Vec3, Vec3) {
+        let b = &self.base;
+        let weighted_f0 = b.specular * b.f0_dielectric;
+        film.mix_fresnel(b.schlick_fresnel(cos), weighted_f0, b.base, b.metallic, cos)
+    }
+
+    /// The base's estimated albedo for `wo` and its lobe probabilities, with the thin film
+    /// (`None` without one: the base's own).
+    #[inline]
+    fn film_lobes(&self, wo: Vec3) -> Option<(f32, (f32, f32, f32))> {
+        let film = self.iridescence.as_ref()?;
+        let weights = self.base.lobe_weights_with(wo, |cos| self.film_fresnel(film, cos));
+        Some((weights.3, probabilities(weights)))
+    }
+
     /// Probabilities of sampling the coat and the sheen for `wo`; the base takes the rest.
     #[inline]
     fn lobe_probabilities(&self, wo: Vec3) -> (f32, f32) {
         let (coat, sheen_scaling) = self.scalings(wo);
         let under = 1.0 - coat;
         let sheen = under * (1.0 - sheen_scaling);
-        let base = under * sheen_scaling * self.base.albedo_estimate(wo);
+        let albedo = match self.film_lobes(wo) {
+            Some((albedo, _)) => albedo,
+            None => self.base.albedo_estimate(wo),
+        };
+        let base = under * sheen_scaling * albedo;
         let total = coat + sheen + base;
         if total.is_nan() || total <= 0.0 {
             return (0.0, 0.0);
@@ -102,7 +128,11 @@ impl Layered {
             return Vec3::ZERO;
         }
         let (coat_weight, sheen_scaling) = self.scalings(wo);
-        let mut under = self.base.eval(wo, wi) * sheen_scaling;
+        let base = match &self.iridescence {
+            Some(film) => self.base.eval_with(wo, wi, |cos| self.film_fresnel(film, cos)),
+            None => self.base.eval(wo, wi),
+        };
+        let mut under = base * sheen_scaling;
         if let Some(s) = &self.sheen {
             under += s.eval(wo, wi);
         }
@@ -120,7 +150,11 @@ impl Layered {
             return 0.0;
         }
         let (p_coat, p_sheen) = self.lobe_probabilities(wo);
-        let mut pdf = (1.0 - p_coat - p_sheen).max(0.0) * self.base.pdf(wo, wi);
+        let base_pdf = match self.film_lobes(wo) {
+            Some((_, probabilities)) => self.base.pdf_given(wo, wi, probabilities),
+            None => self.base.pdf(wo, wi),
+        };
+        let mut pdf = (1.0 - p_coat - p_sheen).max(0.0) * base_pdf;
         if wi.z > 0.0 {
             if self.sheen.is_some() {
                 pdf += p_sheen * uniform_hemisphere_pdf();
@@ -157,8 +191,15 @@ impl Layered {
         } else {
             let p_base = 1.0 - p_coat - p_sheen;
             let u_base = ((u_lobe - p_coat - p_sheen) / p_base).clamp(0.0, ONE_BELOW);
-            let s = self.base.sample(wo, u_base, u)?;
-            (s.wi, s.lobe)
+            match self.film_lobes(wo) {
+                Some((_, probabilities)) => {
+                    self.base.sample_direction(wo, u_base, u, probabilities)?
+                }
+                None => {
+                    let s = self.base.sample(wo, u_base, u)?;
+                    (s.wi, s.lobe)
+                }
+            }
         };
         if wi.z == 0.0 || (wi.z < 0.0 && lobe != Lobe::Transmission) {
             return None;

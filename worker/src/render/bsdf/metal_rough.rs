@@ -134,11 +134,7 @@ impl<M: Microfacet> MetalRough<M> {
     /// `sample` and `pdf`.
     #[inline]
     fn lobe_probabilities(&self, wo: Vec3) -> (f32, f32, f32) {
-        let (spec, trans, dtrans, total) = self.lobe_weights(wo);
-        if total <= 0.0 {
-            return (0.0, 0.0, 0.0);
-        }
-        (spec / total, trans / total, dtrans / total)
+        probabilities(self.lobe_weights(wo))
     }
 
     /// The estimated albedo of the whole BSDF for `wo` (what `lobe_probabilities` divides by).
@@ -156,12 +152,32 @@ impl<M: Microfacet> MetalRough<M> {
         let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
         let f_d_max = f_d.max_element();
         let spec = self.metallic * luminance(f_m) + (1.0 - self.metallic) * self.specular * f_d_max;
-        let entering =
-            (1.0 - self.metallic) * (1.0 - self.specular * f_d_max) * luminance(self.base);
+        self.lobe_weights_given(spec, self.specular * f_d_max)
+    }
+
+    /// `lobe_weights` with the Fresnel terms (s F_d, F_m) of `fresnel` (at `wo.z`) in place of
+    /// Schlick's (`thin_film.rs`).
+    #[inline]
+    pub fn lobe_weights_with(
+        &self,
+        wo: Vec3,
+        fresnel: impl Fn(f32) -> (Vec3, Vec3),
+    ) -> (f32, f32, f32, f32) {
+        let (f_d, f_m) = fresnel(wo.z);
+        let f_d_max = f_d.max_element();
+        let spec = self.metallic * luminance(f_m) + (1.0 - self.metallic) * f_d_max;
+        self.lobe_weights_given(spec, f_d_max)
+    }
+
+    /// The lobe weights from the specular lobes' weight `spec` and the share `reflected` of the
+    /// light the dielectric's specular layer reflects (s max(F_d)).
+    #[inline]
+    fn lobe_weights_given(&self, spec: f32, reflected: f32) -> (f32, f32, f32, f32) {
+        let entering = (1.0 - self.metallic) * (1.0 - reflected) * luminance(self.base);
         // Exact for no transmission: x * 1 is x and x * 0 is 0.
         let (diff, trans) = (entering * (1.0 - self.transmission), entering * self.transmission);
         let dtrans = (1.0 - self.metallic)
-            * (1.0 - self.specular * f_d_max)
+            * (1.0 - reflected)
             * (1.0 - self.transmission)
             * self.diffuse_transmission
             * luminance(self.diffuse_transmission_color);
@@ -170,9 +186,28 @@ impl<M: Microfacet> MetalRough<M> {
         (spec, trans, dtrans, total)
     }
 
+    /// The Schlick Fresnel terms at `cos` = |wo.h|: the dielectric's weighted by
+    /// `specularFactor` (s F_d) and the metal's (F_m).
+    #[inline]
+    pub fn schlick_fresnel(&self, cos: f32) -> (Vec3, Vec3) {
+        let w = schlick_weight(cos);
+        let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
+        let f_m = self.base + (Vec3::ONE - self.base) * w;
+        (self.specular * f_d, f_m)
+    }
+
     /// f(wo, wi): reflection for `wi.z > 0`, transmission for `wi.z < 0`.
     #[inline]
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        self.eval_with(wo, wi, |cos| self.schlick_fresnel(cos))
+    }
+
+    /// f(wo, wi) with the Fresnel terms (s F_d, F_m) of `fresnel` at |wo.h| in place of
+    /// Schlick's: the dielectric's specular lobe weighted by s F_d, the light under it by
+    /// 1 - max(s F_d), the metal's lobe by F_m. With [`Self::schlick_fresnel`] this is `eval`,
+    /// operation for operation (s max(F_d) is max(s F_d) exactly: rounding is monotonic).
+    #[inline]
+    pub fn eval_with(&self, wo: Vec3, wi: Vec3, fresnel: impl Fn(f32) -> (Vec3, Vec3)) -> Vec3 {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return Vec3::ZERO;
         }
@@ -183,10 +218,9 @@ impl<M: Microfacet> MetalRough<M> {
             // Thin-walled: the specular lobe seen through the surface.
             let wm = mirror(wi);
             let h = (wo + wm).normalize();
-            let w = schlick_weight(wo.dot(h));
             let spec_t = self.ggx.d(h) * self.ggx.g2(wo, wm) / (4.0 * wo.z * wm.z);
-            let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
-            let entering = 1.0 - self.specular * f_d.max_element();
+            let (f_d, _) = fresnel(wo.dot(h));
+            let entering = 1.0 - f_d.max_element();
             let through = (1.0 - self.metallic) * entering * self.transmission * self.base * spec_t;
             if self.diffuse_transmission <= 0.0 {
                 return through;
@@ -200,16 +234,14 @@ impl<M: Microfacet> MetalRough<M> {
                     * FRAC_1_PI;
         }
         let h = (wo + wi).normalize();
-        let w = schlick_weight(wo.dot(h));
         let spec = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
-        let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
-        let f_m = self.base + (Vec3::ONE - self.base) * w;
-        let diffuse = (1.0 - self.specular * f_d.max_element())
+        let (f_d, f_m) = fresnel(wo.dot(h));
+        let diffuse = (1.0 - f_d.max_element())
             * self.base
             * FRAC_1_PI
             * (1.0 - self.transmission)
             * (1.0 - self.diffuse_transmission);
-        let dielectric = diffuse + self.specular * f_d * spec;
+        let dielectric = diffuse + f_d * spec;
         (1.0 - self.metallic) * dielectric + self.metallic * f_m * spec
     }
 
@@ -219,7 +251,17 @@ impl<M: Microfacet> MetalRough<M> {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return 0.0;
         }
-        let (p_spec, p_trans, p_dtrans) = self.lobe_probabilities(wo);
+        self.pdf_given(wo, wi, self.lobe_probabilities(wo))
+    }
+
+    /// Density of `wi` when the lobes are chosen with `probabilities` (of the GGX lobe, the
+    /// mirrored lobe and the far side's cosine lobe, as [`probabilities`] makes them).
+    #[inline]
+    pub fn pdf_given(&self, wo: Vec3, wi: Vec3, probabilities: (f32, f32, f32)) -> f32 {
+        if wo.z <= 0.0 || wi.z == 0.0 {
+            return 0.0;
+        }
+        let (p_spec, p_trans, p_dtrans) = probabilities;
         if wi.z < 0.0 {
             if p_trans <= 0.0 && p_dtrans <= 0.0 {
                 return 0.0;
@@ -243,7 +285,25 @@ impl<M: Microfacet> MetalRough<M> {
         if wo.z <= 0.0 {
             return None;
         }
-        let (p_spec, p_trans, p_dtrans) = self.lobe_probabilities(wo);
+        let (wi, lobe) = self.sample_direction(wo, u_lobe, u, self.lobe_probabilities(wo))?;
+        let pdf = self.pdf(wo, wi);
+        if !(pdf > 0.0) {
+            return None;
+        }
+        Some(BsdfSample { f: self.eval(wo, wi), wi, pdf, lobe, eta: 1.0 })
+    }
+
+    /// A direction and its lobe for `wo.z > 0`, the lobe chosen by `u_lobe` with `probabilities`
+    /// (as for [`Self::pdf_given`]); `None` where the direction falls on the wrong side.
+    #[inline]
+    pub fn sample_direction(
+        &self,
+        wo: Vec3,
+        u_lobe: f32,
+        u: Vec2,
+        probabilities: (f32, f32, f32),
+    ) -> Option<(Vec3, Lobe)> {
+        let (p_spec, p_trans, p_dtrans) = probabilities;
         let (wi, lobe) = if u_lobe < p_spec {
             let h = self.ggx.sample_visible_normal(wo, u);
             (reflect(wo, h), Lobe::Glossy)
@@ -262,12 +322,19 @@ impl<M: Microfacet> MetalRough<M> {
         if wi.z == 0.0 || (wi.z < 0.0 && lobe != Lobe::Transmission) {
             return None;
         }
-        let pdf = self.pdf(wo, wi);
-        if !(pdf > 0.0) {
-            return None;
-        }
-        Some(BsdfSample { f: self.eval(wo, wi), wi, pdf, lobe, eta: 1.0 })
+        Some((wi, lobe))
     }
+}
+
+/// Probabilities of sampling the GGX lobe, the mirrored lobe and the far side's cosine lobe from
+/// the lobe weights (`lobe_weights`, `lobe_weights_with`); the cosine lobe on `wo`'s side takes
+/// the rest.
+#[inline]
+pub(super) fn probabilities((spec, trans, dtrans, total): (f32, f32, f32, f32)) -> (f32, f32, f32) {
+    if total <= 0.0 {
+        return (0.0, 0.0, 0.0);
+    }
+    (spec / total, trans / total, dtrans / total)
 }
 
 /// `w` mirrored through the surface plane (z = 0).

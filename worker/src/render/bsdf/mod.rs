@@ -11,6 +11,7 @@ mod diffuse;
 mod layered;
 mod metal_rough;
 mod sheen;
+mod thin_film;
 
 pub use dielectric::{fresnel_dielectric, refract, Dielectric};
 pub use diffuse::Diffuse;
@@ -19,6 +20,7 @@ pub use metal_rough::MetalRough;
 #[cfg(test)]
 pub(crate) use sheen::albedo as sheen_albedo;
 pub use sheen::Sheen;
+pub use thin_film::ThinFilm;
 
 use glam::{Vec2, Vec3};
 
@@ -79,7 +81,7 @@ pub enum Bsdf {
     MetalRough(MetalRough),
     /// A refractive boundary, smooth or rough.
     Dielectric(Dielectric),
-    /// The glTF BRDF with a clear coat, a sheen or anisotropy (`layered.rs`).
+    /// The glTF BRDF with a clear coat, a sheen, anisotropy or a thin film (`layered.rs`).
     Layered(Layered),
 }
 

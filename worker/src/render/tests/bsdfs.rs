@@ -1,5 +1,6 @@
 //! Tests of the BSDFs: chi-square of `sample` against `pdf` for `Diffuse`, `MetalRough` (with and
-//! without transmission), the layered BSDF (clear coat, sheen, anisotropy) and GGX visible-normal
+//! without transmission), the layered BSDF (clear coat, sheen, anisotropy, thin film) and GGX
+//! visible-normal
 //! reflection (isotropic and anisotropic), the agreement of `sample` with `eval`/`pdf`, and
 //! energy (albedo).
 
@@ -7,7 +8,9 @@ use glam::{Vec2, Vec3};
 
 use super::chi2::{assert_fits, Rng, Spherical};
 use crate::render::{
-    bsdf::{anisotropic, Bsdf, Coat, Dielectric, Diffuse, Layered, Lobe, MetalRough, Sheen},
+    bsdf::{
+        anisotropic, Bsdf, Coat, Dielectric, Diffuse, Layered, Lobe, MetalRough, Sheen, ThinFilm,
+    },
     geometry::reflect,
     sampling::{AnisoGgx, Ggx, Microfacet},
 };
@@ -58,7 +61,7 @@ const DIFFUSE_TRANSMISSION_CASES: [(f32, f32, f32, f32); 3] =
 const ANISO_ALPHA: [(f32, f32); 3] = [(0.05, 0.4), (0.6, 0.1), (1.0, 0.3)];
 
 /// Number of `layered_cases`.
-const N_LAYERED: usize = 7;
+const N_LAYERED: usize = 10;
 
 /// Chi-square tests in this file.
 pub(super) const N_CHI2: usize = ROUGHNESS.len() * METAL_SPECULAR.len() * COS_WO.len()
@@ -494,11 +497,19 @@ fn layered(
             ggx: Ggx::new(roughness * roughness),
             normal: normal.normalize(),
         }),
+        iridescence: None,
     })
 }
 
-/// The layered chi-square cases: coats (one with a normal of its own), sheens, anisotropy, and
-/// all three over a transmitting base.
+/// `bsdf` (layered) with a thin film of `weight`, index `ior` and `thickness` nanometres.
+fn with_film(bsdf: Bsdf, weight: f32, ior: f32, thickness: f32) -> Bsdf {
+    let Bsdf::Layered(mut l) = bsdf else { unreachable!("a layered BSDF") };
+    l.iridescence = Some(ThinFilm { weight, ior, thickness });
+    Bsdf::Layered(l)
+}
+
+/// The layered chi-square cases: coats (one with a normal of its own), sheens, anisotropy, all
+/// three over a transmitting base, and thin films (whose Fresnel sets the base's lobe choice).
 fn layered_cases() -> [(&'static str, Bsdf); N_LAYERED] {
     let dielectric = |roughness| MetalRough::new(BASE, 0.0, roughness, 1.5, 1.0, Vec3::ONE);
     let metal = |roughness| MetalRough::new(BASE, 1.0, roughness, 1.5, 1.0, Vec3::ONE);
@@ -521,6 +532,28 @@ fn layered_cases() -> [(&'static str, Bsdf); N_LAYERED] {
                 1.0,
                 Some((Vec3::new(0.2, 0.8, 0.5), 0.7)),
                 Some((0.8, 0.3, tilted)),
+            ),
+        ),
+        (
+            "film_w1_d400_dielectric_r0.3",
+            with_film(layered(dielectric(0.3), 0.0, None, None), 1.0, 1.8, 400.0),
+        ),
+        (
+            "film_w0.6_d250_metal_r0.2_coat",
+            with_film(layered(metal(0.2), 0.0, None, Some((0.5, 0.3, Vec3::Z))), 0.6, 1.3, 250.0),
+        ),
+        (
+            "film_w1_d700_half_metal_transmitting_aniso",
+            with_film(
+                layered(
+                    MetalRough::new(BASE, 0.5, 0.4, 1.5, 0.7, Vec3::ONE).with_transmission(0.5),
+                    0.6,
+                    None,
+                    None,
+                ),
+                1.0,
+                2.0,
+                700.0,
             ),
         ),
     ]
@@ -631,6 +664,47 @@ fn sheen_albedo_table_matches_the_lobe() {
                 (mean - table).abs() <= 4.0 * error + 0.01 * table + 1e-3,
                 "r{roughness} cos {cos_wo}: {mean} +- {error} vs table {table}"
             );
+        }
+    }
+}
+
+/// A thin film over a white conductor gains no energy: the film's Fresnel reflectance is at
+/// most 1 in every channel, so no channel's albedo exceeds 1 beyond its noise, for any film.
+/// (A white dielectric is no such test: the glTF BRDF's scaling of the diffuse lobe by the
+/// Fresnel at |wo.h| gains energy at grazing angles with Schlick's Fresnel already, up to 1.7
+/// at cos 0.05, and the film's with it.)
+#[test]
+fn thin_films_over_a_white_conductor_gain_no_energy() {
+    let mut rng = Rng::from_name("thin_films_over_a_white_conductor_gain_no_energy");
+    let n = 100_000;
+    {
+        for roughness in [0.05f32, 0.4, 1.0] {
+            let white = MetalRough::new(Vec3::ONE, 1.0, roughness, 1.5, 1.0, Vec3::ONE);
+            for (ior, thickness) in [(1.3f32, 400.0f32), (1.8, 250.0), (2.3, 900.0), (1.1, 100.0)] {
+                let bsdf = with_film(layered(white, 0.0, None, None), 1.0, ior, thickness);
+                for cos_wo in [1.0, 0.7, 0.3, 0.05] {
+                    let wo = wo_at(cos_wo);
+                    let (mut sum, mut sum_sq) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
+                    for _ in 0..n {
+                        let u = rng.next_vec3();
+                        let Some(s) = bsdf.sample(wo, u.x, Vec2::new(u.y, u.z)) else { continue };
+                        let x = (s.f * s.wi.z / s.pdf).as_dvec3();
+                        (sum, sum_sq) = (sum + x, sum_sq + x * x);
+                    }
+                    let mean = sum / n as f64;
+                    let error = ((sum_sq / n as f64 - mean * mean).max(glam::DVec3::ZERO)
+                        / n as f64)
+                        .powf(0.5);
+                    let case = format!("r{roughness} ior {ior} d {thickness}");
+                    println!("{case} coswo{cos_wo}: albedo {mean:.4} +- {error:.4}");
+                    for k in 0..3 {
+                        assert!(
+                            mean[k] <= 1.0 + 4.0 * error[k] + 1e-6,
+                            "{case} cos {cos_wo}: channel {k} {mean} +- {error}"
+                        );
+                    }
+                }
+            }
         }
     }
 }
