@@ -121,3 +121,82 @@ fn an_iridescent_film_makes_no_light() {
         assert!(mean <= 1.0 + 2e-3, "film over {tag}: the sphere's mean is {mean}");
     }
 }
+
+/// A floor quad with vertex normals and the given TANGENT (no texture coordinates), an
+/// anisotropic rough metal rotated by `rotation`, lit by a point light off to one side and seen
+/// straight down by an orthographic camera.
+fn anisotropic_quad(tag: &str, tangent: [f32; 4], rotation: f64) -> common::scene::Scene {
+    let positions: [[f32; 3]; 4] =
+        [[-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 0.0, -1.0]];
+    let mut bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    bytes.extend((0..4).flat_map(|_| [0.0f32, 1.0, 0.0]).flat_map(|v| v.to_le_bytes()));
+    bytes.extend((0..4).flat_map(|_| tangent).flat_map(|v| v.to_le_bytes()));
+    bytes.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|v| v.to_le_bytes()));
+    let doc = json!({
+        "asset": {"version": "2.0"},
+        "extensionsUsed": ["KHR_materials_anisotropy", "KHR_lights_punctual"],
+        "extensions": {"KHR_lights_punctual": {"lights": [{"type": "point", "intensity": 3.0}]}},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1, 2]}],
+        "nodes": [
+            {"mesh": 0},
+            {"camera": 0, "translation": [0.0, 2.0, 0.0],
+             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]},
+            {"extensions": {"KHR_lights_punctual": {"light": 0}}, "translation": [0.3, 0.6, 0.2]}
+        ],
+        "cameras": [{"type": "orthographic", "orthographic": {"xmag": 1.0, "ymag": 1.0, "znear": 0.01, "zfar": 10.0}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2}, "indices": 3, "material": 0}]}],
+        "materials": [{
+            "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.9, 0.9, 1.0], "metallicFactor": 1.0, "roughnessFactor": 0.4},
+            "extensions": {"KHR_materials_anisotropy": {"anisotropyStrength": 0.9, "anisotropyRotation": rotation}}
+        }],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1.0, 0.0, -1.0], "max": [1.0, 0.0, 1.0]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3"},
+            {"bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC4"},
+            {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 96, "byteLength": 64},
+            {"buffer": 0, "byteOffset": 160, "byteLength": 12}
+        ],
+        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+    });
+    let dir = std::env::temp_dir().join(format!("renderfarm-aniso-{}-{tag}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("quad.gltf");
+    std::fs::write(&path, doc.to_string()).unwrap();
+    common::gltf::load_path(&path).unwrap()
+}
+
+/// Anisotropy follows the mesh's TANGENT attribute where there are no texture coordinates to
+/// derive a direction from: turning the tangent by a quarter turn about the normal draws the same
+/// highlight as turning `anisotropyRotation` by a quarter turn, and a different one from the
+/// untouched tangent.
+#[test]
+fn anisotropy_follows_the_mesh_tangents() {
+    let mut settings = common::settings::RenderSettings {
+        width: 32,
+        height: 32,
+        spp: 16,
+        max_depth: 4,
+        ..Default::default()
+    };
+    settings.seed = 7;
+    let image = |tag: &str, tangent: [f32; 4], rotation: f64| {
+        render(&anisotropic_quad(tag, tangent, rotation), &settings).mean_rgb()
+    };
+    let along_x = image("x", [1.0, 0.0, 0.0, 1.0], 0.0);
+    let along_z = image("z", [0.0, 0.0, -1.0, 1.0], 0.0);
+    let rotated = image("rotated", [1.0, 0.0, 0.0, 1.0], std::f64::consts::FRAC_PI_2);
+    let diff = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+        a.iter().zip(b).map(|(p, q)| (p[0] - q[0]).abs() as f64).sum::<f64>() / a.len() as f64
+    };
+    let mean = along_x.iter().map(|p| p[0] as f64).sum::<f64>() / along_x.len() as f64;
+    let (turned, same) = (diff(&along_x, &along_z), diff(&along_z, &rotated));
+    eprintln!("mean {mean:.4}; tangent turned: {turned:.2e}; turned tangent against turned rotation: {same:.2e}");
+    assert!(turned > 0.05 * mean, "turning the tangent changes the highlight ({turned} of {mean})");
+    assert!(same < 1e-3 * mean, "a turned tangent is a turned rotation ({same} of {mean})");
+}

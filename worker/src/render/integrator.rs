@@ -266,7 +266,9 @@ pub fn li(
         }
         // An anisotropic material's frame has its +x along the direction of anisotropy.
         let frame = match material::anisotropy(&scene.textures, material, &sp) {
-            Some((_, direction)) => match tangent_basis(scene, hit.prim, [p0, p1, p2], ns) {
+            Some((_, direction)) => match mesh_tangent_basis(scene, hit.prim, b, ns, pose)
+                .or_else(|| tangent_basis(scene, hit.prim, [p0, p1, p2], ns))
+            {
                 Some((t, bt)) => Frame::from_z_and_tangent(ns, t * direction.x + bt * direction.y),
                 None => Frame::from_z(ns),
             },
@@ -446,10 +448,34 @@ fn perturb_normal(
     (n.dot(ns) > 0.0).then_some(n)
 }
 
+/// The tangent and bitangent at barycentrics `b` of triangle `prim` from the mesh's TANGENT
+/// attribute (kept for anisotropic materials): the interpolated tangent orthogonalised against
+/// `ns`, and the bitangent cross(ns, tangent) times the sign in `w`, as glTF defines it. `None`
+/// where the mesh has no tangents (or they are degenerate).
+fn mesh_tangent_basis(
+    scene: &PreparedScene,
+    prim: u32,
+    b: [f32; 3],
+    ns: Vec3,
+    pose: Option<&Pose<'_>>,
+) -> Option<(Vec3, Vec3)> {
+    if scene.tangents.is_empty() {
+        return None;
+    }
+    let [i0, i1, i2] = scene.shading[prim as usize].vertices;
+    let [t0, t1, t2] = [i0, i1, i2].map(|v| scene.vertex_tangent(v, prim, pose));
+    if t0.w == 0.0 {
+        return None; // A mesh without tangents.
+    }
+    let t = t0.truncate() * b[0] + t1.truncate() * b[1] + t2.truncate() * b[2];
+    let t = (t - ns * ns.dot(t)).try_normalize()?;
+    Some((t, ns.cross(t) * t0.w.signum()))
+}
+
 /// The tangent and bitangent of texture space at a point of triangle `prim` with shading normal
 /// `ns`: from the triangle's texture-coordinate derivatives (dp/du, dp/dv), orthogonalised
-/// against `ns` (the mesh's TANGENT attribute is not read). `None` without texture coordinates
-/// or where they are degenerate.
+/// against `ns`. `None` without texture coordinates or where they are degenerate. Normal maps
+/// use these; anisotropy uses the mesh's TANGENT attribute first.
 fn tangent_basis(
     scene: &PreparedScene,
     prim: u32,

@@ -60,6 +60,10 @@ pub struct PreparedScene {
     pub shading: Vec<TriShading>,
     /// World-space vertex normals (zero when the mesh has none).
     pub normals: Vec<Vec3>,
+    /// World-space vertex tangents (TANGENT) with the bitangent's sign in `w`, kept only when a
+    /// material is anisotropic and a mesh has them (else empty); zero where a mesh has none.
+    /// Those of moving placements stay in object space.
+    pub tangents: Vec<Vec4>,
     /// Vertex texture coordinate sets 0 and 1; each is empty when no mesh has it, else one per
     /// vertex (zero where a mesh lacks it).
     pub uvs: [Vec<Vec2>; 2],
@@ -165,6 +169,9 @@ fn prepare_inner(
     let mut triangles: Vec<[Vec3; 3]> = Vec::with_capacity(scene.triangle_count());
     let mut shading: Vec<TriShading> = Vec::with_capacity(scene.triangle_count());
     let mut normals: Vec<Vec3> = Vec::new();
+    let keep_tangents = scene.materials.iter().any(|m| m.anisotropy.is_some())
+        && scene.meshes.iter().any(|m| m.tangents.is_some());
+    let mut tangents: Vec<Vec4> = Vec::new();
     let has_uvs = [0, 1].map(|k| scene.meshes.iter().any(|m| m.uvs[k].is_some()));
     let has_colors = scene.meshes.iter().any(|m| m.colors.is_some());
     let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
@@ -203,6 +210,17 @@ fn prepare_inner(
             Some(ns) => normals
                 .extend(ns.iter().map(|n| (normal_m * n.as_dvec3()).normalize_or_zero().as_vec3())),
             None => normals.extend(std::iter::repeat_n(Vec3::ZERO, world.len())),
+        }
+        if keep_tangents {
+            let linear = DMat3::from_mat4(m);
+            let sign = if flip { -1.0 } else { 1.0 };
+            match &mesh.tangents {
+                Some(ts) => tangents.extend(ts.iter().map(|t| {
+                    let v = (linear * t.truncate().as_dvec3()).normalize_or_zero().as_vec3();
+                    v.extend(t.w * sign)
+                })),
+                None => tangents.extend(std::iter::repeat_n(Vec4::ZERO, world.len())),
+            }
         }
         for k in 0..2 {
             if has_uvs[k] {
@@ -314,6 +332,12 @@ fn prepare_inner(
                     Some(ns) => normals.extend_from_slice(ns),
                     None => normals.extend(std::iter::repeat_n(Vec3::ZERO, n)),
                 }
+                if keep_tangents {
+                    match &mesh.tangents {
+                        Some(ts) => tangents.extend_from_slice(ts),
+                        None => tangents.extend(std::iter::repeat_n(Vec4::ZERO, n)),
+                    }
+                }
                 for k in 0..2 {
                     if has_uvs[k] {
                         match &mesh.uvs[k] {
@@ -411,6 +435,7 @@ fn prepare_inner(
         accel,
         shading,
         normals,
+        tangents,
         uvs,
         colors,
         materials: scene.materials.clone(),
@@ -464,6 +489,7 @@ impl PreparedScene {
         self.accel.memory_bytes()
             + self.shading.len() * std::mem::size_of::<TriShading>()
             + self.normals.len() * std::mem::size_of::<Vec3>()
+            + self.tangents.len() * std::mem::size_of::<Vec4>()
             + (self.uvs[0].len() + self.uvs[1].len()) * std::mem::size_of::<Vec2>()
             + self.colors.len() * std::mem::size_of::<Vec4>()
     }
@@ -530,6 +556,21 @@ impl PreparedScene {
             return (tri.map(|p| placed.to_world.transform_point3(p)), true);
         }
         (self.accel.triangle(prim), false)
+    }
+
+    /// A vertex tangent of triangle `prim` with the bitangent's sign in `w` (world space, at the
+    /// pose's time if it moves); only when `tangents` is not empty.
+    #[inline]
+    pub fn vertex_tangent(&self, vertex: u32, prim: u32, pose: Option<&Pose<'_>>) -> Vec4 {
+        let t = self.tangents[vertex as usize];
+        match pose.and_then(|p| p.locate(prim)) {
+            Some((i, _)) => {
+                let to_world = pose.expect("located").placed(i).to_world;
+                let sign = if to_world.determinant() < 0.0 { -1.0 } else { 1.0 };
+                to_world.transform_vector3(t.truncate()).normalize_or_zero().extend(t.w * sign)
+            }
+            None => t,
+        }
     }
 
     /// A vertex normal of triangle `prim` (world space, at the pose's time if it moves).
