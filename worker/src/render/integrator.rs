@@ -222,12 +222,14 @@ pub fn li(
         if tri.light == UNSAMPLED {
             // A moving emitter: no light sampling reaches it, so every hit counts in full.
             if material.double_sided || (p1 - p0).cross(p2 - p0).dot(wo) > 0.0 {
-                radiance += beta * material::emission(&scene.textures, material, &sp);
+                let cos = ng.dot(wo) / wo.length();
+                radiance += beta * material::emission_toward(&scene.textures, material, &sp, cos);
             }
         } else if tri.light != NONE {
             if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
                 if light.emits_toward(wo) {
-                    let le = material::emission(&scene.textures, material, &sp);
+                    let cos = ng.dot(wo) / wo.length();
+                    let le = material::emission_toward(&scene.textures, material, &sp, cos);
                     let weight = if depth == 0 {
                         1.0
                     } else {
@@ -341,7 +343,8 @@ pub fn li(
                                     let m = &scene.materials
                                         [scene.shading[l.prim as usize].material as usize];
                                     let sp = scene.surface_point(l.prim, ls.barycentrics);
-                                    material::emission(&scene.textures, m, &sp)
+                                    let cos = ls.normal.dot(ls.wi);
+                                    material::emission_toward(&scene.textures, m, &sp, cos)
                                 }
                                 _ => ls.li,
                             };

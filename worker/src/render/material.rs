@@ -205,6 +205,22 @@ pub fn emission(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec3 {
     }
 }
 
+/// Emitted radiance toward a direction at cosine `cos` to the surface's normal: under a clear
+/// coat (`KHR_materials_clearcoat`, which lies over emission in the layering) darkened by the
+/// coat's reflection, emission x (1 - clearcoat x (0.04 + 0.96 (1 - |cos|)^5)), as the extension
+/// says; [`emission`] itself otherwise.
+#[inline]
+pub fn emission_toward(textures: &[Texture], m: &Material, sp: &SurfacePoint, cos: f32) -> Vec3 {
+    let e = emission(textures, m, sp);
+    let Some(coat) = &m.clearcoat else { return e };
+    let mut factor = coat.factor;
+    if let Some(r) = &coat.texture {
+        factor *= texture::sample(textures, r, sp.uvs, false).x;
+    }
+    let fresnel = 0.04 + 0.96 * (1.0 - cos.abs().min(1.0)).powi(5);
+    e * (1.0 - factor.clamp(0.0, 1.0) * fresnel)
+}
+
 /// The tangent-space normal from the normal map (z up), if the material has one.
 #[inline]
 pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<Vec3> {

@@ -275,7 +275,7 @@ fn prepare_inner(
             };
             if let Some(mut light) = TriangleLight::new(p, emission, material.double_sided) {
                 light.prim = prim as u32;
-                light.textured = textured;
+                light.textured = textured || material.clearcoat.is_some();
                 tri.light = lights.len() as u32;
                 lights.push(Light::Triangle(light));
                 emitters.push(emitter_of[order[prim] as usize]);

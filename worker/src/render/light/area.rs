@@ -21,8 +21,9 @@ pub struct TriangleLight {
     pub two_sided: bool,
     /// The triangle's index in the BVH order (to evaluate textured emission).
     pub prim: u32,
-    /// Whether emission varies over the triangle (an emissive texture): `emission` is then its
-    /// mean, used for choosing lights, and the integrator evaluates the texture at the point.
+    /// Whether emission varies over the triangle or with direction (an emissive texture, a
+    /// clear coat over it): `emission` is then its mean (without the coat), used for choosing
+    /// lights, and the integrator evaluates the material's emission at the point.
     pub textured: bool,
 }
 
