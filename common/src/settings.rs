@@ -11,6 +11,8 @@ pub const MAX_RESOLUTION: u32 = 16384;
 pub const MAX_FRAMES: u64 = 100_000;
 /// Upper bound on samples per pixel accepted by `validate`.
 pub const MAX_SPP: u32 = 1 << 20;
+/// The light-transport algorithms a job may name in `integrator`.
+pub const INTEGRATORS: &[&str] = &["path"];
 
 /// Everything that decides what a job renders. Part of the determinism key: the same settings,
 /// scene and seed give the same image.
@@ -27,6 +29,9 @@ pub struct RenderSettings {
     pub target_rel_error: Option<f64>,
     /// Adaptive stopping: wall-clock budget in seconds.
     pub time_limit_s: Option<f64>,
+    /// The light-transport algorithm, one of [`INTEGRATORS`]: "path", the unidirectional path
+    /// tracer with next-event estimation and multiple importance sampling.
+    pub integrator: String,
     /// Path length limit in bounces: 0 = emitters seen directly, 1 = direct light only.
     pub max_depth: u32,
     /// Seed of the sample sequences.
@@ -58,6 +63,7 @@ impl Default for RenderSettings {
             spp: 256,
             target_rel_error: None,
             time_limit_s: None,
+            integrator: "path".into(),
             max_depth: 64,
             seed: 0,
             camera: None,
@@ -244,6 +250,16 @@ impl RenderSettings {
 
     /// Checks every value and names the first key that is wrong.
     pub fn validate(&self) -> Result<(), SettingsError> {
+        if !INTEGRATORS.contains(&self.integrator.as_str()) {
+            return Err(err(
+                "integrator",
+                format!(
+                    "{:?} is not an integrator of this renderer (it has: {})",
+                    self.integrator,
+                    INTEGRATORS.join(", ")
+                ),
+            ));
+        }
         if let Some(v) = &self.variant {
             if v.is_empty() || v.chars().any(char::is_control) {
                 return Err(err("variant", format!("{v:?} is not a variant name")));
@@ -330,6 +346,21 @@ mod tests {
         let s = RenderSettings::from_json("{}").unwrap();
         assert_eq!((s.width, s.height, s.spp, s.max_depth, s.tile_size), (640, 480, 256, 64, 32));
         assert_eq!(s.environment, None);
+    }
+
+    #[test]
+    fn the_integrator_is_named_and_an_unknown_one_is_refused_by_key() {
+        let s = RenderSettings::from_json(r#"{"integrator": "path"}"#).unwrap();
+        assert_eq!(s.integrator, "path");
+        assert_eq!(RenderSettings::default().integrator, "path");
+        for bad in ["bdpt", "", "Path"] {
+            let e =
+                RenderSettings::from_json(&format!(r#"{{"integrator": "{bad}"}}"#)).unwrap_err();
+            assert!(e.contains("integrator") && e.contains("it has: path"), "{e}");
+        }
+        // The settings JSON written into EXR headers and job statuses names it.
+        let json = serde_json::to_string(&RenderSettings::default()).unwrap();
+        assert!(json.contains(r#""integrator":"path""#), "{json}");
     }
 
     #[test]

@@ -63,6 +63,14 @@ struct SettingsArgs {
     /// `"variant": NAME` in the settings.
     #[arg(long, value_name = "NAME")]
     variant: Option<String>,
+    /// The light-transport algorithm (`path`); the same as `"integrator": NAME` in the
+    /// settings.
+    #[arg(long, value_name = "NAME")]
+    integrator: Option<String>,
+    /// Stop issuing samples after this many seconds (the tasks in flight still merge); the same
+    /// as `"time_limit_s"` in the settings.
+    #[arg(long, value_name = "SECONDS")]
+    time_limit: Option<f64>,
 }
 
 impl SettingsArgs {
@@ -92,6 +100,12 @@ impl SettingsArgs {
         s.max_depth = self.max_depth.unwrap_or(s.max_depth);
         if let Some(name) = &self.variant {
             s.variant = Some(name.clone());
+        }
+        if let Some(name) = &self.integrator {
+            s.integrator = name.clone();
+        }
+        if let Some(seconds) = self.time_limit {
+            s.time_limit_s = Some(seconds);
         }
         if let Some(file) = &self.env {
             let (intensity, rotation_deg, visible) = match &s.environment {

@@ -107,3 +107,39 @@ fn submit_warns_about_an_unlit_scene_and_takes_env_and_zip() {
     let (_, _, rgb) = coordinator::output::read_exr_rgb(&lit).unwrap();
     assert!(!coordinator::output::is_black(&rgb));
 }
+
+/// `render --integrator NAME` and `--time-limit SECONDS` reach the job's settings, which the
+/// EXR header carries; an integrator the renderer does not have is refused naming the setting
+/// and the ones it has, before anything renders.
+#[test]
+fn render_takes_the_integrator_and_a_time_limit() {
+    let dir = temp_dir("integrator-flags");
+    let scene = repo().join("scenes/cornell-box.gltf");
+    let run = |out: &std::path::Path, extra: &[&str]| {
+        Command::new(bin_dir().join("coordinator"))
+            .arg("render")
+            .arg(&scene)
+            .arg("-o")
+            .arg(out)
+            .args(["--spp", "1", "--width", "8", "--height", "8", "--workers", "1"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = dir.join("path.exr");
+    let output = run(&out, &["--integrator", "path", "--time-limit", "30"]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let header = String::from_utf8_lossy(&std::fs::read(&out).unwrap()).into_owned();
+    assert!(header.contains(r#""integrator":"path""#), "the header names the integrator");
+    assert!(header.contains(r#""time_limit_s":30.0"#), "the header carries the time limit");
+
+    let out = dir.join("bdpt.exr");
+    let output = run(&out, &["--integrator", "bdpt"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "an unknown integrator rendered");
+    assert!(
+        stderr.contains("integrator") && stderr.contains("bdpt") && stderr.contains("path"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "no image for a refused integrator");
+}
