@@ -10,7 +10,7 @@ use common::{film::Film, settings::RenderSettings};
 use support::*;
 use worker::{
     render::{
-        light::LightChoice,
+        light::{LightChoice, TREE_MIN_EMITTERS},
         scene::{prepare, prepare_with_light_choice},
     },
     test_scenes::many_lights_gltf,
@@ -63,9 +63,9 @@ fn shipped_scenes_keep_the_mixture() {
 
 #[test]
 fn many_emitters_choose_by_the_tree_on_the_scalar_renderer() {
-    let few = prepare(&many_lights(16), &settings(8, 1)).unwrap();
+    let few = prepare(&many_lights(TREE_MIN_EMITTERS - 1), &settings(8, 1)).unwrap();
     assert!(!few.lights.uses_tree() && few.wavefront.is_some());
-    let many = prepare(&many_lights(256), &settings(8, 1)).unwrap();
+    let many = prepare(&many_lights(TREE_MIN_EMITTERS), &settings(8, 1)).unwrap();
     assert!(many.lights.uses_tree() && many.wavefront.is_none());
 }
 

@@ -127,10 +127,12 @@ pub trait ChooseLight {
 }
 
 /// Scenes with at least this many emitters (placements of emissive meshes with power; see
-/// `PowerMixture`) choose lights by the tree, the others by the mixture. Measured on a floor lit
-/// by N small quads, each its own placement (`docs/perf/light-tree.md`): at equal samples the
-/// tree's relative MSE is FIXME. Every shipped scene has at most 9 emitters, so none changes.
-pub const TREE_MIN_EMITTERS: usize = 64;
+/// `PowerMixture`) choose lights by the tree, the others by the mixture. On a floor lit by N
+/// small quads, each its own placement (`docs/perf/light-tree.md`), the tree had the lower
+/// error at equal time from N = 4 on; the threshold sits above the 9 emitters of the busiest
+/// shipped scene, so that scenes like those (a few lamps, one emissive mesh of many triangles)
+/// keep their images and the wavefront.
+pub const TREE_MIN_EMITTERS: usize = 16;
 
 /// Which way a scene chooses its lights.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
