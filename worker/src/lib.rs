@@ -5,7 +5,9 @@
 //!   lights, the path tracer, and `render_task`.
 //! - [`client`]: the worker's loop (lease, render, heartbeat, result), over any [`link`].
 //! - [`link`]: the farm protocol's calls as a trait, and over HTTP (`worker --join`).
+//! - [`test_scenes`]: scenes built in code for tests and benchmarks.
 
 pub mod client;
 pub mod link;
 pub mod render;
+pub mod test_scenes;

@@ -11,9 +11,13 @@
 //! Like the peers harness, which renders each peer once untimed before its timed runs, the timed
 //! renders follow an untimed 1-spp one (`--no-warmup` leaves it out).
 //!
+//! With `--many-lights` it measures the light choice instead, on a floor lit by N small
+//! emitters (`worker::test_scenes::many_lights_gltf`): the tree against the power mixture at
+//! equal samples for N = 4 to 1024, then at equal time for 1024 (`docs/perf/light-tree.md`).
+//!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
-//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--no-warmup]`; the figures
-//! in `docs/perf/` come from this command.
+//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights]
+//! [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
 use std::{
     fmt::Write as _,
@@ -46,6 +50,9 @@ struct Args {
     /// `scenes/cornell-dof.settings.json`), scored against 4096-spp renders of their own.
     #[arg(long)]
     time_scenes: bool,
+    /// Only the light choice on many emitters: the tree against the mixture (no Cornell box).
+    #[arg(long)]
+    many_lights: bool,
     /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
     #[arg(long = "peer-csv")]
     peer_csv: Vec<PathBuf>,
@@ -81,6 +88,9 @@ fn metrics(image: &[[f32; 3]], reference: &[[f32; 3]]) -> (f64, f64) {
 
 fn main() -> Result<()> {
     let args = Args::parse();
+    if args.many_lights {
+        return many_lights(args.threads);
+    }
     let scenes = args.shared.join("scenes");
     let cornell = scenes.join("cornell-box.gltf");
     let (_, _, reference) = read_exr_rgb(&scenes.join("ref/cornell-box.exr"))?;
@@ -230,6 +240,88 @@ fn large_scene(scenes: &Path, threads: usize, out_dir: &Path) -> Result<()> {
         report.samples as f64 / report.render_seconds,
         report.rays as f64 / report.render_seconds
     );
+    Ok(())
+}
+
+/// Renders frame 0 of a prepared scene on `threads` threads, in 32-pixel tiles.
+fn render_prepared(
+    prepared: &worker::render::scene::PreparedScene,
+    settings: &RenderSettings,
+    threads: usize,
+) -> Vec<[f32; 3]> {
+    use common::{
+        film::{Film, Rect},
+        protocol::{SampleRange, TaskSpec},
+    };
+    let mut tasks = Vec::new();
+    for y0 in (0..settings.height).step_by(32) {
+        for x0 in (0..settings.width).step_by(32) {
+            let rect = Rect {
+                x0,
+                y0,
+                width: 32.min(settings.width - x0),
+                height: 32.min(settings.height - y0),
+            };
+            let samples = SampleRange { start: 0, end: settings.spp };
+            tasks.push(TaskSpec { frame: 0, rect, samples });
+        }
+    }
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let film = std::sync::Mutex::new(Film::new(settings.width, settings.height));
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(task) = tasks.get(i) else { break };
+                let result = worker::render::render_task(prepared, settings.seed, task);
+                film.lock().expect("film lock").merge_tile(&result.tile);
+            });
+        }
+    });
+    film.into_inner().expect("film lock").mean_rgb()
+}
+
+/// The light tree against the power mixture on a floor lit by N small emitters: relative MSE
+/// and seconds for each N at a few sample counts, and the mixture's error at the tree's time
+/// (interpolated log-log) over the tree's. Each run's seconds count
+/// preparing the scene (the tree's build) and rendering; the reference is the tree at 1024 spp
+/// with another seed.
+fn many_lights(threads: usize) -> Result<()> {
+    use worker::render::{light::LightChoice, scene::prepare_with_light_choice};
+    let dir = std::env::temp_dir().join(format!("renderfarm-bench-many-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let base = RenderSettings { width: 128, height: 128, max_depth: 8, ..Default::default() };
+    let run = |scene: &common::scene::Scene, choice: LightChoice, spp: u32, seed: u64| {
+        let settings = RenderSettings { spp, seed, ..base.clone() };
+        let start = Instant::now();
+        let prepared = prepare_with_light_choice(scene, &settings, choice)?;
+        let image = render_prepared(&prepared, &settings, threads);
+        anyhow::Ok((start.elapsed().as_secs_f64(), image))
+    };
+    println!("emitters,sampler,spp,seconds,relmse");
+    for n in [4usize, 16, 64, 256, 1024] {
+        let path = dir.join(format!("many-{n}.gltf"));
+        std::fs::write(&path, worker::test_scenes::many_lights_gltf(n))?;
+        let scene = common::gltf::load_path(&path)?;
+        let (_, reference) = run(&scene, LightChoice::Tree, 1024, 1)?;
+        let spps: &[u32] = if n == 1024 { &[4, 16, 64, 256] } else { &[16, 64] };
+        let mut curves = Vec::new();
+        for (name, choice) in [("tree", LightChoice::Tree), ("mixture", LightChoice::Mixture)] {
+            let mut points = Vec::new();
+            for &spp in spps {
+                let (seconds, image) = run(&scene, choice, spp, 0)?;
+                let (_, rel_mse) = metrics(&image, &reference);
+                println!("{n},{name},{spp},{seconds:.4},{rel_mse:.6e}");
+                points.push((seconds, rel_mse, spp));
+            }
+            curves.push(Series { name: name.into(), points });
+        }
+        println!("emitters,spp,tree_seconds,tree_relmse,mixture_relmse_at_tree_seconds,ratio");
+        for &(seconds, rel_mse, spp) in &curves[0].points {
+            let theirs = curves[1].rel_mse_at(seconds);
+            println!("{n},{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
+        }
+    }
     Ok(())
 }
 

@@ -23,7 +23,7 @@ use glam::{Vec2, Vec3};
 use super::{
     bsdf::{Bsdf, Layered},
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
-    light::Light,
+    light::{ChooseLight, Light, ShadingContext},
     material,
     media::{self, free_flight, transmittance, Crossing, MediumStack},
     motion::Pose,
@@ -98,6 +98,9 @@ pub fn li(
     // Density of the BSDF sample that produced `ray` (0 for camera rays: no MIS on them;
     // infinite after a delta lobe, whose direction no light sample could have chosen).
     let mut prev_bsdf_pdf = 0.0f32;
+    // Where that BSDF sample was taken (its point and shading normal): the light choice's
+    // probability there is what light sampling would have given the light it hits.
+    let mut prev_ctx = ShadingContext::default();
     // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
     // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
     let mut eta_scale = 1.0f32;
@@ -168,7 +171,7 @@ pub fn li(
                         0.0
                     }
                 } else {
-                    let light_pdf = lights.probability(env_idx) * env.pdf(ray.dir);
+                    let light_pdf = lights.pmf(&prev_ctx, env_idx) * env.pdf(ray.dir);
                     power_heuristic(prev_bsdf_pdf, light_pdf)
                 };
                 if weight > 0.0 {
@@ -235,7 +238,7 @@ pub fn li(
                     } else {
                         let dist2 = hit.t * hit.t * ray.dir.length_squared();
                         let light_pdf =
-                            lights.probability(tri.light) * light.pdf_li(ray.dir, dist2);
+                            lights.pmf(&prev_ctx, tri.light) * light.pdf_li(ray.dir, dist2);
                         power_heuristic(prev_bsdf_pdf, light_pdf)
                     };
                     radiance += beta * le * weight;
@@ -330,7 +333,8 @@ pub fn li(
         // Next-event estimation. A bounce's numbers are drawn where they are used, in the
         // same order whatever happens; a path that ends skips the rest.
         let u_light = sampler.next_2d();
-        if let Some((light_idx, choice_pdf, u_x)) = lights.choose_remapped(u_light.x) {
+        let ctx = ShadingContext { p, n: ns };
+        if let Some((light_idx, choice_pdf, u_x)) = lights.choose(&ctx, u_light.x) {
             let light = &lights.lights[light_idx as usize];
             if let Some(ls) = light.sample_li(p, Vec2::new(u_x, u_light.y)) {
                 let wi_local = frame.to_local(ls.wi);
@@ -416,6 +420,7 @@ pub fn li(
             break;
         }
         prev_bsdf_pdf = if bs.lobe.is_delta() { f32::INFINITY } else { bs.pdf };
+        prev_ctx = ctx;
         if bs.lobe.enters_far_side() {
             eta_scale *= bs.eta * bs.eta;
         }

@@ -19,8 +19,8 @@ use super::{
     camera::{Camera, CameraModel},
     geometry::Ray,
     light::{
-        DirectionalLight, Environment as EnvironmentLight, Light, LightSampler, MapEnvironment,
-        PointLight, SpotLight, TriangleLight,
+        DirectionalLight, Environment as EnvironmentLight, Light, LightChoice, LightSampler,
+        MapEnvironment, PointLight, SpotLight, TriangleLight,
     },
     material::{self, SurfacePoint},
     motion::{Motion, MotionInstance, Pose},
@@ -109,7 +109,16 @@ pub fn prepare_with_environment(
     settings: &RenderSettings,
     env_map: Option<&EnvMap>,
 ) -> Result<PreparedScene, PrepareError> {
-    prepare_inner(scene, settings, env_map, None)
+    prepare_inner(scene, settings, env_map, None, LightChoice::Auto)
+}
+
+/// `prepare` with the light choice given, for comparing the two (tests and benchmarks).
+pub fn prepare_with_light_choice(
+    scene: &Scene,
+    settings: &RenderSettings,
+    choice: LightChoice,
+) -> Result<PreparedScene, PrepareError> {
+    prepare_inner(scene, settings, None, None, choice)
 }
 
 /// Builds the render-ready scene; with a shutter (seconds), placements that move are kept apart.
@@ -118,6 +127,7 @@ fn prepare_inner(
     settings: &RenderSettings,
     env_map: Option<&EnvMap>,
     shutter: Option<(f64, f64)>,
+    choice: LightChoice,
 ) -> Result<PreparedScene, PrepareError> {
     // A material variant is part of the settings: the meshes it maps take its materials.
     let varied;
@@ -422,7 +432,7 @@ fn prepare_inner(
         AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
         AlphaMode::Opaque => false,
     });
-    let lights = LightSampler::new(lights, &emitters, scene_radius);
+    let lights = LightSampler::with_choice(lights, &emitters, scene_radius, choice);
     let wavefront = super::wavefront_tables::Tables::new(
         &scene.materials,
         &scene.textures,
@@ -475,7 +485,7 @@ pub fn prepare_frame(
         let f = frame as f64;
         ((f + open) / settings.frames.fps, (f + close) / settings.frames.fps)
     });
-    prepare_inner(&posed, settings, env_map, shutter)
+    prepare_inner(&posed, settings, env_map, shutter, LightChoice::Auto)
 }
 
 /// Builds the render-ready scene for settings without an environment map.

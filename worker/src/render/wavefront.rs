@@ -406,7 +406,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                                 0.0
                             }
                         } else {
-                            let light_pdf = scene.lights.probability(env_idx) * env.pdf(ray.dir);
+                            let light_pdf = tables.mixture.probability(env_idx) * env.pdf(ray.dir);
                             power_heuristic(paths.prev_bsdf_pdf.lane(i), light_pdf)
                         };
                         if weight > 0.0 {
@@ -511,7 +511,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             roulette[i] = paths.depth[i] + 1 > RR_MIN_DEPTH;
             has_light[i] = false;
             other_light[i] = false;
-            if let Some((light, pdf, u_x)) = scene.lights.choose_remapped(u_light.x) {
+            if let Some((light, pdf, u_x)) = tables.mixture.choose_remapped(u_light.x) {
                 has_light[i] = true;
                 choice_pdf.set_lane(i, pdf);
                 ul_x.set_lane(i, u_x);

@@ -8,7 +8,7 @@ use glam::Vec3;
 
 use super::{
     bsdf::Bsdf,
-    light::{Light, LightSampler},
+    light::{Light, LightSampler, PowerMixture},
     material::{self, SurfacePoint},
 };
 
@@ -33,19 +33,23 @@ pub struct Tables {
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
     /// are sampled by `Light::sample_li`, one lane at a time).
     pub(super) lights: Vec<Option<LightRec>>,
+    /// The scene's light choice, which ignores the receiving point.
+    pub(super) mixture: PowerMixture,
 }
 
 impl Tables {
     /// The tables of a scene being prepared, or `None` when it needs something only the
     /// scalar renderer does (`scalar_only`: something moves within the shutter, is
-    /// alpha-tested or has vertex colours; or a material is textured, glossy, unlit, or has a
-    /// clear coat, a sheen, anisotropy or iridescence).
+    /// alpha-tested or has vertex colours; lights are chosen by the tree; or a material is
+    /// textured, glossy, unlit, or has a clear coat, a sheen, anisotropy or iridescence).
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
         light_sampler: &LightSampler,
         scalar_only: bool,
     ) -> Option<Tables> {
+        // The tables bake each light's probability, which the tree makes depend on the point.
+        let mixture = light_sampler.mixture()?;
         if scalar_only {
             return None;
         }
@@ -89,9 +93,9 @@ impl Tables {
                 area: l.area,
                 emission: l.emission,
                 two_sided: l.two_sided,
-                probability: light_sampler.probability(i as u32),
+                probability: mixture.probability(i as u32),
             }));
         }
-        Some(Tables { albedo, emission, lights })
+        Some(Tables { albedo, emission, lights, mixture: mixture.clone() })
     }
 }

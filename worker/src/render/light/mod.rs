@@ -1,19 +1,25 @@
 //! Light sources and the choice between them.
 //!
-//! Lights are picked by a mixture of their estimated power and a uniform choice of emitter
-//! (`LightSampler`), then sampled
-//! (`Light::sample_li`). Every density is returned per unit solid angle at the receiving point and
+//! Lights are picked by a `ChooseLight` given the receiving point and its normal
+//! (`ShadingContext`), then sampled (`Light::sample_li`). A scene with few emitters picks by a
+//! mixture of power and a uniform choice of emitter (`PowerMixture`, blind to the point); one
+//! with many by a light tree (`LightTree`, pbrt-v4's light BVH), which favours near lights that
+//! face the point. `LightSampler` holds the lights and the one the scene uses. Every density is returned per unit solid angle at the receiving point and
 //! already includes the probability of choosing the light, so the integrator's MIS weights compare
 //! like with like. Delta lights (point, spot, directional) report `is_delta` and are never hit by
 //! BSDF-sampled rays.
 
 mod area;
 mod environment;
+mod mixture;
 mod punctual;
+mod tree;
 
 pub use area::TriangleLight;
 pub use environment::{Environment, MapEnvironment};
+pub use mixture::{PowerMixture, EMITTER_SHARE};
 pub use punctual::{spot_falloff, DirectionalLight, PointLight, SpotLight};
+pub use tree::{LightBounds, LightTree};
 
 use std::{f32::consts::PI, sync::Arc};
 
@@ -98,150 +104,154 @@ impl Light {
     }
 }
 
-/// Share of the light choice spread evenly over emitters; the rest goes by power.
-///
-/// By power alone, a scene with one strong light starves the others: in the Veach MIS scene of
-/// the peers harness a fill light holds 98% of the power, each of the four lights the plates
-/// reflect 0.5%, and light sampling, the strategy that suits the rougher plates, almost never
-/// reaches them (relative MSE 3 times Mitsuba's at 64 spp, whose choice is uniform over
-/// emitters). A defensive mixture (Hesterberg 1995; Veach's thesis, 9.2) bounds the loss either
-/// way: no light gets less than half its share under either rule, so its light-sampling
-/// variance at most doubles. Within an emitter the choice still follows power (area, for
-/// uniform emission), and a scene with one emitter (the Cornell box) is chosen exactly as by
-/// power alone.
-pub const EMITTER_SHARE: f64 = 0.5;
+/// Where a light is chosen for: the receiving point and its shading normal (zero where there is
+/// no surface, so that no cosine is counted).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ShadingContext {
+    /// The receiving point.
+    pub p: Vec3,
+    /// Its shading normal, either side (or zero).
+    pub n: Vec3,
+}
 
-/// Chooses lights by a mixture of power and emitter: with probability 1 - `EMITTER_SHARE` a
-/// light in proportion to its power, otherwise an emitter with power uniformly and a light of
-/// it in proportion to power. An emitter is one placement of one mesh for emissive triangles;
-/// each punctual light and the environment is its own.
-#[derive(Clone, Debug, Default)]
+/// A way to choose lights: the choice and its probability, both given the receiving point.
+pub trait ChooseLight {
+    /// Picks a light with `u` in [0, 1): (index, probability, `u` stretched back to [0, 1)
+    /// within the chosen light's share), so that one stratified number both chooses and places
+    /// the sample (the strata of a 2D sample then cover all lights together). `None` when no
+    /// light has power.
+    fn choose(&self, ctx: &ShadingContext, u: f32) -> Option<(u32, f32, f32)>;
+
+    /// Probability that `choose` at `ctx` returns `light`.
+    fn pmf(&self, ctx: &ShadingContext, light: u32) -> f32;
+}
+
+/// Scenes with at least this many emitters (placements of emissive meshes with power; see
+/// `PowerMixture`) choose lights by the tree, the others by the mixture. On a floor lit by N
+/// small quads, each its own placement (`docs/perf/light-tree.md`), the tree had the lower
+/// error at equal time from N = 4 on; the threshold sits above the 9 emitters of the busiest
+/// shipped scene, so that scenes like those (a few lamps, one emissive mesh of many triangles)
+/// keep their images and the wavefront.
+pub const TREE_MIN_EMITTERS: usize = 16;
+
+/// Which way a scene chooses its lights.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LightChoice {
+    /// The tree from `TREE_MIN_EMITTERS` emitters on, else the mixture.
+    #[default]
+    Auto,
+    /// Always the mixture.
+    Mixture,
+    /// Always the tree.
+    Tree,
+}
+
+/// The way a scene's lights are chosen.
+#[derive(Clone, Debug)]
+enum Strategy {
+    Mixture(PowerMixture),
+    Tree(LightTree),
+}
+
+/// A scene's lights and the way they are chosen.
+#[derive(Clone, Debug)]
 pub struct LightSampler {
     /// All lights.
     pub lights: Vec<Light>,
-    /// Cumulative probability, `lights.len() + 1` entries: 0, then the running sums ending at 1.
-    /// Light `i` owns `[cdf[i], cdf[i + 1])`, so its share's start is a lookup, not a branch.
-    cdf: Vec<f32>,
-    /// Probability of each light.
-    prob: Vec<f32>,
     /// Index in `lights` of the environment, if any.
     pub environment: Option<u32>,
+    /// The choice between them.
+    strategy: Strategy,
+}
+
+impl Default for LightSampler {
+    fn default() -> Self {
+        LightSampler {
+            lights: Vec::new(),
+            environment: None,
+            strategy: Strategy::Mixture(PowerMixture::default()),
+        }
+    }
 }
 
 impl LightSampler {
-    /// Builds the distribution; `emitters[i]` names light `i`'s emitter (any numbers; equal
-    /// numbers group lights into one emitter). Lights with zero power are never chosen.
+    /// The lights and their choice (`LightChoice::Auto`); `emitters[i]` names light `i`'s
+    /// emitter (any numbers; equal numbers group lights into one emitter). Lights with zero
+    /// power are never chosen.
     pub fn new(lights: Vec<Light>, emitters: &[u32], scene_radius: f32) -> Self {
+        Self::with_choice(lights, emitters, scene_radius, LightChoice::Auto)
+    }
+
+    /// `new` with the choice given.
+    pub fn with_choice(
+        lights: Vec<Light>,
+        emitters: &[u32],
+        scene_radius: f32,
+        choice: LightChoice,
+    ) -> Self {
         assert_eq!(lights.len(), emitters.len(), "one emitter per light");
-        let powers: Vec<f64> = lights.iter().map(|l| l.power(scene_radius) as f64).collect();
-        let total: f64 = powers.iter().sum();
-        let mut emitter_power = std::collections::HashMap::<u32, f64>::new();
-        for (&p, &e) in powers.iter().zip(emitters) {
-            *emitter_power.entry(e).or_default() += p;
-        }
-        let lit = emitter_power.values().filter(|&&p| p > 0.0).count() as f64;
-        let weights: Vec<f64> = powers
-            .iter()
-            .zip(emitters)
-            .map(|(&p, e)| {
-                // p / total x (1 - share) + p / emitter power x share / lit, scaled by total:
-                // with one emitter the factor is exactly 1 and the weights are the powers.
-                let boost =
-                    (1.0 - EMITTER_SHARE) + EMITTER_SHARE * total / (lit * emitter_power[e]);
-                if p > 0.0 {
-                    p * boost
-                } else {
-                    0.0
-                }
-            })
-            .collect();
-        let sum: f64 = weights.iter().sum();
-        let mut cdf = Vec::with_capacity(lights.len() + 1);
-        cdf.push(0.0);
-        let mut prob = Vec::with_capacity(lights.len());
-        let mut acc = 0.0f64;
-        for &w in &weights {
-            acc += w;
-            cdf.push(if sum > 0.0 { (acc / sum) as f32 } else { 0.0 });
-            prob.push(if sum > 0.0 { (w / sum) as f32 } else { 0.0 });
-        }
-        if let Some(last) = cdf.last_mut() {
-            if sum > 0.0 {
-                *last = 1.0;
+        let tree = match choice {
+            LightChoice::Auto => {
+                let mut lit: Vec<u32> = lights
+                    .iter()
+                    .zip(emitters)
+                    .filter(|(l, _)| matches!(l, Light::Triangle(_)) && l.power(scene_radius) > 0.0)
+                    .map(|(_, &e)| e)
+                    .collect();
+                lit.sort_unstable();
+                lit.dedup();
+                lit.len() >= TREE_MIN_EMITTERS
             }
-        }
+            LightChoice::Mixture => false,
+            LightChoice::Tree => true,
+        };
+        let strategy = if tree {
+            Strategy::Tree(LightTree::new(&lights, scene_radius))
+        } else {
+            Strategy::Mixture(PowerMixture::new(&lights, emitters, scene_radius))
+        };
         let environment =
             lights.iter().position(|l| matches!(l, Light::Environment(_))).map(|i| i as u32);
-        LightSampler { lights, cdf, prob, environment }
+        LightSampler { lights, environment, strategy }
     }
 
     /// True when there is no light with power.
     pub fn is_empty(&self) -> bool {
-        self.cdf.last().is_none_or(|&c| c <= 0.0)
-    }
-
-    /// Picks a light with `u` in [0, 1): (index, probability).
-    #[inline]
-    pub fn choose(&self, u: f32) -> Option<(u32, f32)> {
-        if self.is_empty() {
-            return None;
+        match &self.strategy {
+            Strategy::Mixture(m) => m.is_empty(),
+            Strategy::Tree(t) => t.is_empty(),
         }
-        let i = self.cdf[1..].partition_point(|&c| c <= u).min(self.prob.len() - 1);
-        let p = self.prob[i];
-        (p > 0.0).then_some((i as u32, p))
     }
 
-    /// Picks a light with `u` in [0, 1) and returns `u` stretched back to [0, 1) within the
-    /// chosen light's share, so that one stratified number both chooses and places the sample
-    /// (the strata of a 2D sample then cover all lights together).
-    #[inline]
-    pub fn choose_remapped(&self, u: f32) -> Option<(u32, f32, f32)> {
-        let (i, p) = self.choose(u)?;
-        let start = self.cdf[i as usize];
-        let remapped = ((u - start) / p).clamp(0.0, 1.0 - f32::EPSILON / 2.0);
-        Some((i, p, remapped))
+    /// The mixture, when the scene chooses by it (its probabilities do not depend on the point,
+    /// so the wavefront bakes them).
+    pub fn mixture(&self) -> Option<&PowerMixture> {
+        match &self.strategy {
+            Strategy::Mixture(m) => Some(m),
+            Strategy::Tree(_) => None,
+        }
     }
 
-    /// Probability that `choose` returns light `i`.
-    #[inline]
-    pub fn probability(&self, i: u32) -> f32 {
-        self.prob[i as usize]
+    /// Whether the scene chooses by the tree.
+    pub fn uses_tree(&self) -> bool {
+        matches!(self.strategy, Strategy::Tree(_))
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn remapped_choice_spreads_each_lights_numbers_over_the_unit_interval() {
-        let light = |power: f32| {
-            Light::Point(PointLight { position: Vec3::ZERO, intensity: Vec3::splat(power) })
-        };
-        let lights = vec![light(1.0), light(3.0), light(0.0), light(4.0)];
-        let sampler = LightSampler::new(lights, &[0, 1, 2, 3], 1.0);
-        let n = 8000;
-        let mut per_light: Vec<Vec<f32>> = vec![Vec::new(); 4];
-        for k in 0..n {
-            let u = (k as f32 + 0.5) / n as f32;
-            let (i, p, r) = sampler.choose_remapped(u).unwrap();
-            assert_eq!(p, sampler.probability(i));
-            assert!((0.0..1.0).contains(&r));
-            per_light[i as usize].push(r);
+impl ChooseLight for LightSampler {
+    #[inline]
+    fn choose(&self, ctx: &ShadingContext, u: f32) -> Option<(u32, f32, f32)> {
+        match &self.strategy {
+            Strategy::Mixture(m) => ChooseLight::choose(m, ctx, u),
+            Strategy::Tree(t) => ChooseLight::choose(t, ctx, u),
         }
-        assert!(per_light[2].is_empty(), "a light without power is never chosen");
-        for (i, values) in per_light.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
-            let expected = sampler.probability(i as u32) * n as f32;
-            assert!(
-                (values.len() as f32 - expected).abs() <= 1.0,
-                "light {i}: {} picks",
-                values.len()
-            );
-            // Evenly spread: the k-th value sits in the k-th of len equal cells.
-            for (k, r) in values.iter().enumerate() {
-                let cell = (r * values.len() as f32) as usize;
-                assert!(cell.abs_diff(k) <= 1, "light {i}: value {k} = {r} out of its stratum");
-            }
+    }
+
+    #[inline]
+    fn pmf(&self, ctx: &ShadingContext, light: u32) -> f32 {
+        match &self.strategy {
+            Strategy::Mixture(m) => m.pmf(ctx, light),
+            Strategy::Tree(t) => t.pmf(ctx, light),
         }
     }
 }

@@ -1,5 +1,7 @@
 //! Tests of the lights: chi-square of triangle-light sampling against its solid-angle pdf, the
-//! spot cone's falloff and power weight, and `LightSampler`'s choice probabilities.
+//! spot cone's falloff and power weight, the mixture's choice probabilities, and the light
+//! tree's: chi-square of its choices at several points, each point's probabilities summing to
+//! one, and `pmf` giving what `choose` returned.
 
 use std::f64::consts::PI;
 
@@ -8,8 +10,8 @@ use glam::{DVec2, Vec2, Vec3};
 use super::chi2::{assert_fits, Spherical};
 use super::chi2::{chi2_statistic, sidak_alpha, Chi2Test, Gnomonic, Rng};
 use crate::render::light::{
-    spot_falloff, DirectionalLight, Environment, Light, LightSampler, MapEnvironment, PointLight,
-    SpotLight, TriangleLight,
+    spot_falloff, ChooseLight, DirectionalLight, Environment, Light, LightChoice, LightSampler,
+    MapEnvironment, PointLight, PowerMixture, ShadingContext, SpotLight, TriangleLight,
 };
 use common::envmap::EnvMap;
 
@@ -61,7 +63,7 @@ const TRIANGLES: [TriangleCase; 5] = [
 ];
 
 /// Chi-square tests in this file.
-pub(super) const N_CHI2: usize = TRIANGLES.len() + 1 + 2;
+pub(super) const N_CHI2: usize = TRIANGLES.len() + 1 + 2 + TREE_POINTS.len();
 
 /// Distance along unit `dir` from `origin` to triangle `p` (Möller-Trumbore in f64), if it hits.
 fn hit_distance(p: [Vec3; 3], origin: Vec3, dir: Vec3) -> Option<f64> {
@@ -225,8 +227,8 @@ fn light_sampler_choose_matches_probability() {
         Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(0.05)))),
     ];
     // The first two triangles are one emitter.
-    let sampler = LightSampler::new(lights, &[0, 0, 1, 2, 3, 4, 5, 6], 5.0);
-    let k = sampler.lights.len();
+    let k = lights.len();
+    let sampler = PowerMixture::new(&lights, &[0, 0, 1, 2, 3, 4, 5, 6], 5.0);
     let total: f64 = (0..k as u32).map(|i| sampler.probability(i) as f64).sum();
     assert!((total - 1.0).abs() < 1e-6, "probabilities sum to {total}");
     assert_eq!(sampler.probability(2), 0.0);
@@ -269,7 +271,7 @@ fn light_choice_mixes_power_with_a_uniform_choice_of_emitter() {
     let point = Light::Point(PointLight { position: Vec3::ONE, intensity: Vec3::splat(0.5) });
     let lights = vec![b0, b1, d0, z0, d1, z1, point];
     let powers: Vec<f64> = lights.iter().map(|l| l.power(5.0) as f64).collect();
-    let sampler = LightSampler::new(lights, &[7, 7, 3, 9, 3, 9, 1], 5.0);
+    let sampler = PowerMixture::new(&lights, &[7, 7, 3, 9, 3, 9, 1], 5.0);
     let total: f64 = powers.iter().sum();
     let emitter = |i: &[usize]| i.iter().map(|&i| powers[i]).sum::<f64>();
     let (bright, dim) = (emitter(&[0, 1]), emitter(&[2, 4]));
@@ -345,4 +347,149 @@ fn environment_map_sample_returns_the_radiance_and_density_of_its_direction() {
     };
     assert_eq!(env.pdf(rotated), 0.0);
     assert_eq!(env.radiance(rotated), Vec3::ZERO);
+}
+
+/// Lights spread through a 10-unit box: small triangles facing every way (some two-sided, some
+/// dark), point and spot lights, a directional light and the environment. Enough that the tree
+/// is a few levels deep, few enough that each expects many samples in 10^6.
+fn many_lights() -> Vec<Light> {
+    let mut rng = Rng::from_name("many_lights");
+    let mut lights = Vec::new();
+    for k in 0..150 {
+        let centre = (rng.next_vec3() - 0.5) * 10.0;
+        let [a, b] = [rng.next_vec3() - 0.5, rng.next_vec3() - 0.5];
+        let emission = if k % 37 == 5 { 0.0 } else { 0.5 + 4.0 * rng.next_f32() };
+        if let Some(l) =
+            TriangleLight::new([centre, centre + a, centre + b], Vec3::splat(emission), k % 3 == 0)
+        {
+            lights.push(Light::Triangle(l));
+        }
+    }
+    for _ in 0..4 {
+        let position = (rng.next_vec3() - 0.5) * 10.0;
+        lights.push(Light::Point(PointLight { position, intensity: Vec3::splat(2.0) }));
+    }
+    lights.push(Light::Spot(SpotLight {
+        position: Vec3::new(0.0, 4.0, 0.0),
+        intensity: Vec3::splat(30.0),
+        ..spot(20.0, 35.0)
+    }));
+    lights.push(Light::Directional(DirectionalLight {
+        to_light: Vec3::Y,
+        irradiance: Vec3::splat(0.1),
+    }));
+    lights.push(Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(0.05)))));
+    lights
+}
+
+/// Shading points for the tree: the middle of the lights, a corner, far outside, and on a
+/// surface facing away from most of them; the last one without a normal (as in a medium).
+const TREE_POINTS: [(Vec3, Vec3); 5] = [
+    (Vec3::new(0.1, 0.2, -0.3), Vec3::Y),
+    (Vec3::new(4.5, -4.5, 4.5), Vec3::new(0.0, 0.0, 1.0)),
+    (Vec3::new(30.0, 2.0, -10.0), Vec3::new(-1.0, 0.0, 0.0)),
+    (Vec3::new(-2.0, -4.9, 1.0), Vec3::new(0.0, -1.0, 0.0)),
+    (Vec3::new(1.0, 1.0, 1.0), Vec3::ZERO),
+];
+
+fn tree_sampler() -> LightSampler {
+    let lights = many_lights();
+    let emitters: Vec<u32> = (0..lights.len() as u32).collect();
+    LightSampler::with_choice(lights, &emitters, 8.0, LightChoice::Tree)
+}
+
+#[test]
+fn light_tree_probabilities_sum_to_one_and_match_choose() {
+    let sampler = tree_sampler();
+    let k = sampler.lights.len() as u32;
+    for (p, n) in TREE_POINTS {
+        let ctx = ShadingContext { p, n: n.normalize_or_zero() };
+        let pmfs: Vec<f64> = (0..k).map(|i| sampler.pmf(&ctx, i) as f64).collect();
+        let total: f64 = pmfs.iter().sum();
+        assert!((total - 1.0).abs() < 1e-5, "at {p}: probabilities sum to {total}");
+        // Dark lights are never chosen; the environment and the directional light share a fixed
+        // two thirds (pbrt-v4: each light at infinity as much as the whole tree).
+        for (i, light) in sampler.lights.iter().enumerate() {
+            if light.power(8.0) == 0.0 {
+                assert_eq!(pmfs[i], 0.0);
+            }
+            if matches!(light, Light::Environment(_) | Light::Directional(_)) {
+                assert_eq!(pmfs[i], (1.0f32 / 3.0) as f64);
+            }
+        }
+        let mut rng = Rng::from_name("light_tree_probabilities_sum_to_one_and_match_choose");
+        for _ in 0..20_000 {
+            let u = rng.next_f32();
+            let (i, pmf, remapped) = sampler.choose(&ctx, u).expect("a light reaches the point");
+            assert_eq!(pmf, sampler.pmf(&ctx, i), "light {i} at {p}, u = {u}");
+            assert!(pmf > 0.0 && (0.0..1.0).contains(&remapped));
+        }
+    }
+}
+
+#[test]
+fn light_tree_choices_match_their_probabilities() {
+    let sampler = tree_sampler();
+    let k = sampler.lights.len();
+    let n = 1_000_000;
+    for (p, normal) in TREE_POINTS {
+        let ctx = ShadingContext { p, n: normal.normalize_or_zero() };
+        let mut rng = Rng::from_name(&format!("light_tree_chi2 {p}"));
+        let mut observed = vec![0.0f64; k];
+        for _ in 0..n {
+            let (i, _, _) = sampler.choose(&ctx, rng.next_f32()).expect("a light");
+            observed[i as usize] += 1.0;
+        }
+        let expected: Vec<f64> =
+            (0..k as u32).map(|i| sampler.pmf(&ctx, i) as f64 * n as f64).collect();
+        let stat = chi2_statistic(&observed, &expected, n).expect("a valid table");
+        println!(
+            "light tree at {p}: chi2 = {:.2}, dof = {}, p = {:.4}",
+            stat.chi2, stat.dof, stat.p_value
+        );
+        assert!(stat.p_value > sidak_alpha(), "at {p}: {stat:?}");
+    }
+}
+
+#[test]
+fn light_tree_spreads_each_lights_numbers_over_the_unit_interval() {
+    let sampler = tree_sampler();
+    let ctx = ShadingContext { p: Vec3::new(0.5, -1.0, 2.0), n: Vec3::Z };
+    let n = 200_000;
+    let mut per_light: Vec<Vec<f32>> = vec![Vec::new(); sampler.lights.len()];
+    for k in 0..n {
+        let u = (k as f32 + 0.5) / n as f32;
+        let (i, _, remapped) = sampler.choose(&ctx, u).expect("a light");
+        per_light[i as usize].push(remapped);
+    }
+    for (i, values) in per_light.iter().enumerate().filter(|(_, v)| v.len() >= 8) {
+        // Evenly spread: the k-th value sits in the k-th of len equal cells.
+        for (k, r) in values.iter().enumerate() {
+            let cell = (r * values.len() as f32) as usize;
+            assert!(cell.abs_diff(k) <= 1, "light {i}: value {k} = {r} out of its stratum");
+        }
+    }
+}
+
+#[test]
+fn light_tree_favours_near_lights_that_face_the_point() {
+    // Two equal quads at y = 1 facing down, at x = -5 and x = +5, and a third at x = +5 facing
+    // up, away from the floor.
+    let quad = |x: f32, down: bool| {
+        let [a, b, c, d] =
+            [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]].map(|[u, v]| Vec3::new(x + u, 1.0, v));
+        let p = if down { [[a, b, c], [a, c, d]] } else { [[a, c, b], [a, d, c]] };
+        p.map(|p| Light::Triangle(TriangleLight::new(p, Vec3::ONE, false).unwrap()))
+    };
+    let lights: Vec<Light> =
+        [quad(-5.0, true), quad(5.0, true), quad(5.0, false)].into_iter().flatten().collect();
+    assert!(lights[0..4].iter().all(|l| matches!(l, Light::Triangle(t) if t.normal.y < 0.0)));
+    let sampler = LightSampler::with_choice(lights, &[0, 0, 1, 1, 2, 2], 8.0, LightChoice::Tree);
+    // A point on the floor under the right-hand quads.
+    let ctx = ShadingContext { p: Vec3::new(5.5, 0.0, 0.5), n: Vec3::Y };
+    let near: f32 = (2..4).map(|i| sampler.pmf(&ctx, i)).sum();
+    let far: f32 = (0..2).map(|i| sampler.pmf(&ctx, i)).sum();
+    let away: f32 = (4..6).map(|i| sampler.pmf(&ctx, i)).sum();
+    assert!(near > 0.9, "near {near}, far {far}, facing away {away}");
+    assert_eq!(away, 0.0, "a light facing away cannot reach the point");
 }

@@ -1,0 +1,545 @@
+//! The light tree: pbrt-v4's light BVH (`BVHLightSampler`, after Conty Estevez and Kulla 2018).
+//! Each node bounds its lights' positions, power and emission directions (`LightBounds`); a
+//! choice walks down from the root, taking each child in proportion to an importance that
+//! bounds what the child's lights could send to the receiving point. Lights at infinity (the
+//! environment, directional lights) are chosen beside the tree with a fixed probability.
+//!
+//! The tree is built from the lights alone, in their order, with no hashing or threads, so a
+//! scene always gets the same tree.
+
+use std::f32::consts::{FRAC_PI_2, PI};
+
+use glam::{Quat, Vec3};
+
+use super::{ChooseLight, Light, ShadingContext};
+
+/// Bounds on what a group of lights emits: where (a box), how much (`phi`) and toward which
+/// directions (within `theta_o` of `w`, each spreading by up to `theta_e` around its normal).
+#[derive(Clone, Copy, Debug)]
+pub struct LightBounds {
+    /// Lower corner of the box around the lights.
+    pub min: Vec3,
+    /// Upper corner of the box.
+    pub max: Vec3,
+    /// Unit axis of the cone of normals.
+    pub w: Vec3,
+    /// Total power (the same estimate as the mixture's, `Light::power`).
+    pub phi: f32,
+    /// Cosine of the cone's half angle: every light's normal lies within it of `w`.
+    pub cos_theta_o: f32,
+    /// Cosine of the angle past a normal over which light still leaves (pi/2 for a surface).
+    pub cos_theta_e: f32,
+    /// Whether some light emits from both faces.
+    pub two_sided: bool,
+}
+
+impl LightBounds {
+    /// The bounds of one light, or `None` for a light at infinity or one without power.
+    pub fn of(light: &Light, scene_radius: f32) -> Option<LightBounds> {
+        let phi = light.power(scene_radius);
+        if phi <= 0.0 || !phi.is_finite() {
+            return None;
+        }
+        match light {
+            Light::Triangle(l) => Some(LightBounds {
+                min: l.p[0].min(l.p[1]).min(l.p[2]),
+                max: l.p[0].max(l.p[1]).max(l.p[2]),
+                w: l.normal,
+                phi,
+                cos_theta_o: 1.0,
+                cos_theta_e: 0.0,
+                two_sided: l.two_sided,
+            }),
+            Light::Point(l) => Some(LightBounds {
+                min: l.position,
+                max: l.position,
+                w: Vec3::Z,
+                phi,
+                cos_theta_o: -1.0,
+                cos_theta_e: 0.0,
+                two_sided: false,
+            }),
+            Light::Spot(l) => {
+                let theta_inner = l.cos_inner.clamp(-1.0, 1.0).acos();
+                let theta_outer = l.cos_outer.clamp(-1.0, 1.0).acos();
+                Some(LightBounds {
+                    min: l.position,
+                    max: l.position,
+                    w: l.direction,
+                    phi,
+                    cos_theta_o: l.cos_inner,
+                    cos_theta_e: (theta_outer - theta_inner).max(0.0).cos(),
+                    two_sided: false,
+                })
+            }
+            Light::Directional(_) | Light::Environment(_) => None,
+        }
+    }
+
+    fn centroid(&self) -> Vec3 {
+        (self.min + self.max) * 0.5
+    }
+
+    /// The bounds of two groups together (pbrt-v4 `Union`).
+    fn union(&self, other: &LightBounds) -> LightBounds {
+        let (w, cos_theta_o) = cone_union((self.w, self.cos_theta_o), (other.w, other.cos_theta_o));
+        LightBounds {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+            w,
+            phi: self.phi + other.phi,
+            cos_theta_o,
+            cos_theta_e: self.cos_theta_e.min(other.cos_theta_e),
+            two_sided: self.two_sided || other.two_sided,
+        }
+    }
+
+    /// An upper bound on what the lights send to `p` with normal `n` (zero: no cosine), up to
+    /// a common factor (pbrt-v4 `LightBounds::Importance`).
+    pub fn importance(&self, p: Vec3, n: Vec3) -> f32 {
+        let pc = self.centroid();
+        // The distance to the centre, kept from falling below half the box's diagonal, so that
+        // points inside or near a box do not make it infinitely important.
+        let d2 = p.distance_squared(pc).max((self.max - self.min).length() * 0.5);
+        let wi = (p - pc).normalize_or_zero();
+        let mut cos_theta_w = self.w.dot(wi);
+        if self.two_sided {
+            cos_theta_w = cos_theta_w.abs();
+        }
+        let sin_theta_w = safe_sqrt(1.0 - cos_theta_w * cos_theta_w);
+        // The cone of directions from the box toward p.
+        let cos_theta_b = self.cos_subtended(p);
+        let sin_theta_b = safe_sqrt(1.0 - cos_theta_b * cos_theta_b);
+        // The smallest angle between an emission direction and a direction toward p.
+        let sin_theta_o = safe_sqrt(1.0 - self.cos_theta_o * self.cos_theta_o);
+        let cos_theta_x = cos_sub_clamped(sin_theta_w, cos_theta_w, sin_theta_o, self.cos_theta_o);
+        let sin_theta_x = sin_sub_clamped(sin_theta_w, cos_theta_w, sin_theta_o, self.cos_theta_o);
+        let cos_theta_p = cos_sub_clamped(sin_theta_x, cos_theta_x, sin_theta_b, cos_theta_b);
+        if cos_theta_p <= self.cos_theta_e {
+            return 0.0;
+        }
+        let mut importance = self.phi * cos_theta_p / d2;
+        if n != Vec3::ZERO {
+            // The receiver's cosine, either side (a surface may transmit).
+            let cos_theta_i = wi.dot(n).abs();
+            let sin_theta_i = safe_sqrt(1.0 - cos_theta_i * cos_theta_i);
+            importance *= cos_sub_clamped(sin_theta_i, cos_theta_i, sin_theta_b, cos_theta_b);
+        }
+        importance.max(0.0)
+    }
+
+    /// The cosine of the half angle of a cone from `p` holding the box (-1 from inside it).
+    fn cos_subtended(&self, p: Vec3) -> f32 {
+        if p.cmpge(self.min).all() && p.cmple(self.max).all() {
+            return -1.0;
+        }
+        let center = self.centroid();
+        let radius2 = center.distance_squared(self.max);
+        let dist2 = p.distance_squared(center);
+        if dist2 < radius2 {
+            return -1.0;
+        }
+        safe_sqrt(1.0 - radius2 / dist2)
+    }
+}
+
+fn safe_sqrt(x: f32) -> f32 {
+    x.max(0.0).sqrt()
+}
+
+/// cos(max(0, a - b)) from the sines and cosines of a and b.
+fn cos_sub_clamped(sin_a: f32, cos_a: f32, sin_b: f32, cos_b: f32) -> f32 {
+    if cos_a > cos_b {
+        return 1.0;
+    }
+    cos_a * cos_b + sin_a * sin_b
+}
+
+/// sin(max(0, a - b)) from the sines and cosines of a and b.
+fn sin_sub_clamped(sin_a: f32, cos_a: f32, sin_b: f32, cos_b: f32) -> f32 {
+    if cos_a > cos_b {
+        return 0.0;
+    }
+    sin_a * cos_b - cos_a * sin_b
+}
+
+/// The smallest cone holding two cones, each (unit axis, cosine of the half angle) (pbrt-v4
+/// `Union(DirectionCone, DirectionCone)`).
+fn cone_union(a: (Vec3, f32), b: (Vec3, f32)) -> (Vec3, f32) {
+    let theta_a = a.1.clamp(-1.0, 1.0).acos();
+    let theta_b = b.1.clamp(-1.0, 1.0).acos();
+    let theta_d = a.0.dot(b.0).clamp(-1.0, 1.0).acos();
+    if (theta_d + theta_b).min(PI) <= theta_a {
+        return a;
+    }
+    if (theta_d + theta_a).min(PI) <= theta_b {
+        return b;
+    }
+    let theta_o = (theta_a + theta_d + theta_b) * 0.5;
+    if theta_o >= PI {
+        return (a.0, -1.0);
+    }
+    let theta_r = theta_o - theta_a;
+    let Some(axis) = a.0.cross(b.0).try_normalize() else {
+        return (a.0, -1.0);
+    };
+    let w = (Quat::from_axis_angle(axis, theta_r) * a.0).normalize();
+    (w, theta_o.cos())
+}
+
+/// The build's cost of a group on split axis `dim` of a box `extent` (pbrt-v4
+/// `EvaluateCost`): power times the solid angle its cone reaches times its box's area, with
+/// thin boxes cut across their long side favoured.
+fn split_cost(b: &LightBounds, extent: Vec3, dim: usize) -> f32 {
+    let theta_o = b.cos_theta_o.clamp(-1.0, 1.0).acos();
+    let theta_e = b.cos_theta_e.clamp(-1.0, 1.0).acos();
+    let theta_w = (theta_o + theta_e).min(PI);
+    let sin_theta_o = safe_sqrt(1.0 - b.cos_theta_o * b.cos_theta_o);
+    let m_omega = 2.0 * PI * (1.0 - b.cos_theta_o)
+        + FRAC_PI_2
+            * (2.0 * theta_w * sin_theta_o
+                - (theta_o - 2.0 * theta_w).cos()
+                - 2.0 * theta_o * sin_theta_o
+                + b.cos_theta_o);
+    let kr = if extent[dim] > 0.0 { extent.max_element() / extent[dim] } else { 1.0 };
+    let d = b.max - b.min;
+    let area = 2.0 * (d.x * d.y + d.y * d.z + d.z * d.x);
+    b.phi * m_omega * kr * area
+}
+
+/// Buckets per axis for the split search.
+const BUCKETS: usize = 12;
+
+/// Past this depth a node splits its lights in halves by order, so that no tree grows deeper
+/// than this plus log2 of the lights (and `pmf`'s path fits its stack).
+const MAX_SAH_DEPTH: usize = 40;
+
+/// Room for a path from the root to a leaf.
+const MAX_DEPTH: usize = MAX_SAH_DEPTH + 34;
+
+/// `LightBounds` as the choice reads it, with what does not depend on the receiving point
+/// worked out once: the same importance, with fewer roots and divisions per evaluation.
+#[derive(Clone, Copy, Debug)]
+struct NodeBounds {
+    /// Centre of the box.
+    centre: Vec3,
+    /// Half the box's diagonal: the least squared distance the importance divides by.
+    half_diagonal: f32,
+    /// Squared radius of the sphere around the box (from its centre).
+    radius2: f32,
+    /// Axis of the cone of normals.
+    w: Vec3,
+    phi: f32,
+    cos_theta_o: f32,
+    sin_theta_o: f32,
+    cos_theta_e: f32,
+    two_sided: bool,
+}
+
+impl NodeBounds {
+    fn new(b: &LightBounds) -> NodeBounds {
+        let centre = b.centroid();
+        NodeBounds {
+            centre,
+            half_diagonal: (b.max - b.min).length() * 0.5,
+            radius2: centre.distance_squared(b.max),
+            w: b.w,
+            phi: b.phi,
+            cos_theta_o: b.cos_theta_o,
+            sin_theta_o: safe_sqrt(1.0 - b.cos_theta_o * b.cos_theta_o),
+            cos_theta_e: b.cos_theta_e,
+            two_sided: b.two_sided,
+        }
+    }
+
+    /// `LightBounds::importance`, term for term. A point inside the box is inside the sphere
+    /// around it, so the sphere alone decides when the box surrounds the point.
+    #[inline(always)]
+    fn importance(&self, p: Vec3, n: Vec3) -> f32 {
+        let d = p - self.centre;
+        let dist2 = d.length_squared();
+        let d2 = dist2.max(self.half_diagonal);
+        let wi = if dist2 > 0.0 { d * (1.0 / dist2.sqrt()) } else { Vec3::ZERO };
+        let mut cos_theta_w = self.w.dot(wi);
+        if self.two_sided {
+            cos_theta_w = cos_theta_w.abs();
+        }
+        let sin_theta_w = safe_sqrt(1.0 - cos_theta_w * cos_theta_w);
+        let (cos_theta_b, sin_theta_b) = if dist2 <= self.radius2 {
+            (-1.0, 0.0)
+        } else {
+            let sin2 = self.radius2 / dist2;
+            (safe_sqrt(1.0 - sin2), sin2.sqrt())
+        };
+        let cos_theta_x =
+            cos_sub_clamped(sin_theta_w, cos_theta_w, self.sin_theta_o, self.cos_theta_o);
+        let sin_theta_x =
+            sin_sub_clamped(sin_theta_w, cos_theta_w, self.sin_theta_o, self.cos_theta_o);
+        let cos_theta_p = cos_sub_clamped(sin_theta_x, cos_theta_x, sin_theta_b, cos_theta_b);
+        if cos_theta_p <= self.cos_theta_e {
+            return 0.0;
+        }
+        let mut importance = self.phi * cos_theta_p / d2;
+        if n != Vec3::ZERO {
+            let cos_theta_i = wi.dot(n).abs();
+            let sin_theta_i = safe_sqrt(1.0 - cos_theta_i * cos_theta_i);
+            importance *= cos_sub_clamped(sin_theta_i, cos_theta_i, sin_theta_b, cos_theta_b);
+        }
+        importance.max(0.0)
+    }
+}
+
+/// A node: its bounds and either its second child (the first follows it) or its light.
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    bounds: NodeBounds,
+    /// The second child's index for an interior node, the light's index for a leaf.
+    child_or_light: u32,
+    leaf: bool,
+}
+
+/// pbrt-v4's `BVHLightSampler`: a binary tree over the lights that have bounds, chosen down by
+/// importance, and the lights at infinity beside it.
+#[derive(Clone, Debug, Default)]
+pub struct LightTree {
+    /// Nodes depth first: node 0 the root, an interior node's first child right after it.
+    nodes: Vec<Node>,
+    /// Each node's parent (the root's is itself).
+    parents: Vec<u32>,
+    /// The leaf of each light (`u32::MAX` for lights not in the tree).
+    leaf_of: Vec<u32>,
+    /// Lights at infinity with power, chosen uniformly among themselves.
+    infinite: Vec<u32>,
+    /// Index of each light in `infinite` (`u32::MAX` for others).
+    infinite_of: Vec<u32>,
+}
+
+impl LightTree {
+    /// Builds the tree over `lights` (deterministic: only their order and values matter).
+    pub fn new(lights: &[Light], scene_radius: f32) -> LightTree {
+        let mut tree = LightTree {
+            leaf_of: vec![u32::MAX; lights.len()],
+            infinite_of: vec![u32::MAX; lights.len()],
+            ..LightTree::default()
+        };
+        let mut bounded = Vec::new();
+        for (i, light) in lights.iter().enumerate() {
+            match light {
+                Light::Directional(_) | Light::Environment(_) => {
+                    let phi = light.power(scene_radius);
+                    if phi > 0.0 && phi.is_finite() {
+                        tree.infinite_of[i] = tree.infinite.len() as u32;
+                        tree.infinite.push(i as u32);
+                    }
+                }
+                _ => {
+                    if let Some(b) = LightBounds::of(light, scene_radius) {
+                        bounded.push((i as u32, b));
+                    }
+                }
+            }
+        }
+        if !bounded.is_empty() {
+            tree.build(&mut bounded, 0, u32::MAX);
+        }
+        tree
+    }
+
+    /// Adds the subtree over `lights` and returns its bounds.
+    fn build(
+        &mut self,
+        lights: &mut [(u32, LightBounds)],
+        depth: usize,
+        parent: u32,
+    ) -> LightBounds {
+        let index = self.nodes.len() as u32;
+        self.parents.push(if parent == u32::MAX { index } else { parent });
+        if let [(light, bounds)] = *lights {
+            self.nodes.push(Node {
+                bounds: NodeBounds::new(&bounds),
+                child_or_light: light,
+                leaf: true,
+            });
+            self.leaf_of[light as usize] = index;
+            return bounds;
+        }
+        // A placeholder until the children are built.
+        let placeholder = NodeBounds::new(&lights[0].1);
+        self.nodes.push(Node { bounds: placeholder, child_or_light: 0, leaf: false });
+        let mid = self.split(lights, depth);
+        let (first, second) = lights.split_at_mut(mid);
+        let a = self.build(first, depth + 1, index);
+        let second_index = self.nodes.len() as u32;
+        let b = self.build(second, depth + 1, index);
+        let bounds = a.union(&b);
+        self.nodes[index as usize] =
+            Node { bounds: NodeBounds::new(&bounds), child_or_light: second_index, leaf: false };
+        bounds
+    }
+
+    /// Reorders `lights` (stably) into two groups and returns where the second starts: the
+    /// cheapest bucket boundary by `split_cost`, else the middle.
+    fn split(&self, lights: &mut [(u32, LightBounds)], depth: usize) -> usize {
+        let half = lights.len() / 2;
+        if depth >= MAX_SAH_DEPTH {
+            return half;
+        }
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let (mut box_min, mut box_max) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        for (_, b) in lights.iter() {
+            lo = lo.min(b.centroid());
+            hi = hi.max(b.centroid());
+            box_min = box_min.min(b.min);
+            box_max = box_max.max(b.max);
+        }
+        let extent = box_max - box_min;
+        let bucket = |b: &LightBounds, dim: usize| {
+            let offset = (b.centroid()[dim] - lo[dim]) / (hi[dim] - lo[dim]);
+            ((BUCKETS as f32 * offset) as usize).min(BUCKETS - 1)
+        };
+        let mut best: Option<(f32, usize, usize)> = None;
+        for dim in 0..3 {
+            if hi[dim] <= lo[dim] {
+                continue;
+            }
+            let mut buckets: [Option<LightBounds>; BUCKETS] = [None; BUCKETS];
+            for (_, b) in lights.iter() {
+                let k = bucket(b, dim);
+                buckets[k] = Some(buckets[k].map_or(*b, |u| u.union(b)));
+            }
+            let union = |range: &[Option<LightBounds>]| {
+                range
+                    .iter()
+                    .flatten()
+                    .fold(None, |acc: Option<LightBounds>, b| Some(acc.map_or(*b, |u| u.union(b))))
+            };
+            for split in 0..BUCKETS - 1 {
+                let (Some(below), Some(above)) =
+                    (union(&buckets[..=split]), union(&buckets[split + 1..]))
+                else {
+                    continue;
+                };
+                let cost = split_cost(&below, extent, dim) + split_cost(&above, extent, dim);
+                if cost > 0.0 && best.is_none_or(|(c, _, _)| cost < c) {
+                    best = Some((cost, dim, split));
+                }
+            }
+        }
+        let Some((_, dim, split)) = best else {
+            return half;
+        };
+        let (below, above): (Vec<_>, Vec<_>) =
+            lights.iter().partition(|(_, b)| bucket(b, dim) <= split);
+        if below.is_empty() || above.is_empty() {
+            return half;
+        }
+        let mid = below.len();
+        for (slot, light) in lights.iter_mut().zip(below.into_iter().chain(above)) {
+            *slot = light;
+        }
+        mid
+    }
+
+    /// True when no light has power.
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty() && self.infinite.is_empty()
+    }
+
+    /// Probability of choosing among the lights at infinity (each gets an equal share of it).
+    fn infinite_share(&self) -> f32 {
+        let n = self.infinite.len() as f32;
+        n / (n + if self.nodes.is_empty() { 0.0 } else { 1.0 })
+    }
+
+    /// The probability of each child of interior node `node` at `ctx`: by importance, or by
+    /// power where neither child can reach the point. pbrt-v4 gives up there instead, so its
+    /// probabilities sum to less than one; going on keeps every point's sum at one and costs
+    /// nothing in bias, since a light that reaches the point has nonzero importance at every
+    /// node above it.
+    #[inline]
+    fn child_probabilities(&self, node: usize, ctx: &ShadingContext) -> [f32; 2] {
+        let (first, second) =
+            (&self.nodes[node + 1], &self.nodes[self.nodes[node].child_or_light as usize]);
+        let c0 = first.bounds.importance(ctx.p, ctx.n);
+        let c1 = second.bounds.importance(ctx.p, ctx.n);
+        let sum = c0 + c1;
+        let (c0, c1) = if sum > 0.0 && sum.is_finite() {
+            (c0, c1)
+        } else {
+            (first.bounds.phi, second.bounds.phi)
+        };
+        let inverse = 1.0 / (c0 + c1);
+        [c0 * inverse, c1 * inverse]
+    }
+}
+
+impl ChooseLight for LightTree {
+    fn choose(&self, ctx: &ShadingContext, u: f32) -> Option<(u32, f32, f32)> {
+        // The largest f32 below 1: remapped numbers stay in [0, 1).
+        const BELOW_ONE: f64 = 1.0 - f32::EPSILON as f64 / 2.0;
+        let p_infinite = self.infinite_share();
+        let mut u = u as f64;
+        if u < p_infinite as f64 {
+            let n = self.infinite.len();
+            let scaled = u / p_infinite as f64 * n as f64;
+            let k = (scaled as usize).min(n - 1);
+            let remapped = (scaled - k as f64).clamp(0.0, BELOW_ONE) as f32;
+            return Some((self.infinite[k], p_infinite / n as f32, remapped));
+        }
+        if self.nodes.is_empty() {
+            return None;
+        }
+        u = ((u - p_infinite as f64) / (1.0 - p_infinite) as f64).clamp(0.0, BELOW_ONE);
+        let mut pmf = 1.0 - p_infinite;
+        let mut node = 0usize;
+        // The chosen node's share of [0, 1): `u` is stretched over it once, at the leaf, rather
+        // than divided at every level (a chain of divisions the walk would wait on).
+        let (mut start, mut width) = (0.0f64, 1.0f64);
+        loop {
+            let n = &self.nodes[node];
+            if n.leaf {
+                let remapped = ((u - start) / width).clamp(0.0, BELOW_ONE);
+                return Some((n.child_or_light, pmf, remapped as f32));
+            }
+            let [p0, p1] = self.child_probabilities(node, ctx);
+            let split = start + width * p0 as f64;
+            if u < split || p1 == 0.0 {
+                width *= p0 as f64;
+                pmf *= p0;
+                node += 1;
+            } else {
+                start = split;
+                width *= p1 as f64;
+                pmf *= p1;
+                node = n.child_or_light as usize;
+            }
+        }
+    }
+
+    fn pmf(&self, ctx: &ShadingContext, light: u32) -> f32 {
+        let p_infinite = self.infinite_share();
+        let k = self.infinite_of[light as usize];
+        if k != u32::MAX {
+            return p_infinite / self.infinite.len() as f32;
+        }
+        let leaf = self.leaf_of[light as usize];
+        if leaf == u32::MAX {
+            return 0.0;
+        }
+        // The path from the root, then the same products in the same order as `choose`.
+        let mut path = arrayvec::ArrayVec::<u32, MAX_DEPTH>::new();
+        let mut node = leaf;
+        while node != 0 {
+            path.push(node);
+            node = self.parents[node as usize];
+        }
+        let mut pmf = 1.0 - p_infinite;
+        let mut parent = 0usize;
+        for &child in path.iter().rev() {
+            let [p0, p1] = self.child_probabilities(parent, ctx);
+            pmf *= if child as usize == parent + 1 { p0 } else { p1 };
+            parent = child as usize;
+        }
+        pmf
+    }
+}

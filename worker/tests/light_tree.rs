@@ -1,0 +1,110 @@
+//! The light tree through the whole renderer: a floor lit by many small emitters
+//! (`worker::test_scenes::many_lights_gltf`) renders the same image with the tree as with the
+//! power mixture, within the noise, and with less noise at equal samples; and the shipped
+//! scenes, with few emitters, keep the mixture (so they render as before, the Cornell box on
+//! the wavefront).
+
+mod support;
+
+use common::{film::Film, settings::RenderSettings};
+use support::*;
+use worker::{
+    render::{
+        light::{LightChoice, TREE_MIN_EMITTERS},
+        scene::{prepare, prepare_with_light_choice},
+    },
+    test_scenes::many_lights_gltf,
+};
+
+fn many_lights(n: usize) -> common::scene::Scene {
+    let dir = std::env::temp_dir().join(format!("renderfarm-light-tree-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("many-{n}.gltf"));
+    std::fs::write(&path, many_lights_gltf(n)).unwrap();
+    common::gltf::load_path(&path).unwrap()
+}
+
+fn settings(res: u32, spp: u32) -> RenderSettings {
+    RenderSettings { width: res, height: res, spp, max_depth: 8, ..Default::default() }
+}
+
+/// The mean over pixels and channels of the variance of the pixel mean, relative to the
+/// squared value (+ 0.01, as the benchmarks' relative MSE): the film's expected relative MSE.
+fn relative_variance(film: &Film) -> f64 {
+    let mut sum = 0.0;
+    for p in &film.pixels {
+        let (mean, var) = (p.mean(), p.variance_of_mean());
+        for c in 0..3 {
+            sum += var[c] / (mean[c] * mean[c] + 0.01);
+        }
+    }
+    sum / (film.pixels.len() * 3) as f64
+}
+
+#[test]
+fn shipped_scenes_keep_the_mixture() {
+    let peers = shared().join("bench/peers/scenes");
+    let mut scenes = vec![
+        shared().join("scenes/cornell-box.gltf"),
+        shared().join("scenes/real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb"),
+        shared().join("scenes/real/LightsPunctualLamp/glTF/LightsPunctualLamp.gltf"),
+        shared().join("scenes/real/TransmissionTest/glTF/TransmissionTest.gltf"),
+        shared().join("scenes/real/EmissiveStrengthTest/glTF/EmissiveStrengthTest.gltf"),
+    ];
+    scenes.extend(["veach-mis", "furnace-closed"].map(|s| peers.join(format!("{s}.gltf"))));
+    for path in scenes.iter().filter(|p| p.exists()) {
+        let scene = common::gltf::load_path(path).unwrap();
+        let prepared = prepare(&scene, &RenderSettings::default()).unwrap();
+        assert!(!prepared.lights.uses_tree(), "{}", path.display());
+    }
+    let cornell = prepare(&load("cornell-box.gltf"), &RenderSettings::default()).unwrap();
+    assert!(cornell.wavefront.is_some(), "the Cornell box stays on the wavefront");
+}
+
+#[test]
+fn many_emitters_choose_by_the_tree_on_the_scalar_renderer() {
+    let few = prepare(&many_lights(TREE_MIN_EMITTERS - 1), &settings(8, 1)).unwrap();
+    assert!(!few.lights.uses_tree() && few.wavefront.is_some());
+    let many = prepare(&many_lights(TREE_MIN_EMITTERS), &settings(8, 1)).unwrap();
+    assert!(many.lights.uses_tree() && many.wavefront.is_none());
+}
+
+#[test]
+fn many_lights_tree_agrees_with_the_mixture_with_less_noise() {
+    let scene = many_lights(1024);
+    let settings = settings(48, 32);
+    let tree = prepare_with_light_choice(&scene, &settings, LightChoice::Tree).unwrap();
+    let mixture = prepare_with_light_choice(&scene, &settings, LightChoice::Mixture).unwrap();
+    assert!(tree.lights.uses_tree() && !mixture.lights.uses_tree());
+    let (a, b) = (render_prepared(&tree, &settings), render_prepared(&mixture, &settings));
+    // Block means of the two images differ by no more than their noise.
+    let block = 8;
+    let blocks = (settings.width / block) * (settings.height / block);
+    let mut worst = 0.0f64;
+    for by in 0..settings.height / block {
+        for bx in 0..settings.width / block {
+            let (mut d, mut v) = (0.0, 0.0);
+            for y in by * block..(by + 1) * block {
+                for x in bx * block..(bx + 1) * block {
+                    let i = (y * settings.width + x) as usize;
+                    let (pa, pb) = (&a.pixels[i], &b.pixels[i]);
+                    for c in 0..3 {
+                        d += pa.mean()[c] - pb.mean()[c];
+                        v += pa.variance_of_mean()[c] + pb.variance_of_mean()[c];
+                    }
+                }
+            }
+            worst = worst.max((d / v.sqrt()).abs());
+        }
+    }
+    let bound = sidak_z(0.01, blocks as usize);
+    let (err_tree, err_mixture) = (relative_variance(&a), relative_variance(&b));
+    println!(
+        "1024 emitters, {} spp: worst block |z| = {worst:.2} (bound {bound:.2}); relative \
+         variance of the mean: tree {err_tree:.4e}, mixture {err_mixture:.4e} ({:.1}x)",
+        settings.spp,
+        err_mixture / err_tree
+    );
+    assert!(worst <= bound, "worst block |z| = {worst}");
+    assert!(err_tree * 3.0 < err_mixture, "tree {err_tree}, mixture {err_mixture}");
+}
