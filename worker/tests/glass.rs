@@ -117,33 +117,10 @@ fn box_scene(
     path
 }
 
-/// Clear or tinted glass: full transmission, roughness 0, `ior`, and a volume of `thickness`
-/// with `attenuation` (colour, distance) when given.
-fn glass(ior: f64, thickness: f64, attenuation: Option<([f64; 3], f64)>) -> Value {
-    let mut volume = json!({"thicknessFactor": thickness});
-    if let Some((color, distance)) = attenuation {
-        volume["attenuationColor"] = json!(color);
-        volume["attenuationDistance"] = json!(distance);
-    }
-    json!({
-        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
-        "extensions": {
-            "KHR_materials_transmission": {"transmissionFactor": 1.0},
-            "KHR_materials_volume": volume,
-            "KHR_materials_ior": {"ior": ior}
-        }
-    })
-}
-
-fn white_furnace(res: u32, spp: u32) -> RenderSettings {
-    RenderSettings {
-        width: res,
-        height: res,
-        spp,
-        max_depth: 256,
-        environment: Some(Environment::Color { color: [1.0; 3] }),
-        ..Default::default()
-    }
+/// The furnace box: `box_scene` of half sizes (0.6, 0.4, 0.5) off-centre in the view, at an
+/// angle that sends light through its sides.
+fn furnace_box(tag: &str, material: Value) -> std::path::PathBuf {
+    box_scene(tag, [0.6, 0.4, 0.5], [0.1, 0.0, -0.2], material, 3.0, 1.0, 0.0, false)
 }
 
 /// Every pixel of a clear glass box in a white furnace is 1: a smooth dielectric boundary
@@ -151,21 +128,11 @@ fn white_furnace(res: u32, spp: u32) -> RenderSettings {
 /// through its sides, so paths reflect and refract, totally reflect inside, and leave anywhere.
 #[test]
 fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
-    let path = box_scene(
-        "furnace",
-        [0.6, 0.4, 0.5],
-        [0.1, 0.0, -0.2],
-        glass(1.5, 1.0, None),
-        3.0,
-        1.0,
-        0.0,
-        false,
-    );
+    let path = furnace_box("furnace", dielectric_material(1.5, 1.0, None));
     let scene = common::gltf::load_path(&path).unwrap();
     assert!(scene.materials[0].refracts(), "the box is a refractive volume");
     let film = render(&scene, &white_furnace(16, 64));
-    let worst =
-        film.mean_rgb().iter().flatten().map(|&v| (v as f64 - 1.0).abs()).fold(0.0, f64::max);
+    let worst = worst_from_white(&film);
     assert!(worst < 1e-5, "a pixel is {worst} away from 1");
 }
 
@@ -173,18 +140,9 @@ fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
 /// (single scattering off microfacets loses a little), and the box stays nearly white.
 #[test]
 fn a_rough_glass_box_in_a_white_furnace_never_exceeds_white() {
-    let mut material = glass(1.5, 1.0, None);
+    let mut material = dielectric_material(1.5, 1.0, None);
     material["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.3);
-    let path = box_scene(
-        "rough-furnace",
-        [0.6, 0.4, 0.5],
-        [0.1, 0.0, -0.2],
-        material,
-        3.0,
-        1.0,
-        0.0,
-        false,
-    );
+    let path = furnace_box("rough-furnace", material);
     let scene = common::gltf::load_path(&path).unwrap();
     let film = render(&scene, &white_furnace(16, 256));
     let means = film.mean_rgb();
@@ -205,7 +163,7 @@ fn an_absorbing_slab_at_normal_incidence_gives_the_fresnel_series() {
     let (ior, thickness) = (1.5f64, 0.2f64);
     let color = [0.8, 0.5, 0.1];
     let distance = 0.25;
-    let material = glass(ior, 1.0, Some((color, distance)));
+    let material = dielectric_material(ior, 1.0, Some((color, distance)));
     // The slab is far wider than the view: every path stays at normal incidence.
     let path = box_scene(
         "slab",
@@ -247,7 +205,7 @@ fn a_volume_of_thickness_zero_stays_thin_walled() {
         "thin",
         [50.0, 0.1, 50.0],
         [0.0; 3],
-        glass(1.5, 0.0, Some(([0.1; 3], 0.01))),
+        dielectric_material(1.5, 0.0, Some(([0.1; 3], 0.01))),
         2.0,
         1.0,
         0.0,
@@ -266,7 +224,7 @@ fn bad_volumes_are_refused_with_the_key() {
         (json!({"thicknessFactor": 1.0, "attenuationColor": [1.5, 0.5, 0.5]}), "attenuationColor"),
         (json!({"thicknessFactor": 1.0, "attenuationColor": [0.5, 0.5]}), "attenuationColor"),
     ] {
-        let mut material = glass(1.5, 1.0, None);
+        let mut material = dielectric_material(1.5, 1.0, None);
         material["extensions"]["KHR_materials_volume"] = volume;
         let path =
             box_scene(&format!("bad-{key}"), [1.0; 3], [0.0; 3], material, 3.0, 1.0, 0.0, false);
@@ -304,7 +262,7 @@ fn a_tilted_slab_shifts_what_lies_behind_it_by_the_snell_offset() {
     };
     let pixel = 2.0 / width as f64;
     for (ior_here, expected) in [(1.0, 0.0), (ior, -shift)] {
-        let mut material = glass(ior, 1.0, None);
+        let mut material = dielectric_material(ior, 1.0, None);
         material["extensions"]["KHR_materials_ior"]["ior"] = json!(ior_here);
         let half = [20.0, thickness as f32 / 2.0, 20.0];
         let path =
@@ -335,10 +293,10 @@ fn the_shipped_glass_scene_bounds_a_closed_volume() {
     assert_eq!(common::gltf::open_edges(block), Some(4), "the bottom's four edges are open");
 }
 
-/// `glass` filling a scattering medium: `attenuation` (colour, distance) is the extinction,
+/// `dielectric_material` filling a scattering medium: `attenuation` (colour, distance) is the extinction,
 /// `multiscatter` and `g` the `KHR_materials_volume_scatter` values.
 fn scattering(ior: f64, attenuation: ([f64; 3], f64), multiscatter: [f64; 3], g: f64) -> Value {
-    let mut m = glass(ior, 1.0, Some(attenuation));
+    let mut m = dielectric_material(ior, 1.0, Some(attenuation));
     m["extensions"]["KHR_materials_volume_scatter"] =
         json!({"multiscatterColor": multiscatter, "scatterAnisotropy": g});
     m
@@ -362,24 +320,14 @@ fn image_mean(film: &common::film::Film) -> [(f64, f64); 3] {
 fn a_grey_medium_of_albedo_one_in_a_white_furnace_is_exactly_white() {
     for ior in [1.0, 1.5] {
         let material = scattering(ior, ([0.3; 3], 0.4), [1.0; 3], 0.5);
-        let path = box_scene(
-            &format!("scatter-furnace-{ior}"),
-            [0.6, 0.4, 0.5],
-            [0.1, 0.0, -0.2],
-            material,
-            3.0,
-            1.0,
-            0.0,
-            false,
-        );
+        let path = furnace_box(&format!("scatter-furnace-{ior}"), material);
         let scene = common::gltf::load_path(&path).unwrap();
         let volume = scene.materials[0].volume.unwrap();
         assert!(volume.scatters() && volume.albedo == glam::Vec3::ONE, "{volume:?}");
         let mut settings = white_furnace(16, 64);
         settings.max_depth = 1024;
         let film = render(&scene, &settings);
-        let worst =
-            film.mean_rgb().iter().flatten().map(|&v| (v as f64 - 1.0).abs()).fold(0.0, f64::max);
+        let worst = worst_from_white(&film);
         eprintln!("ior {ior}: the worst pixel is {worst:.1e} away from 1");
         assert!(worst < 1e-4, "ior {ior}: a pixel is {worst} away from 1");
     }
@@ -397,16 +345,7 @@ fn a_coloured_medium_of_albedo_one_in_a_white_furnace_is_white_within_the_noise(
     diffuse_boundary["extensions"]["KHR_materials_diffuse_transmission"] =
         json!({"diffuseTransmissionFactor": 1.0});
     for (tag, material) in [("chromatic", chromatic), ("diffuse-boundary", diffuse_boundary)] {
-        let path = box_scene(
-            &format!("scatter-{tag}"),
-            [0.6, 0.4, 0.5],
-            [0.1, 0.0, -0.2],
-            material,
-            3.0,
-            1.0,
-            0.0,
-            false,
-        );
+        let path = furnace_box(&format!("scatter-{tag}"), material);
         let scene = common::gltf::load_path(&path).unwrap();
         assert!(scene.materials[0].bounds_medium(), "{tag}: the box bounds a medium");
         let mut settings = white_furnace(16, 256);
@@ -508,7 +447,7 @@ fn bad_scattering_values_are_refused_with_the_key() {
         (json!({"scatterAnisotropy": 1.5}), "scatterAnisotropy"),
         (json!({"scatterAnisotropy": "forward"}), "scatterAnisotropy"),
     ] {
-        let mut material = glass(1.5, 1.0, Some(([0.5; 3], 1.0)));
+        let mut material = dielectric_material(1.5, 1.0, Some(([0.5; 3], 1.0)));
         material["extensions"]["KHR_materials_volume_scatter"] = scatter;
         let path = box_scene(
             &format!("bad-scatter-{key}"),
@@ -523,7 +462,7 @@ fn bad_scattering_values_are_refused_with_the_key() {
         let e = common::gltf::load_path(&path).unwrap_err().to_string();
         assert!(e.contains("KHR_materials_volume_scatter") && e.contains(key), "{e}");
     }
-    let mut material = glass(1.5, 0.0, None);
+    let mut material = dielectric_material(1.5, 0.0, None);
     material["extensions"]["KHR_materials_volume_scatter"] =
         json!({"multiscatterColor": [0.5, 0.5, 0.5]});
     let path = box_scene("scatter-thin", [1.0; 3], [0.0; 3], material, 3.0, 1.0, 0.0, false);
@@ -538,18 +477,9 @@ fn bad_scattering_values_are_refused_with_the_key() {
 /// offset puts it (blue moved the most, red the least), within four standard errors.
 #[test]
 fn dispersive_glass_stays_white_in_the_furnace_and_splits_an_edge_by_colour() {
-    let mut material = glass(1.5, 1.0, None);
+    let mut material = dielectric_material(1.5, 1.0, None);
     material["extensions"]["KHR_materials_dispersion"] = json!({"dispersion": 2.0});
-    let path = box_scene(
-        "dispersive-furnace",
-        [0.6, 0.4, 0.5],
-        [0.1, 0.0, -0.2],
-        material.clone(),
-        3.0,
-        1.0,
-        0.0,
-        false,
-    );
+    let path = furnace_box("dispersive-furnace", material.clone());
     let scene = common::gltf::load_path(&path).unwrap();
     assert_eq!(scene.materials[0].dispersion, 2.0);
     let film = render(&scene, &white_furnace(16, 256));
@@ -633,7 +563,7 @@ fn dispersive_glass_stays_white_in_the_furnace_and_splits_an_edge_by_colour() {
 #[test]
 fn bad_dispersion_is_refused_with_the_key() {
     for value in [json!(-0.5), json!("strong")] {
-        let mut material = glass(1.5, 1.0, None);
+        let mut material = dielectric_material(1.5, 1.0, None);
         material["extensions"]["KHR_materials_dispersion"] = json!({"dispersion": value});
         let path = box_scene("bad-dispersion", [1.0; 3], [0.0; 3], material, 3.0, 1.0, 0.0, false);
         let e = common::gltf::load_path(&path).unwrap_err().to_string();

@@ -43,7 +43,7 @@ fn lobe(lambda: f64, mu: f64, below: f64, above: f64) -> f64 {
 }
 
 /// CIE 1931 x-bar, y-bar, z-bar at `lambda` nm (Wyman, Sloan and Shirley 2013, multi-lobe fit).
-fn xyz_bar(lambda: f64) -> [f64; 3] {
+pub fn xyz_bar(lambda: f64) -> [f64; 3] {
     let x = 1.056 * lobe(lambda, 599.8, 37.9, 31.0) + 0.362 * lobe(lambda, 442.0, 16.0, 26.7)
         - 0.065 * lobe(lambda, 501.1, 20.4, 26.2);
     let y = 0.821 * lobe(lambda, 568.8, 46.9, 40.5) + 0.286 * lobe(lambda, 530.9, 16.3, 31.1);

@@ -215,3 +215,43 @@ pub fn base64(bytes: &[u8]) -> String {
     use base64::Engine;
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
+
+/// The largest distance of any pixel's channel from 1 (a white furnace's answer).
+pub fn worst_from_white(film: &Film) -> f64 {
+    film.mean_rgb().iter().flatten().map(|&v| (v as f64 - 1.0).abs()).fold(0.0, f64::max)
+}
+
+/// Render settings for a white furnace: `res` x `res` pixels, `spp` samples, a uniform white
+/// environment, 256 bounces.
+pub fn white_furnace(res: u32, spp: u32) -> RenderSettings {
+    RenderSettings {
+        width: res,
+        height: res,
+        spp,
+        max_depth: 256,
+        environment: Some(common::settings::Environment::Color { color: [1.0; 3] }),
+        ..Default::default()
+    }
+}
+
+/// A smooth, fully transmitting, non-metallic glTF material of index `ior` bounding a volume
+/// (`thicknessFactor`) that absorbs to `attenuation` (colour, distance) when given.
+pub fn dielectric_material(
+    ior: f64,
+    thickness: f64,
+    attenuation: Option<([f64; 3], f64)>,
+) -> serde_json::Value {
+    let mut volume = serde_json::json!({"thicknessFactor": thickness});
+    if let Some((color, distance)) = attenuation {
+        volume["attenuationColor"] = serde_json::json!(color);
+        volume["attenuationDistance"] = serde_json::json!(distance);
+    }
+    serde_json::json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
+        "extensions": {
+            "KHR_materials_transmission": {"transmissionFactor": 1.0},
+            "KHR_materials_volume": volume,
+            "KHR_materials_ior": {"ior": ior}
+        }
+    })
+}

@@ -212,20 +212,10 @@ mod tests {
         assert_eq!(fresnel(1.5, 1.2, 300.0, Vec3::splat(0.04), 0.3), Vec3::ONE);
     }
 
-    /// A piecewise Gaussian of `x` peaking at `mu`, of width `left` below and `right` above.
-    fn lobe(x: f64, mu: f64, left: f64, right: f64) -> f64 {
-        let t = (x - mu) / if x < mu { left } else { right };
-        (-0.5 * t * t).exp()
-    }
-
-    /// The CIE 1931 colour matching functions at `lambda` nm, by Wyman, Sloan and Shirley's
-    /// multi-lobe fit (2013): a fit made independently of the spec's, in wavelength.
+    /// The CIE 1931 colour matching functions at `lambda` nm: Wyman, Sloan and Shirley's
+    /// multi-lobe fit (2013), made independently of the spec's Fourier approximation.
     fn cie_xyz(lambda: f64) -> [f64; 3] {
-        let x = 1.056 * lobe(lambda, 599.8, 37.9, 31.0) + 0.362 * lobe(lambda, 442.0, 16.0, 26.7)
-            - 0.065 * lobe(lambda, 501.1, 20.4, 26.2);
-        let y = 0.821 * lobe(lambda, 568.8, 46.9, 40.5) + 0.286 * lobe(lambda, 530.9, 16.3, 31.1);
-        let z = 1.217 * lobe(lambda, 437.0, 11.8, 36.0) + 0.681 * lobe(lambda, 459.0, 26.0, 13.8);
-        [x, y, z]
+        crate::render::spectrum::xyz_bar(lambda)
     }
 
     /// The thin film's reflectance computed straightforwardly: per wavelength, the Airy sum of

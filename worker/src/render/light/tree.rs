@@ -110,22 +110,17 @@ impl LightBounds {
         // The cone of directions from the box toward p.
         let cos_theta_b = self.cos_subtended(p);
         let sin_theta_b = safe_sqrt(1.0 - cos_theta_b * cos_theta_b);
-        // The smallest angle between an emission direction and a direction toward p.
         let sin_theta_o = safe_sqrt(1.0 - self.cos_theta_o * self.cos_theta_o);
-        let cos_theta_x = cos_sub_clamped(sin_theta_w, cos_theta_w, sin_theta_o, self.cos_theta_o);
-        let sin_theta_x = sin_sub_clamped(sin_theta_w, cos_theta_w, sin_theta_o, self.cos_theta_o);
-        let cos_theta_p = cos_sub_clamped(sin_theta_x, cos_theta_x, sin_theta_b, cos_theta_b);
-        if cos_theta_p <= self.cos_theta_e {
-            return 0.0;
-        }
-        let mut importance = self.phi * cos_theta_p / d2;
-        if n != Vec3::ZERO {
-            // The receiver's cosine, either side (a surface may transmit).
-            let cos_theta_i = wi.dot(n).abs();
-            let sin_theta_i = safe_sqrt(1.0 - cos_theta_i * cos_theta_i);
-            importance *= cos_sub_clamped(sin_theta_i, cos_theta_i, sin_theta_b, cos_theta_b);
-        }
-        importance.max(0.0)
+        cone_importance(
+            self.phi,
+            d2,
+            wi,
+            n,
+            (sin_theta_w, cos_theta_w),
+            (sin_theta_o, self.cos_theta_o),
+            self.cos_theta_e,
+            (sin_theta_b, cos_theta_b),
+        )
     }
 
     /// The cosine of the half angle of a cone from `p` holding the box (-1 from inside it).
@@ -271,22 +266,51 @@ impl NodeBounds {
             let sin2 = self.radius2 / dist2;
             (safe_sqrt(1.0 - sin2), sin2.sqrt())
         };
-        let cos_theta_x =
-            cos_sub_clamped(sin_theta_w, cos_theta_w, self.sin_theta_o, self.cos_theta_o);
-        let sin_theta_x =
-            sin_sub_clamped(sin_theta_w, cos_theta_w, self.sin_theta_o, self.cos_theta_o);
-        let cos_theta_p = cos_sub_clamped(sin_theta_x, cos_theta_x, sin_theta_b, cos_theta_b);
-        if cos_theta_p <= self.cos_theta_e {
-            return 0.0;
-        }
-        let mut importance = self.phi * cos_theta_p / d2;
-        if n != Vec3::ZERO {
-            let cos_theta_i = wi.dot(n).abs();
-            let sin_theta_i = safe_sqrt(1.0 - cos_theta_i * cos_theta_i);
-            importance *= cos_sub_clamped(sin_theta_i, cos_theta_i, sin_theta_b, cos_theta_b);
-        }
-        importance.max(0.0)
+        cone_importance(
+            self.phi,
+            d2,
+            wi,
+            n,
+            (sin_theta_w, cos_theta_w),
+            (self.sin_theta_o, self.cos_theta_o),
+            self.cos_theta_e,
+            (sin_theta_b, cos_theta_b),
+        )
     }
+}
+
+/// The importance of lights of power `phi` at squared distance `d2` in direction `wi` from a
+/// receiver of normal `n` (zero: no cosine), given the sines and cosines of the angle between
+/// their cone's axis and `wi` (`w`), of the cone's spread (`o`) and of the box's half-angle as
+/// seen from the receiver (`b`), and the cosine of the emission falloff `cos_e`: pbrt-v4's
+/// `LightBounds::Importance` after its geometry. The smallest angle between an emission
+/// direction and a direction toward the receiver decides; the receiver's cosine counts either
+/// side (a surface may transmit).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn cone_importance(
+    phi: f32,
+    d2: f32,
+    wi: Vec3,
+    n: Vec3,
+    (sin_theta_w, cos_theta_w): (f32, f32),
+    (sin_theta_o, cos_theta_o): (f32, f32),
+    cos_theta_e: f32,
+    (sin_theta_b, cos_theta_b): (f32, f32),
+) -> f32 {
+    let cos_theta_x = cos_sub_clamped(sin_theta_w, cos_theta_w, sin_theta_o, cos_theta_o);
+    let sin_theta_x = sin_sub_clamped(sin_theta_w, cos_theta_w, sin_theta_o, cos_theta_o);
+    let cos_theta_p = cos_sub_clamped(sin_theta_x, cos_theta_x, sin_theta_b, cos_theta_b);
+    if cos_theta_p <= cos_theta_e {
+        return 0.0;
+    }
+    let mut importance = phi * cos_theta_p / d2;
+    if n != Vec3::ZERO {
+        let cos_theta_i = wi.dot(n).abs();
+        let sin_theta_i = safe_sqrt(1.0 - cos_theta_i * cos_theta_i);
+        importance *= cos_sub_clamped(sin_theta_i, cos_theta_i, sin_theta_b, cos_theta_b);
+    }
+    importance.max(0.0)
 }
 
 /// A node: its bounds and either its second child (the first follows it) or its light.
