@@ -232,31 +232,37 @@ fn metal_rough_without_specular_matches_pdf() {
     assert_bsdf_fits("metal_rough_r0.3_m0_s0_coswo0.5", &bsdf, wo_at(0.5));
 }
 
+/// Reflections off visible normals drawn from `ggx` for each `wo` of `GGX_COS_WO`, over the
+/// whole sphere (those below the horizon count too, and `reflection_pdf` must integrate to 1).
+fn assert_visible_normal_reflection_fits(name: &str, ggx: &impl Microfacet) {
+    for cos_wo in GGX_COS_WO {
+        let wo = wo_at(cos_wo);
+        assert_fits(
+            &format!("{name}_coswo{cos_wo}"),
+            Spherical::sphere(),
+            |u| {
+                let h = ggx.sample_visible_normal(wo, Vec2::new(u.x, u.y));
+                assert!(h.z > 0.0 && wo.dot(h) >= 0.0, "invisible normal {h:?} for {wo:?}");
+                Some(reflect(wo, h))
+            },
+            |wi| {
+                let h = wo + wi;
+                if h.length_squared() < 1e-12 {
+                    return 0.0;
+                }
+                ggx.reflection_pdf(wo, h.normalize())
+            },
+        );
+    }
+}
+
 #[test]
 fn ggx_visible_normal_reflection_matches_pdf() {
-    // Reflected directions over the whole sphere: those below the horizon count too, and
-    // `reflection_pdf` must integrate to 1.
     for alpha in GGX_ALPHA {
-        let ggx = Ggx::new(alpha);
-        for cos_wo in GGX_COS_WO {
-            let wo = wo_at(cos_wo);
-            assert_fits(
-                &format!("ggx_reflection_a{alpha}_coswo{cos_wo}"),
-                Spherical::sphere(),
-                |u| {
-                    let h = ggx.sample_visible_normal(wo, Vec2::new(u.x, u.y));
-                    assert!(h.z > 0.0 && wo.dot(h) >= 0.0, "invisible normal {h:?} for {wo:?}");
-                    Some(reflect(wo, h))
-                },
-                |wi| {
-                    let h = wo + wi;
-                    if h.length_squared() < 1e-12 {
-                        return 0.0;
-                    }
-                    ggx.reflection_pdf(wo, h.normalize())
-                },
-            );
-        }
+        assert_visible_normal_reflection_fits(
+            &format!("ggx_reflection_a{alpha}"),
+            &Ggx::new(alpha),
+        );
     }
 }
 
@@ -593,25 +599,7 @@ fn layered_sample_agrees_with_eval_and_pdf() {
 fn anisotropic_ggx_visible_normal_reflection_matches_pdf() {
     for (ax, ay) in ANISO_ALPHA {
         let ggx = AnisoGgx::new(ax, ay);
-        for cos_wo in GGX_COS_WO {
-            let wo = wo_at(cos_wo);
-            assert_fits(
-                &format!("aniso_ggx_reflection_a{ax}_{ay}_coswo{cos_wo}"),
-                Spherical::sphere(),
-                |u| {
-                    let h = ggx.sample_visible_normal(wo, Vec2::new(u.x, u.y));
-                    assert!(h.z > 0.0 && wo.dot(h) >= 0.0, "invisible normal {h:?} for {wo:?}");
-                    Some(reflect(wo, h))
-                },
-                |wi| {
-                    let h = wo + wi;
-                    if h.length_squared() < 1e-12 {
-                        return 0.0;
-                    }
-                    ggx.reflection_pdf(wo, h.normalize())
-                },
-            );
-        }
+        assert_visible_normal_reflection_fits(&format!("aniso_ggx_reflection_a{ax}_{ay}"), &ggx);
     }
 }
 
