@@ -225,14 +225,13 @@ pub fn li(
         if tri.light == UNSAMPLED {
             // A moving emitter: no light sampling reaches it, so every hit counts in full.
             if material.double_sided || (p1 - p0).cross(p2 - p0).dot(wo) > 0.0 {
-                let cos = ng.dot(wo) / wo.length();
-                radiance += beta * material::emission_toward(&scene.textures, material, &sp, cos);
+                radiance +=
+                    beta * material::emission_toward(&scene.textures, material, &sp, ng, wo);
             }
         } else if tri.light != NONE {
             if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
                 if light.emits_toward(wo) {
-                    let cos = ng.dot(wo) / wo.length();
-                    let le = material::emission_toward(&scene.textures, material, &sp, cos);
+                    let le = material::emission_toward(&scene.textures, material, &sp, ng, wo);
                     let weight = if depth == 0 {
                         1.0
                     } else {
@@ -358,8 +357,13 @@ pub fn li(
                                     let m = &scene.materials
                                         [scene.shading[l.prim as usize].material as usize];
                                     let sp = scene.surface_point(l.prim, ls.barycentrics);
-                                    let cos = ls.normal.dot(ls.wi);
-                                    material::emission_toward(&scene.textures, m, &sp, cos)
+                                    material::emission_toward(
+                                        &scene.textures,
+                                        m,
+                                        &sp,
+                                        ls.normal,
+                                        ls.wi,
+                                    )
                                 }
                                 _ => ls.li,
                             };

@@ -205,14 +205,21 @@ pub fn emission(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec3 {
     }
 }
 
-/// Emitted radiance toward a direction at cosine `cos` to the surface's normal: under a clear
-/// coat (`KHR_materials_clearcoat`, which lies over emission in the layering) darkened by the
-/// coat's reflection, emission x (1 - clearcoat x (0.04 + 0.96 (1 - |cos|)^5)), as the extension
-/// says; [`emission`] itself otherwise.
+/// Emitted radiance toward direction `w` from a surface of normal `n` (neither need be unit):
+/// under a clear coat (`KHR_materials_clearcoat`, which lies over emission in the layering)
+/// darkened by the coat's reflection, emission x (1 - clearcoat x (0.04 + 0.96 (1 - |cos|)^5)),
+/// as the extension says; [`emission`] itself otherwise (and no cosine is worked out).
 #[inline]
-pub fn emission_toward(textures: &[Texture], m: &Material, sp: &SurfacePoint, cos: f32) -> Vec3 {
+pub fn emission_toward(
+    textures: &[Texture],
+    m: &Material,
+    sp: &SurfacePoint,
+    n: Vec3,
+    w: Vec3,
+) -> Vec3 {
     let e = emission(textures, m, sp);
     let Some(coat) = &m.clearcoat else { return e };
+    let cos = n.dot(w) / (n.length() * w.length());
     let mut factor = coat.factor;
     if let Some(r) = &coat.texture {
         factor *= texture::sample(textures, r, sp.uvs, false).x;
