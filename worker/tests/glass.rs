@@ -302,17 +302,6 @@ fn scattering(ior: f64, attenuation: ([f64; 3], f64), multiscatter: [f64; 3], g:
     m
 }
 
-/// The mean of each channel over the image and its standard error.
-fn image_mean(film: &common::film::Film) -> [(f64, f64); 3] {
-    let n = film.pixels.len() as f64;
-    let means = film.mean_rgb();
-    std::array::from_fn(|c| {
-        let mean = means.iter().map(|p| p[c] as f64).sum::<f64>() / n;
-        let var: f64 = film.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / n;
-        (mean, (var / n).sqrt())
-    })
-}
-
 /// A box of a grey medium that scatters all it stops (albedo 1, forward-scattering), in the white
 /// furnace: behind an index-matched boundary (ior 1) and behind glass (ior 1.5, with total
 /// internal reflection and the 1 / eta² of radiance inside), every pixel is exactly 1.

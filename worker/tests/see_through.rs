@@ -129,14 +129,7 @@ fn sheet_scene(tag: &str, transmission: f64, roughness: f64) -> std::path::PathB
 fn render_mean(path: &std::path::Path) -> [(f64, f64); 3] {
     let scene = common::gltf::load_path(path).unwrap();
     let settings = RenderSettings { width: RES, height: RES, spp: 256, ..Default::default() };
-    let film = render(&scene, &settings);
-    let n = film.pixels.len() as f64;
-    let means = film.mean_rgb();
-    std::array::from_fn(|c| {
-        let mean = means.iter().map(|p| p[c] as f64).sum::<f64>() / n;
-        let var: f64 = film.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / n;
-        (mean, (var / n).sqrt())
-    })
+    image_mean(&render(&scene, &settings))
 }
 
 /// What a near-specular sheet passes at normal incidence: (1 - f0) x transmission x base x L.

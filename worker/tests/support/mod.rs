@@ -255,3 +255,14 @@ pub fn dielectric_material(
         }
     })
 }
+
+/// The mean of each channel over the image and its standard error.
+pub fn image_mean(film: &Film) -> [(f64, f64); 3] {
+    let n = film.pixels.len() as f64;
+    let means = film.mean_rgb();
+    std::array::from_fn(|c| {
+        let mean = means.iter().map(|p| p[c] as f64).sum::<f64>() / n;
+        let var: f64 = film.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / n;
+        (mean, (var / n).sqrt())
+    })
+}
