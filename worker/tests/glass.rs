@@ -23,7 +23,7 @@
 
 mod support;
 
-use common::settings::{Environment, RenderSettings};
+use common::settings::RenderSettings;
 use serde_json::{json, Value};
 use support::*;
 

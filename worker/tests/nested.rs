@@ -14,7 +14,6 @@
 
 mod support;
 
-use common::settings::{Environment, RenderSettings};
 use serde_json::{json, Value};
 use support::*;
 
