@@ -327,6 +327,19 @@ impl Material {
             && self.metallic == 0.0
     }
 
+    /// Whether the material uses anything beyond the glTF metallic-roughness BSDF with thin-walled
+    /// and diffuse transmission: a volume, `KHR_materials_unlit`, a clear coat, a sheen,
+    /// anisotropy or a thin film. The renderer works this out once per triangle, so that a
+    /// material without them costs one test per hit.
+    pub fn extended(&self) -> bool {
+        self.volume.is_some()
+            || self.unlit
+            || self.clearcoat.is_some()
+            || self.sheen.is_some()
+            || self.anisotropy.is_some()
+            || self.iridescence.is_some()
+    }
+
     /// Whether the mesh is the boundary of a medium that light enters through it: a refractive
     /// boundary, or a volume entered by diffuse transmission (no specular transmission), as
     /// `KHR_materials_volume_scatter` recommends for dense media (skin, wax).

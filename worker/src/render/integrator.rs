@@ -198,7 +198,9 @@ pub fn li(
         let front = ng.dot(wo) > 0.0;
         // A volume's boundary is crossed through its front face into it, through its back face
         // out of it; where the medium is the same on both sides light passes unchanged.
-        let boundary = material.volume.is_some() && material.bounds_medium();
+        // (`tri.extended` first: a material without volumes, layers or unlit costs this test.)
+        let extended = tri.extended;
+        let boundary = extended && material.volume.is_some() && material.bounds_medium();
         let mut beyond = None;
         if boundary {
             match media.crossing(tri.material, front) {
@@ -215,7 +217,7 @@ pub fn li(
             }
         }
         let sp = scene.surface_point(hit.prim, b);
-        if material.unlit {
+        if extended && material.unlit {
             // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on from it.
             let base = material::base_color(&scene.textures, material, &sp).truncate();
             radiance += beta * base.clamp(Vec3::ZERO, Vec3::ONE);
@@ -269,7 +271,9 @@ pub fn li(
             ns = perturb_normal(scene, hit.prim, [p0, p1, p2], ns, tangent_normal).unwrap_or(ns);
         }
         // An anisotropic material's frame has its +x along the direction of anisotropy.
-        let frame = match material::anisotropy(&scene.textures, material, &sp) {
+        let anisotropy =
+            if extended { material::anisotropy(&scene.textures, material, &sp) } else { None };
+        let frame = match anisotropy {
             Some((_, direction)) => match mesh_tangent_basis(scene, hit.prim, b, ns, pose)
                 .or_else(|| tangent_basis(scene, hit.prim, [p0, p1, p2], ns))
             {
@@ -316,8 +320,8 @@ pub fn li(
         } else {
             [1.0; 2]
         };
-        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, iors);
-        if let Bsdf::Layered(Layered { coat: Some(coat), .. }) = &mut bsdf {
+        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, iors, extended);
+        if let (true, Bsdf::Layered(Layered { coat: Some(coat), .. })) = (extended, &mut bsdf) {
             let nc = match material::clearcoat_normal_map(&scene.textures, material, &sp) {
                 Some(tangent_normal) => {
                     perturb_normal(scene, hit.prim, [p0, p1, p2], ns_surface, tangent_normal)

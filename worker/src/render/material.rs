@@ -58,7 +58,8 @@ pub fn coverage(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> f32 {
 /// transmission is pure Lambert, the cheap path (the Cornell box and furnace scenes are all
 /// such). A refractive volume's boundary is a dielectric whose inside is the back face's side.
 /// A material with a clear coat, a sheen, anisotropy or iridescence is `Layered` (its coat normal
-/// is +z here: the integrator sets it from [`clearcoat_normal_map`]).
+/// is +z here: the integrator sets it from [`clearcoat_normal_map`]). `extended` is
+/// `m.extended()`, which the caller keeps at hand: without it none of those are looked for.
 #[inline]
 pub fn bsdf(
     textures: &[Texture],
@@ -66,6 +67,7 @@ pub fn bsdf(
     sp: &SurfacePoint,
     front: bool,
     iors: [f32; 2],
+    extended: bool,
 ) -> Bsdf {
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
@@ -74,7 +76,7 @@ pub fn bsdf(
         roughness *= t.y;
         metallic *= t.z;
     }
-    if m.refracts() {
+    if extended && m.refracts() {
         // The relative index is the far side's over the near side's: `iors` are this volume's
         // and that of the medium on its other side (1 for air), as `media::ior` gives them.
         let [ior, other_ior] = iors;
@@ -93,10 +95,11 @@ pub fn bsdf(
     if let Some(r) = &m.diffuse_transmission_texture {
         diffuse_transmission *= texture::sample(textures, r, sp.uvs, false).w;
     }
-    let layered = m.clearcoat.is_some()
-        || m.sheen.is_some()
-        || m.anisotropy.is_some()
-        || m.iridescence.is_some();
+    let layered = extended
+        && (m.clearcoat.is_some()
+            || m.sheen.is_some()
+            || m.anisotropy.is_some()
+            || m.iridescence.is_some());
     if !layered
         && metallic == 0.0
         && m.specular <= 0.0

@@ -44,6 +44,10 @@ pub struct TriShading {
     pub light: u32,
     /// Whether the mesh has vertex normals (else flat shading).
     pub smooth: bool,
+    /// Whether the material is `Material::extended` (a volume, unlit, layers or anisotropy): the
+    /// integrator tests this flag, which it loads with the rest of the triangle, before any of
+    /// those (it fits in the struct's padding).
+    pub extended: bool,
 }
 
 /// Everything a worker needs to render tasks of one job, built once per (scene, settings).
@@ -255,6 +259,7 @@ fn prepare_inner(
                 material: mesh.material as u32,
                 light: NONE,
                 smooth: mesh.normals.is_some(),
+                extended: scene.materials[mesh.material].extended(),
             });
         }
     }
@@ -383,6 +388,7 @@ fn prepare_inner(
                         material: mesh.material as u32,
                         light: if emits { UNSAMPLED } else { NONE },
                         smooth: mesh.normals.is_some(),
+                        extended: scene.materials[mesh.material].extended(),
                     });
                 }
                 let (lo, hi) = mesh.positions.iter().fold(

@@ -72,7 +72,7 @@ impl Tables {
                 return None;
             }
             // Without textures or vertex colours every point of the material is this one.
-            match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2]) {
+            match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
                 Bsdf::Diffuse(d) => albedo.push(d.albedo),
                 Bsdf::MetalRough(_) | Bsdf::Dielectric(_) | Bsdf::Layered(_) => return None,
             }
