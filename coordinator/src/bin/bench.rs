@@ -92,10 +92,12 @@ const MATERIAL_SCENES: [(&str, &[u32]); 2] =
 const CSV_HEADER: &str =
     "scene,spp,threads,seconds,write_seconds,samples_per_s,rays_per_s,rmse,relmse,est_relmse";
 
+/// One of our timed renders.
 struct Row {
     spp: u32,
     seconds: f64,
-    rel_mse: f64,
+    /// The relative MSE, or in `materials`' second table the median pixel's error.
+    error: f64,
 }
 
 fn metrics(image: &[[f32; 3]], reference: &[[f32; 3]]) -> (f64, f64) {
@@ -211,9 +213,9 @@ fn main() -> Result<()> {
         let (seconds, report) = timed_render(&cornell, &settings, args.threads, &out)?;
         let errors = metrics(&report.mean_rgb, &reference);
         println!("{}", csv_row("cornell-box", spp, args.threads, seconds, &report, errors));
-        rows.push(Row { spp, seconds, rel_mse: errors.1 });
+        rows.push(Row { spp, seconds, error: errors.1 });
     }
-    print_equal_time("cornell-box", &rows, &peers);
+    print_equal_time("cornell-box", "relmse", &rows, &peers);
     write_plot(&args.plot, "Cornell box 256x256", &with_peers(&rows, peers))?;
     eprintln!("plot: {}", args.plot.display());
     if args.large {
@@ -225,12 +227,12 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// Each peer's relative MSE at our seconds, and our error over it (below 1 we win).
-fn print_equal_time(scene: &str, rows: &[Row], peers: &[Series]) {
+/// Each peer's error (the CSV column `metric`) at our seconds, and ours over it (below 1 we win).
+fn print_equal_time(scene: &str, metric: &str, rows: &[Row], peers: &[Series]) {
     if peers.is_empty() {
         return;
     }
-    println!("scene,spp,seconds,relmse,peer,peer_relmse_at_our_seconds,ratio");
+    println!("scene,spp,seconds,{metric},peer,peer_{metric}_at_our_seconds,ratio");
     for peer in peers {
         for row in rows {
             let theirs = peer.rel_mse_at(row.seconds);
@@ -238,10 +240,10 @@ fn print_equal_time(scene: &str, rows: &[Row], peers: &[Series]) {
                 "{scene},{},{:.4},{:.6e},{},{:.6e},{:.3}",
                 row.spp,
                 row.seconds,
-                row.rel_mse,
+                row.error,
                 peer.name,
                 theirs,
-                row.rel_mse / theirs
+                row.error / theirs
             );
         }
     }
@@ -251,7 +253,7 @@ fn print_equal_time(scene: &str, rows: &[Row], peers: &[Series]) {
 fn with_peers(rows: &[Row], peers: Vec<Series>) -> Vec<Series> {
     let ours = Series {
         name: "renderfarm".into(),
-        points: rows.iter().map(|r| (r.seconds, r.rel_mse, r.spp)).collect(),
+        points: rows.iter().map(|r| (r.seconds, r.error, r.spp)).collect(),
     };
     std::iter::once(ours).chain(peers).collect()
 }
@@ -260,19 +262,34 @@ fn with_peers(rows: &[Row], peers: Vec<Series>) -> Vec<Series> {
 /// references of `scenes/materials/ref/`, rendered at their size with each scene's settings
 /// otherwise (`max_depth` 1024, the sky), the median pixel's error beside the relative MSE (which
 /// is heavy-tailed on the subsurface scene: `docs/perf/materials.md`), the equal-time ratios
-/// against the peers' runs of the same scene, and a plot per scene beside `--plot`.
+/// against the peers' runs of the same scene (of the median too where their CSV has a
+/// `median_relmse` column, as `scenes/materials/mitsuba_peer.py` writes), and a plot per scene
+/// beside `--plot`.
 fn materials(args: &Args) -> Result<()> {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/materials");
-    // Read the peers first: a bad file fails before minutes of rendering.
-    let mut peers: Vec<Vec<Series>> = MATERIAL_SCENES.iter().map(|_| Vec::new()).collect();
+    // Read the peers first: a bad file fails before minutes of rendering. Per scene: the curves
+    // of the relative MSE and of the median pixel's error.
+    let mut peers: Vec<(Vec<Series>, Vec<Series>)> =
+        MATERIAL_SCENES.iter().map(|_| (Vec::new(), Vec::new())).collect();
     for path in &args.peer_csv {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let has_median = text
+            .lines()
+            .next()
+            .is_some_and(|header| split_csv(header).iter().any(|h| h == "median_relmse"));
         let mut found = false;
-        for (curves, (name, _)) in peers.iter_mut().zip(MATERIAL_SCENES) {
-            let runs = peer_runs(&text, name).with_context(|| path.display().to_string())?;
+        for ((curves, medians), (name, _)) in peers.iter_mut().zip(MATERIAL_SCENES) {
+            let runs =
+                peer_runs(&text, name, "relmse").with_context(|| path.display().to_string())?;
             found |= !runs.is_empty();
             curves.extend(runs);
+            if has_median {
+                medians.extend(
+                    peer_runs(&text, name, "median_relmse")
+                        .with_context(|| path.display().to_string())?,
+                );
+            }
         }
         let names = MATERIAL_SCENES.map(|(name, _)| name).join("` or `");
         anyhow::ensure!(found, "{}: no runs of scene `{names}`", path.display());
@@ -280,7 +297,7 @@ fn materials(args: &Args) -> Result<()> {
     let out_dir = std::env::temp_dir().join(format!("renderfarm-bench-{}", std::process::id()));
     std::fs::create_dir_all(&out_dir)?;
     println!("{CSV_HEADER},median_relmse");
-    for ((name, default_spp), peers) in MATERIAL_SCENES.into_iter().zip(peers) {
+    for ((name, default_spp), (peers, peer_medians)) in MATERIAL_SCENES.into_iter().zip(peers) {
         let scene = dir.join(format!("{name}.gltf"));
         let (width, height, reference) = read_exr_rgb(&dir.join(format!("ref/{name}-48.exr")))?;
         let base = RenderSettings {
@@ -295,21 +312,20 @@ fn materials(args: &Args) -> Result<()> {
             let settings = RenderSettings { spp: 1, ..base.clone() };
             render_file(&scene, &settings, args.threads, &out_dir.join("warmup.exr"), &|_| {})?;
         }
-        let mut rows = Vec::new();
+        let (mut rows, mut medians) = (Vec::new(), Vec::new());
         let spps = if args.spp.is_empty() { default_spp } else { &args.spp[..] };
         for &spp in spps {
             let settings = RenderSettings { spp, ..base.clone() };
             let out = out_dir.join(format!("{name}-{spp}.exr"));
             let (seconds, report) = timed_render(&scene, &settings, args.threads, &out)?;
             let errors = metrics(&report.mean_rgb, &reference);
-            println!(
-                "{},{:.6e}",
-                csv_row(name, spp, args.threads, seconds, &report, errors),
-                median_rel_error(&report.mean_rgb, &reference)
-            );
-            rows.push(Row { spp, seconds, rel_mse: errors.1 });
+            let median = median_rel_error(&report.mean_rgb, &reference);
+            println!("{},{median:.6e}", csv_row(name, spp, args.threads, seconds, &report, errors));
+            rows.push(Row { spp, seconds, error: errors.1 });
+            medians.push(Row { spp, seconds, error: median });
         }
-        print_equal_time(name, &rows, &peers);
+        print_equal_time(name, "relmse", &rows, &peers);
+        print_equal_time(name, "median_relmse", &medians, &peer_medians);
         let stem = args.plot.file_stem().and_then(|s| s.to_str()).unwrap_or("bench");
         let plot = args.plot.with_file_name(format!("{stem}-{name}.svg"));
         write_plot(&plot, &format!("{name} {width}x{height}"), &with_peers(&rows, peers))?;
@@ -467,7 +483,7 @@ struct Series {
 }
 
 impl Series {
-    /// Relative MSE at `seconds`, interpolated log-log between the two runs around it, or
+    /// Relative MSE (or the curve's other error) at `seconds`, interpolated log-log between the two runs around it, or
     /// extrapolated along the nearest two; a single run is extrapolated as 1 / time (Monte Carlo).
     /// Before the first run the error grows no faster than 1 / time: a peer's first runs often
     /// fall faster than that (its fixed costs shrink in share), and extrapolating that slope to
@@ -487,25 +503,26 @@ impl Series {
     }
 }
 
-/// The curves of a peer harness CSV for `scene` (`peer_runs`); a file without runs of it is an
-/// error.
+/// The curves of a peer harness CSV for `scene` (`peer_runs` of the relative MSE); a file
+/// without runs of it is an error.
 fn peer_curves(text: &str, scene: &str) -> Result<Vec<Series>> {
-    let curves = peer_runs(text, scene)?;
+    let curves = peer_runs(text, scene, "relmse")?;
     anyhow::ensure!(!curves.is_empty(), "no runs of scene `{scene}`");
     Ok(curves)
 }
 
-/// The curves of a peer harness CSV for `scene`, one per `peer` (or `renderer` and `variant`;
-/// runs of one peer from several rounds make one curve), none if it has no runs of the scene.
+/// The curves of a peer harness CSV for `scene`, the error in column `metric`, one per `peer` (or
+/// `renderer` and `variant`; runs of one peer from several rounds make one curve), none if it
+/// has no runs of the scene.
 /// Rows without seconds or error (the harness's `--eval` rows) and runs with none are skipped;
 /// runs of equal seconds are averaged, so that the curve's seconds strictly increase.
-fn peer_runs(text: &str, scene: &str) -> Result<Vec<Series>> {
+fn peer_runs(text: &str, scene: &str, metric: &str) -> Result<Vec<Series>> {
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
     let header = split_csv(lines.next().context("empty CSV")?.1);
     let column = |name: &str| header.iter().position(|h| h == name);
     let need = |name: &str| column(name).with_context(|| format!("no `{name}` column"));
     let (c_scene, c_spp, c_seconds, c_rel) =
-        (need("scene")?, need("spp")?, need("seconds")?, need("relmse")?);
+        (need("scene")?, need("spp")?, need("seconds")?, need(metric)?);
     let (c_peer, c_renderer, c_variant) = (column("peer"), column("renderer"), column("variant"));
     let mut curves: Vec<Series> = Vec::new();
     for (n, line) in lines {
@@ -726,7 +743,10 @@ mod tests {
         assert!((curves[0].points[1].1 - 0.07).abs() < 1e-12);
         assert!(curves[0].rel_mse_at(0.1).is_finite());
         // A file of other scenes has no runs of this one, which only `peer_curves` refuses.
-        assert!(peer_runs(csv, "kitchen").unwrap().is_empty());
+        assert!(peer_runs(csv, "kitchen", "relmse").unwrap().is_empty());
+        // Any error column makes the curves (`--materials` reads the median pixel's too).
+        let rmse = peer_runs(csv, "cornell-box", "rmse").unwrap();
+        assert_eq!(rmse[0].points, vec![(0.05, 0.2, 1), (0.2, 0.1, 4)]);
     }
 
     #[test]
