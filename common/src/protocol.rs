@@ -28,6 +28,18 @@ impl SampleRange {
     }
 }
 
+/// What a task computes of its samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum TaskKind {
+    /// The samples of the tile's pixels, traced from the camera (every integrator).
+    #[default]
+    Camera,
+    /// Bidirectional path tracing's light tracing: for each sample index, a light subpath per
+    /// pixel of the frame, connected to the camera wherever it lands; `rect` is the whole frame
+    /// and the result holds the light-traced image's samples, which add to the camera tasks'.
+    Light,
+}
+
 /// One unit of work: samples `samples` of every pixel of `rect` in frame `frame`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct TaskSpec {
@@ -37,6 +49,8 @@ pub struct TaskSpec {
     pub rect: Rect,
     /// The sample indices.
     pub samples: SampleRange,
+    /// What the samples are.
+    pub kind: TaskKind,
 }
 
 /// What a worker returns for a task.
@@ -194,6 +208,7 @@ mod tests {
             frame: i64::MIN,
             rect,
             samples: SampleRange { start: u32::MAX, end: u32::MAX },
+            kind: TaskKind::Light,
         };
         let widest = PixelSums {
             n: u32::MAX,

@@ -517,6 +517,43 @@ impl Scene {
         }
     }
 
+    /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
+    /// does not take yet (volumes, an environment, directional lights, motion blur) and the
+    /// light it must start paths from. `Ok` for the path tracer.
+    pub fn check_integrator(
+        &self,
+        settings: &crate::settings::RenderSettings,
+    ) -> Result<(), String> {
+        if settings.integrator != "bdpt" {
+            return Ok(());
+        }
+        let refuse = |what: &str| {
+            Err(format!("integrator: bdpt does not render {what} yet (\"path\" does)"))
+        };
+        if self.materials.iter().any(|m| m.volume.is_some()) {
+            return refuse("volumes (KHR_materials_volume)");
+        }
+        if settings.environment.is_some() {
+            return refuse("an environment");
+        }
+        if self.lights.iter().any(|l| l.kind == PunctualKind::Directional) {
+            return refuse("directional lights");
+        }
+        if self.animation.is_some() && settings.shutter.open < settings.shutter.close {
+            return refuse("motion blur (an animated scene with an open shutter)");
+        }
+        let emissive = self.instances.iter().any(|inst| {
+            let m = &self.materials[self.meshes[inst.mesh].material];
+            m.emissive.max_element() > 0.0 && !m.unlit
+        });
+        if !emissive && !self.lights.iter().any(|l| l.intensity.max_element() > 0.0) {
+            return Err("integrator: bdpt traces paths from the lights, and the scene has none \
+                        (no emissive material, no KHR_lights_punctual light)"
+                .into());
+        }
+        Ok(())
+    }
+
     /// Refuses settings that would show time passing (several frames, or an open shutter) in an
     /// animated scene with deforming meshes, which would render frozen in their rest pose.
     pub fn check_time(&self, settings: &crate::settings::RenderSettings) -> Result<(), String> {

@@ -30,7 +30,9 @@ pub struct RenderSettings {
     /// Adaptive stopping: wall-clock budget in seconds.
     pub time_limit_s: Option<f64>,
     /// The light-transport algorithm, one of [`INTEGRATORS`]: "path", the unidirectional path
-    /// tracer with next-event estimation and multiple importance sampling.
+    /// tracer with next-event estimation and multiple importance sampling. (The renderer's
+    /// bidirectional path tracer, "bdpt", is not offered yet: the farm does not yet schedule
+    /// its light tasks.)
     pub integrator: String,
     /// Path length limit in bounces: 0 = emitters seen directly, 1 = direct light only.
     pub max_depth: u32,

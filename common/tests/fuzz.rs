@@ -22,7 +22,7 @@ use common::{
     bundle::Bundle,
     film::{Rect, TileAccum},
     gltf::{load_slice_within, DirResolver},
-    protocol::{decode_result, encode_result, SampleRange, TaskResult, TaskSpec},
+    protocol::{decode_result, encode_result, SampleRange, TaskKind, TaskResult, TaskSpec},
     settings::RenderSettings,
 };
 use proptest::{prelude::*, test_runner::FileFailurePersistence};
@@ -299,6 +299,7 @@ proptest! {
             frame: 0,
             rect: Rect { x0: 0, y0: 0, width: 4, height: 3 },
             samples: SampleRange { start: 0, end: 4 },
+            kind: TaskKind::Camera,
         };
         let mut bytes = encoded_result(spec);
         for m in &edits {

@@ -119,6 +119,7 @@ fn main() -> anyhow::Result<()> {
             frame: 0,
             rect: common::film::Rect { x0: 0, y0: 0, width: w, height: h },
             samples: common::protocol::SampleRange { start: 0, end: spp },
+            kind: common::protocol::TaskKind::Camera,
         };
         let (secs, _) =
             fastest(|| worker::render::render_task_threads(&prepared, 1, &task, threads).rays);

@@ -15,21 +15,8 @@ use worker::{
     test_scenes::MirrorCaustic,
 };
 
-fn load(caustic: &MirrorCaustic) -> common::scene::Scene {
-    let dir = std::env::temp_dir().join(format!("renderfarm-caustic-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(format!("caustic-{}.gltf", caustic.light_half_side));
-    std::fs::write(&path, caustic.gltf()).unwrap();
-    common::gltf::load_path(&path).unwrap()
-}
-
 fn settings(res: u32, spp: u32) -> RenderSettings {
     RenderSettings { width: res, height: res, spp, max_depth: 2, seed: 7, ..Default::default() }
-}
-
-/// Every pixel's expected value (the closed form averaged over its footprint), grey.
-fn expected(caustic: &MirrorCaustic, res: u32) -> Vec<[f32; 3]> {
-    (0..res * res).map(|i| [caustic.pixel_radiance(i % res, i / res, res, res) as f32; 3]).collect()
 }
 
 /// The film's relative root-mean-square error against `expected` over all pixels (channel 0:
@@ -51,7 +38,7 @@ fn relative_rmse(film: &Film, expected: &[[f32; 3]]) -> f64 {
 /// the render took.
 fn render_timed(caustic: &MirrorCaustic, res: u32, spp: u32) -> (Film, f64) {
     let settings = settings(res, spp);
-    let prepared = prepare(&load(caustic), &settings).unwrap();
+    let prepared = prepare(&load_caustic(caustic), &settings).unwrap();
     let start = std::time::Instant::now();
     let film = render_prepared(&prepared, &settings);
     (film, start.elapsed().as_secs_f64())
@@ -114,7 +101,7 @@ fn path_tracer_matches_the_mirror_caustic() {
     let (res, spp) = (64, 512);
     let (film, seconds) = render_timed(&caustic, res, spp);
     assert_eq!(film.rejected, 0, "non-finite samples");
-    let expected = expected(&caustic, res);
+    let expected = caustic_expected(&caustic, res);
     let cmp = compare(&film, &expected, 0.0, 8);
     let z_block = sidak_z(0.01, cmp.blocks);
     let ratio = error_over_half_differences(&film, &expected);
@@ -157,7 +144,7 @@ fn path_tracer_caustic_figures() {
         let caustic = MirrorCaustic { light_half_side, radiance };
         let (res, spp) = (64, 2048);
         let (film, seconds) = render_timed(&caustic, res, spp);
-        let expected = expected(&caustic, res);
+        let expected = caustic_expected(&caustic, res);
         println!(
             "light half side {light_half_side}: {res}x{res} at {spp} spp, path tracer relative \
              RMSE {:.2}% in {seconds:.2} s (2 threads), image z {:.2}, squared error / half \

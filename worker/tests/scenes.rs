@@ -6,7 +6,7 @@ mod support;
 
 use common::{
     film::{Film, Rect, TileAccum},
-    protocol::{SampleRange, TaskSpec},
+    protocol::{SampleRange, TaskKind, TaskSpec},
     settings::RenderSettings,
 };
 use glam::Vec3;
@@ -106,7 +106,12 @@ fn split_sample_ranges_merge_in_order_deterministically() {
     let settings = RenderSettings { width: 48, height: 40, ..settings("cornell-box") };
     let prepared = prepare(&scene, &settings).unwrap();
     let rect = Rect { x0: 8, y0: 4, width: 24, height: 20 };
-    let task = |start, end| TaskSpec { frame: 0, rect, samples: SampleRange { start, end } };
+    let task = |start, end| TaskSpec {
+        frame: 0,
+        rect,
+        samples: SampleRange { start, end },
+        kind: TaskKind::Camera,
+    };
     let whole = render_task(&prepared, 0, &task(0, 64)).tile;
     let in_order = || {
         let mut quarters = TileAccum::new(rect);
@@ -427,7 +432,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 (Rect { x0: 0, y0: 0, width: 48, height: 40 }, SampleRange { start: 0, end: 6 }),
                 (Rect { x0: 13, y0: 7, width: 21, height: 17 }, SampleRange { start: 5, end: 11 }),
             ] {
-                let task = TaskSpec { frame: 0, rect, samples };
+                let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
                 let (a, b) = (render_task(&wavefront, 11, &task), render_task(&scalar, 11, &task));
                 assert!(a.rays > 0);
                 assert_eq!(a.rays, b.rays, "{name} {json} {rect:?}: rays");

@@ -401,7 +401,7 @@ fn render_prepared(
 ) -> Vec<[f32; 3]> {
     use common::{
         film::{Film, Rect},
-        protocol::{SampleRange, TaskSpec},
+        protocol::{SampleRange, TaskKind, TaskSpec},
     };
     let mut tasks = Vec::new();
     for y0 in (0..settings.height).step_by(32) {
@@ -413,7 +413,7 @@ fn render_prepared(
                 height: 32.min(settings.height - y0),
             };
             let samples = SampleRange { start: 0, end: settings.spp };
-            tasks.push(TaskSpec { frame: 0, rect, samples });
+            tasks.push(TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera });
         }
     }
     let next = std::sync::atomic::AtomicUsize::new(0);

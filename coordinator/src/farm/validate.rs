@@ -116,6 +116,12 @@ pub fn validate_job_scene(
             )));
         }
     }
+    if settings.integrator != "path" {
+        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        scene
+            .check_integrator(settings)
+            .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+    }
     if let Some(name) = &settings.variant {
         let mut scene =
             bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;

@@ -73,6 +73,82 @@ impl Camera {
     }
 }
 
+/// Where a ray leaving the camera lands on the film, and the camera's importance for it
+/// (bidirectional path tracing's light tracing connects light paths to the camera this way).
+#[derive(Clone, Copy, Debug)]
+pub struct Importance {
+    /// Film position in pixels.
+    pub film: Vec2,
+    /// The importance We (pbrt-v4's `PerspectiveCamera::We`: normalised so that it integrates
+    /// to 1 over the whole image and the lens).
+    pub we: f32,
+    /// Density per solid angle of `generate_ray` choosing the direction, given the lens point.
+    pub pdf_dir: f32,
+}
+
+impl Camera {
+    /// Whether light paths can be connected to the camera: a perspective camera (pinhole or
+    /// thin lens). An orthographic camera looks along one direction only, which no connection
+    /// from a light path finds.
+    pub fn connectable(&self) -> bool {
+        matches!(self.model, CameraModel::Perspective { .. })
+    }
+
+    /// The lens's area (1 for a pinhole: a point, counted with density 1).
+    pub fn lens_area(&self) -> f32 {
+        if self.has_lens() {
+            std::f32::consts::PI * self.aperture_radius * self.aperture_radius
+        } else {
+            1.0
+        }
+    }
+
+    /// A point on the lens for lens numbers `u` (the same as `generate_ray` takes), world space.
+    #[inline]
+    pub fn lens_point(&self, u: Vec2) -> Vec3 {
+        if !self.has_lens() {
+            return Vec3::ZERO;
+        }
+        let l = sample_uniform_disk_concentric(u) * self.aperture_radius;
+        self.to_world * Vec3::new(l.x, l.y, 0.0)
+    }
+
+    /// The film position, importance and direction density of a ray that leaves the lens at
+    /// `origin` (world space, on the lens) along unit `dir`; `None` when it misses the film,
+    /// points backward, or the camera is orthographic.
+    #[inline]
+    pub fn importance(&self, origin: Vec3, dir: Vec3) -> Option<Importance> {
+        let CameraModel::Perspective { tan_half_fov } = self.model else { return None };
+        let local = self.to_world.transpose() * dir;
+        let cos = -local.z;
+        if !(cos > 0.0) {
+            return None;
+        }
+        // The point on the plane z = -1 of the pinhole ray through the same film position.
+        let d = if self.has_lens() {
+            let o = self.to_world.transpose() * origin;
+            (o + local * (self.focus_distance / cos)) / self.focus_distance
+        } else {
+            local / cos
+        };
+        let aspect = self.width / self.height;
+        let film = Vec2::new(
+            (d.x / (tan_half_fov * aspect) + 1.0) * 0.5 * self.width,
+            (1.0 - d.y / tan_half_fov) * 0.5 * self.height,
+        );
+        if !(film.x >= 0.0 && film.x < self.width && film.y >= 0.0 && film.y < self.height) {
+            return None;
+        }
+        let area = 4.0 * tan_half_fov * tan_half_fov * aspect;
+        let cos2 = cos * cos;
+        Some(Importance {
+            film,
+            we: 1.0 / (area * self.lens_area() * cos2 * cos2),
+            pdf_dir: 1.0 / (area * cos2 * cos),
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -97,6 +173,46 @@ mod tests {
         let corner = cam.generate_ray(Vec2::ZERO, Vec2::ZERO);
         let expect = Vec3::new(-1.0, 0.5, -1.0).normalize();
         assert!((corner.dir - expect).length() < 1e-6, "{:?}", corner.dir);
+    }
+
+    /// `importance` inverts `generate_ray` (the film position comes back), its direction density
+    /// integrates to 1 over the image (midpoint rule over the film, dω = cos³ dA on the plane at
+    /// distance 1), and We is that density over the lens area and the cosine.
+    #[test]
+    fn importance_inverts_generate_ray_and_integrates_to_one() {
+        for aperture in [0.0, 0.2] {
+            let cam = camera(aperture);
+            for (film, lens) in [
+                (Vec2::new(37.5, 81.25), Vec2::new(0.3, 0.8)),
+                (Vec2::new(199.0, 1.0), Vec2::new(0.9, 0.1)),
+            ] {
+                let r = cam.generate_ray(film, lens);
+                let imp = cam.importance(r.origin, r.dir).expect("on the film");
+                assert!(
+                    (imp.film - film).length() < 1e-3,
+                    "{aperture}: {:?} for {film:?}",
+                    imp.film
+                );
+                let cos = -r.dir.z;
+                assert!((imp.we * cam.lens_area() * cos - imp.pdf_dir).abs() < 1e-5 * imp.pdf_dir);
+            }
+            assert!(cam.importance(Vec3::ZERO, Vec3::Z).is_none(), "behind the camera");
+            let n = 400;
+            let mut total = 0.0f64;
+            let (half_w, half_h) = (0.5 * 2.0, 0.5);
+            let cell = (2.0 * half_w / n as f64) * (2.0 * half_h / n as f64);
+            for i in 0..n {
+                for j in 0..n {
+                    let x = -half_w + (i as f64 + 0.5) * 2.0 * half_w / n as f64;
+                    let y = -half_h + (j as f64 + 0.5) * 2.0 * half_h / n as f64;
+                    let d = Vec3::new(x as f32, y as f32, -1.0).normalize();
+                    let pdf = camera(0.0).importance(Vec3::ZERO, d).expect("inside").pdf_dir as f64;
+                    let cos = -d.z as f64;
+                    total += pdf * cos * cos * cos * cell;
+                }
+            }
+            assert!((total - 1.0).abs() < 1e-4, "the direction density integrates to {total}");
+        }
     }
 
     #[test]

@@ -252,37 +252,9 @@ pub fn li(
 
         // Shading frame on wo's side of the surface (surfaces reflect on both faces).
         let ng = if front { ng } else { -ng };
-        let mut ns = if tri.smooth {
-            let [a, bb, c] = tri.vertices;
-            let n = scene.vertex_normal(a, hit.prim, pose) * b[0]
-                + scene.vertex_normal(bb, hit.prim, pose) * b[1]
-                + scene.vertex_normal(c, hit.prim, pose) * b[2];
-            match n.try_normalize() {
-                Some(n) if n.dot(ng) > 0.0 => n,
-                Some(n) if n.dot(ng) < 0.0 => -n,
-                _ => ng,
-            }
-        } else {
-            ng
-        };
-        // The surface's normal before the normal map: a clear coat's, unless it has its own map.
-        let ns_surface = ns;
-        if let Some(tangent_normal) = material::normal_map(&scene.textures, material, &sp) {
-            ns = perturb_normal(scene, hit.prim, [p0, p1, p2], ns, tangent_normal).unwrap_or(ns);
-        }
-        // An anisotropic material's frame has its +x along the direction of anisotropy.
-        let anisotropy =
-            if extended { material::anisotropy(&scene.textures, material, &sp) } else { None };
-        let frame = match anisotropy {
-            Some((_, direction)) => match mesh_tangent_basis(scene, hit.prim, b, ns, pose)
-                .or_else(|| tangent_basis(scene, hit.prim, [p0, p1, p2], ns))
-            {
-                Some((t, bt)) => Frame::from_z_and_tangent(ns, t * direction.x + bt * direction.y),
-                None => Frame::from_z(ns),
-            },
-            None => Frame::from_z(ns),
-        };
-        let mut frame = frame;
+        let (mut frame, ns_surface) =
+            shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, pose);
+        let ns = frame.z;
         let mut wo_local = frame.to_local(wo);
         // A refractive boundary takes every path on, as Mitsuba's and pbrt's dielectrics do:
         // where the interpolated normal turns away from wo it is shaded with the facet's normal,
@@ -462,6 +434,54 @@ fn roulette(sampler: &mut Sampler, depth: u32, beta: &mut Vec3, eta_scale: f32) 
     }
     *beta /= 1.0 - q;
     true
+}
+
+/// The shading frame at barycentrics `b` of triangle `prim` (vertices `tri`) whose geometric
+/// normal `ng` has been put on the side the surface is seen from: the interpolated vertex
+/// normal (on `ng`'s side), bent by the normal map, with +x along the direction of anisotropy
+/// for an anisotropic material. Also the normal before the normal map (a clear coat's, unless
+/// it has its own map).
+#[inline]
+pub(crate) fn shading_frame(
+    scene: &PreparedScene,
+    prim: u32,
+    tri: [Vec3; 3],
+    b: [f32; 3],
+    ng: Vec3,
+    sp: &material::SurfacePoint,
+    pose: Option<&Pose<'_>>,
+) -> (Frame, Vec3) {
+    let shading = scene.shading[prim as usize];
+    let material = &scene.materials[shading.material as usize];
+    let mut ns = if shading.smooth {
+        let [a, bb, c] = shading.vertices;
+        let n = scene.vertex_normal(a, prim, pose) * b[0]
+            + scene.vertex_normal(bb, prim, pose) * b[1]
+            + scene.vertex_normal(c, prim, pose) * b[2];
+        match n.try_normalize() {
+            Some(n) if n.dot(ng) > 0.0 => n,
+            Some(n) if n.dot(ng) < 0.0 => -n,
+            _ => ng,
+        }
+    } else {
+        ng
+    };
+    let ns_surface = ns;
+    if let Some(tangent_normal) = material::normal_map(&scene.textures, material, sp) {
+        ns = perturb_normal(scene, prim, tri, ns, tangent_normal).unwrap_or(ns);
+    }
+    let anisotropy =
+        if shading.extended { material::anisotropy(&scene.textures, material, sp) } else { None };
+    let frame = match anisotropy {
+        Some((_, direction)) => match mesh_tangent_basis(scene, prim, b, ns, pose)
+            .or_else(|| tangent_basis(scene, prim, tri, ns))
+        {
+            Some((t, bt)) => Frame::from_z_and_tangent(ns, t * direction.x + bt * direction.y),
+            None => Frame::from_z(ns),
+        },
+        None => Frame::from_z(ns),
+    };
+    (frame, ns_surface)
 }
 
 /// Applies a tangent-space normal from a normal map in the frame of [`tangent_basis`].

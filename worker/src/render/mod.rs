@@ -7,6 +7,7 @@
 //! (`render_task`).
 
 pub mod accel;
+pub mod bdpt;
 pub mod bsdf;
 pub mod camera;
 pub mod geometry;
@@ -30,7 +31,7 @@ mod tests;
 
 use common::{
     film::{Rect, TileAccum},
-    protocol::{TaskResult, TaskSpec},
+    protocol::{TaskKind, TaskResult, TaskSpec},
 };
 use glam::{UVec2, Vec2};
 
@@ -49,6 +50,11 @@ pub fn render_task_threads(
     task: &TaskSpec,
     threads: usize,
 ) -> TaskResult {
+    if task.kind == TaskKind::Light {
+        // One thread: the frame's light paths add into one film in a fixed order.
+        let (tile, stats) = bdpt::render_light_task(scene, seed, task);
+        return TaskResult { spec: *task, tile, rays: stats.rays };
+    }
     let rect = task.rect;
     let threads = threads.clamp(1, rect.height.max(1) as usize);
     if threads == 1 {
@@ -78,6 +84,9 @@ fn render_rows(
     first: u32,
     step: u32,
 ) -> (TileAccum, Stats) {
+    if scene.bdpt {
+        return bdpt::render_rows(scene, seed, task, first, step);
+    }
     if let Some(tables) = &scene.wavefront {
         if let Some(done) = wavefront::render_rows(scene, tables, seed, task, first, step) {
             return done;

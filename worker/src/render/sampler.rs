@@ -54,6 +54,14 @@ impl Sampler {
         mix64(self.pixel_hash ^ (d as u64).wrapping_mul(DIMENSION_MULTIPLIER))
     }
 
+    /// Moves to dimension `d` of the current sample: a part of the sample that draws an
+    /// unbounded number of dimensions (bidirectional path tracing's light subpath) starts at a
+    /// fixed dimension of its own, so that the camera subpath's numbers never reach it.
+    #[inline]
+    pub fn set_dimension(&mut self, d: u32) {
+        self.dimension = d;
+    }
+
     /// Passes over `n` dimensions without computing them (a draw this sample does not need,
     /// so that later draws keep their dimensions).
     #[inline]

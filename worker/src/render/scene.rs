@@ -96,6 +96,8 @@ pub struct PreparedScene {
     pub max_depth: u32,
     /// Seconds spent building the BVH.
     pub build_seconds: f64,
+    /// Bidirectional path tracing (`"integrator": "bdpt"`) instead of the path tracer.
+    pub bdpt: bool,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
     pub wavefront: Option<super::wavefront_tables::Tables>,
@@ -133,6 +135,7 @@ fn prepare_inner(
     shutter: Option<(f64, f64)>,
     choice: LightChoice,
 ) -> Result<PreparedScene, PrepareError> {
+    scene.check_integrator(settings).map_err(|e| PrepareError(format!("settings.{e}")))?;
     // A material variant is part of the settings: the meshes it maps take its materials.
     let varied;
     let scene = match &settings.variant {
@@ -438,13 +441,18 @@ fn prepare_inner(
         AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
         AlphaMode::Opaque => false,
     });
+    // Bidirectional path tracing chooses lights blind to the point (the mixture), for its light
+    // subpaths and its light samples alike.
+    let bdpt = settings.integrator == "bdpt";
+    let choice = if bdpt { LightChoice::Mixture } else { choice };
     let lights = LightSampler::with_choice(lights, &emitters, scene_radius, choice);
     let wavefront = super::wavefront_tables::Tables::new(
         &scene.materials,
         &scene.textures,
         &lights,
         motion.is_some() || alpha_tested || !colors.is_empty(),
-    );
+    )
+    .filter(|_| !bdpt);
     Ok(PreparedScene {
         origin,
         camera,
@@ -468,6 +476,7 @@ fn prepare_inner(
         max_depth: settings.max_depth,
         build_seconds,
         motion,
+        bdpt,
         wavefront,
     })
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use common::{
     film::{Film, Rect},
-    protocol::{SampleRange, TaskSpec},
+    protocol::{SampleRange, TaskKind, TaskSpec},
     scene::Scene,
     settings::RenderSettings,
 };
@@ -54,6 +54,7 @@ pub fn render_prepared(prepared: &PreparedScene, settings: &RenderSettings) -> F
                 frame: 0,
                 rect,
                 samples: SampleRange { start: 0, end: settings.spp },
+                kind: TaskKind::Camera,
             });
         }
     }
@@ -265,4 +266,19 @@ pub fn image_mean(film: &Film) -> [(f64, f64); 3] {
         let var: f64 = film.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / n;
         (mean, (var / n).sqrt())
     })
+}
+
+/// Loads a `MirrorCaustic` scene (written to a temporary file).
+pub fn load_caustic(caustic: &worker::test_scenes::MirrorCaustic) -> Scene {
+    let dir = std::env::temp_dir().join(format!("renderfarm-caustic-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("caustic-{}.gltf", caustic.light_half_side));
+    std::fs::write(&path, caustic.gltf()).unwrap();
+    common::gltf::load_path(&path).unwrap()
+}
+
+/// Every pixel's expected value in a `MirrorCaustic` image (the closed form averaged over its
+/// footprint), grey.
+pub fn caustic_expected(caustic: &worker::test_scenes::MirrorCaustic, res: u32) -> Vec<[f32; 3]> {
+    (0..res * res).map(|i| [caustic.pixel_radiance(i % res, i / res, res, res) as f32; 3]).collect()
 }

@@ -4,7 +4,7 @@
 use common::{
     error::ErrorKind,
     film::{Rect, TileAccum},
-    protocol::{JoinRequest, SampleRange},
+    protocol::{JoinRequest, SampleRange, TaskKind},
 };
 
 use super::*;
@@ -22,6 +22,7 @@ fn spec(k: u32) -> TaskSpec {
         frame: 0,
         rect: Rect { x0: 2, y0: 0, width: 2, height: 2 },
         samples: SampleRange { start: 4 * k, end: 4 * k + 4 },
+        kind: TaskKind::Camera,
     }
 }
 

@@ -4,7 +4,10 @@
 use glam::{Vec2, Vec3};
 
 use super::LightSample;
-use crate::render::{geometry::interpolation_error, sampling::sample_uniform_triangle};
+use crate::render::{
+    geometry::{interpolation_error, Frame},
+    sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_triangle},
+};
 
 /// One emissive triangle.
 #[derive(Clone, Copy, Debug)]
@@ -94,6 +97,44 @@ impl TriangleLight {
             pdf,
             is_delta: false,
         })
+    }
+
+    /// Samples light leaving the triangle (for a light subpath): a point uniformly over the
+    /// area (`u_pos`), then a direction cosine-distributed about the normal of an emitting face
+    /// (`u_dir`; a two-sided light picks its face with `u_dir.x`). Returns the barycentrics, the
+    /// direction and its density per solid angle (the point's is 1 / area).
+    #[inline]
+    pub fn sample_le(&self, u_pos: Vec2, u_dir: Vec2) -> Option<([f32; 3], Vec3, f32)> {
+        let (b0, b1) = sample_uniform_triangle(u_pos);
+        let b = [b0, b1, 1.0 - b0 - b1];
+        let (mut n, mut u) = (self.normal, u_dir);
+        if self.two_sided {
+            if u.x < 0.5 {
+                u.x *= 2.0;
+            } else {
+                u.x = (u.x - 0.5) * 2.0;
+                n = -n;
+            }
+            u.x = u.x.min(1.0 - f32::EPSILON / 2.0);
+        }
+        let local = sample_cosine_hemisphere(u);
+        let pdf = self.pdf_le(local.z);
+        (pdf > 0.0).then(|| (b, Frame::from_z(n).to_world(local), pdf))
+    }
+
+    /// Density per solid angle of `sample_le` choosing a direction whose cosine to the emitting
+    /// face's normal is `cos` (0 for a face that does not emit).
+    #[inline]
+    pub fn pdf_le(&self, cos: f32) -> f32 {
+        if cos <= 0.0 && !self.two_sided {
+            return 0.0;
+        }
+        let pdf = cosine_hemisphere_pdf(cos.abs());
+        if self.two_sided {
+            0.5 * pdf
+        } else {
+            pdf
+        }
     }
 
     /// Density of `sample_li` at a point on the light seen along `wi` at distance² `dist2`.

@@ -63,7 +63,7 @@ const TRIANGLES: [TriangleCase; 5] = [
 ];
 
 /// Chi-square tests in this file.
-pub(super) const N_CHI2: usize = TRIANGLES.len() + 1 + 2 + TREE_POINTS.len();
+pub(super) const N_CHI2: usize = TRIANGLES.len() + 1 + 2 + TREE_POINTS.len() + 2;
 
 /// Distance along unit `dir` from `origin` to triangle `p` (Möller-Trumbore in f64), if it hits.
 fn hit_distance(p: [Vec3; 3], origin: Vec3, dir: Vec3) -> Option<f64> {
@@ -126,6 +126,33 @@ fn triangle_light_sampling_matches_pdf() {
                 },
             );
         outcome.assert_passed();
+    }
+}
+
+/// Light leaving a triangle light (a light subpath's first direction): cosine-distributed about
+/// the emitting face's normal, both faces half each for a two-sided light, with the density
+/// `pdf_le` gives; the point is uniform over the triangle (its barycentrics sum to one).
+#[test]
+fn triangle_light_emission_sampling_matches_pdf() {
+    let p = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.2, 0.1), Vec3::new(0.3, 1.0, -0.2)];
+    for two_sided in [false, true] {
+        let light = TriangleLight::new(p, Vec3::ONE, two_sided).expect("a triangle");
+        let name =
+            format!("triangle_light_le_{}", if two_sided { "two_sided" } else { "one_sided" });
+        let domain =
+            if two_sided { Spherical::sphere() } else { Spherical::cap(light.normal, PI / 2.0) };
+        assert_fits(
+            &name,
+            domain,
+            |u| {
+                let (b, dir, pdf) = light.sample_le(Vec2::new(0.3, 0.6), Vec2::new(u.y, u.z))?;
+                assert!((b.iter().sum::<f32>() - 1.0).abs() < 1e-6 && b.iter().all(|&x| x >= 0.0));
+                let expect = light.pdf_le(light.normal.dot(dir));
+                assert!((pdf - expect).abs() <= 1e-4 * expect, "{name}: {pdf} against {expect}");
+                Some(dir)
+            },
+            |w| light.pdf_le(light.normal.dot(w)),
+        );
     }
 }
 

@@ -1,0 +1,778 @@
+//! Bidirectional path tracing (Veach 1997; the structure of pbrt-v4's `bdpt`): a camera subpath
+//! and a light subpath per sample, every connection of a prefix of one with a prefix of the other
+//! weighted by multiple importance sampling (the balance heuristic over all the ways of making
+//! the same path).
+//!
+//! The strategies are split between two kinds of farm task, so that each stays a tile of one
+//! frame's film. A camera task (a tile x sample range, like the path tracer's) sums, for each
+//! sample of its pixels, the strategies with at least two camera vertices: the camera subpath
+//! hitting a light (s = 0), a light sampled from a camera vertex (s = 1) and the connections of
+//! both subpaths (s, t >= 2). A light task (the whole frame x a sample range) traces, for each
+//! sample index, the light subpath of every pixel again and connects each of its vertices to the
+//! camera (t = 1, light tracing): the contribution lands on whatever pixel the connection
+//! passes through, and the sum over the frame's light subpaths of one sample index is that
+//! sample of the light-traced image. The two films add. A light subpath is a function of
+//! (pixel, sample index) alone (its sampler dimensions start at `LIGHT_DIMENSION`), so both
+//! tasks trace the same one.
+//!
+//! Path vertices follow pbrt: `beta` is the throughput arriving at the vertex, `pdf_fwd` the
+//! density (per unit area, or per solid angle for nothing here) of the vertex being sampled by
+//! its own subpath, `pdf_rev` of it being sampled from the other end. The BSDF is evaluated for
+//! light flowing along the path (radiance order), whichever subpath the vertex is on, so that
+//! BSDFs that are not symmetric need no adjoint; a light subpath's throughput takes the
+//! shading-normal correction of Veach's thesis (5.3.2).
+//!
+//! What this first version does not take (`Scene::check_integrator` refuses them before any
+//! work): volumes, motion blur, the environment and directional lights (lights at infinity).
+
+use common::{
+    film::{Rect, TileAccum},
+    protocol::TaskSpec,
+};
+use glam::{UVec2, Vec2, Vec3};
+
+use super::{
+    bsdf::Bsdf,
+    geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
+    integrator::{shading_frame, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
+    light::{spot_falloff, ChooseLight, Light, ShadingContext},
+    material,
+    sampler::Sampler,
+    sampling::{sample_uniform_sphere, uniform_sphere_pdf},
+    scene::{PreparedScene, NONE},
+};
+
+/// The sampler dimension a light subpath starts at (the camera subpath's come first and never
+/// reach it: each bounce takes 7).
+pub const LIGHT_DIMENSION: u32 = 1 << 16;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Camera,
+    Light,
+    Surface,
+}
+
+/// A vertex of a subpath.
+#[derive(Clone, Copy, Debug)]
+struct Vertex {
+    kind: Kind,
+    p: Vec3,
+    p_error: Vec3,
+    /// Geometric normal: a surface's on the side it was reached from, an area light's front
+    /// face's; zero for the camera and point lights (not on a surface).
+    ng: Vec3,
+    /// Shading frame (surfaces), +z on `ng`'s side.
+    frame: Frame,
+    /// The BSDF (surfaces that scatter).
+    bsdf: Option<Bsdf>,
+    /// Unit direction toward the previous vertex of its own subpath (surfaces).
+    wo: Vec3,
+    /// Throughput arriving at the vertex.
+    beta: Vec3,
+    pdf_fwd: f32,
+    pdf_rev: f32,
+    /// Sampled from a delta lobe (no connection can reach it).
+    delta: bool,
+    /// The light it lies on (light vertices, surfaces of emitters), else `NONE`.
+    light: u32,
+    /// A point or spot light's vertex.
+    delta_light: bool,
+    /// Triangle and barycentrics (surfaces and area lights), for emission.
+    prim: u32,
+    b: [f32; 3],
+    /// The numbers of the light sample taken from this camera vertex (s = 1).
+    u_light: [f32; 3],
+}
+
+impl Vertex {
+    fn new(kind: Kind, p: Vec3, beta: Vec3) -> Self {
+        Vertex {
+            kind,
+            p,
+            p_error: Vec3::ZERO,
+            ng: Vec3::ZERO,
+            frame: Frame::from_z(Vec3::Z),
+            bsdf: None,
+            wo: Vec3::ZERO,
+            beta,
+            pdf_fwd: 0.0,
+            pdf_rev: 0.0,
+            delta: false,
+            light: NONE,
+            delta_light: false,
+            prim: NONE,
+            b: [0.0; 3],
+            u_light: [0.0; 3],
+        }
+    }
+
+    fn on_surface(&self) -> bool {
+        self.ng != Vec3::ZERO
+    }
+
+    /// The shading normal (the geometric one off surfaces).
+    fn ns(&self) -> Vec3 {
+        if self.kind == Kind::Surface {
+            self.frame.z
+        } else {
+            self.ng
+        }
+    }
+
+    /// The BSDF for light arriving from unit direction `from` and leaving toward `to` (radiance
+    /// order), zero where either direction lies between the shading and geometric surfaces.
+    fn f(&self, to: Vec3, from: Vec3) -> Vec3 {
+        let Some(bsdf) = &self.bsdf else { return Vec3::ZERO };
+        let (a, b) = (self.frame.to_local(to), self.frame.to_local(from));
+        let transmits = bsdf.transmits();
+        if !consistent(a.z, to.dot(self.ng), transmits)
+            || !consistent(b.z, from.dot(self.ng), transmits)
+        {
+            return Vec3::ZERO;
+        }
+        let (a, b) = flip_below(a, b);
+        bsdf.eval(a, b)
+    }
+
+    /// Density per solid angle of the BSDF sampling unit direction `to` given the path came
+    /// from `from` (the BSDF samples "wi" for a "wo"; the frame is turned when `from` lies below).
+    fn pdf_dir(&self, from: Vec3, to: Vec3) -> f32 {
+        let Some(bsdf) = &self.bsdf else { return 0.0 };
+        let (a, b) = flip_below(self.frame.to_local(from), self.frame.to_local(to));
+        bsdf.pdf(a, b)
+    }
+
+    /// A solid-angle density at this vertex toward `next` to a density per unit area there.
+    fn convert_density(&self, pdf: f32, next: &Vertex) -> f32 {
+        let w = next.p - self.p;
+        let d2 = w.length_squared();
+        if !(d2 > 0.0) {
+            return 0.0;
+        }
+        let mut pdf = pdf / d2;
+        if next.on_surface() {
+            pdf *= next.ng.dot(w / d2.sqrt()).abs();
+        }
+        pdf
+    }
+
+    /// Density per unit area at `next` of this vertex sampling it, the path having come from
+    /// `prev` (pbrt's `Vertex::Pdf`).
+    fn pdf(&self, scene: &PreparedScene, prev: Option<&Vertex>, next: &Vertex) -> f32 {
+        if self.kind == Kind::Light {
+            return self.pdf_light(scene, next);
+        }
+        let Some(wn) = (next.p - self.p).try_normalize() else { return 0.0 };
+        let pdf = match self.kind {
+            Kind::Camera => scene.camera.importance(self.p, wn).map_or(0.0, |i| i.pdf_dir),
+            _ => {
+                let Some(prev) = prev else { return 0.0 };
+                let Some(wp) = (prev.p - self.p).try_normalize() else { return 0.0 };
+                self.pdf_dir(wp, wn)
+            }
+        };
+        self.convert_density(pdf, next)
+    }
+
+    /// Density per unit area at `next` of a light subpath leaving this light (or emitter's)
+    /// vertex toward it.
+    fn pdf_light(&self, scene: &PreparedScene, next: &Vertex) -> f32 {
+        let w = next.p - self.p;
+        let d2 = w.length_squared();
+        if !(d2 > 0.0) || self.light == NONE {
+            return 0.0;
+        }
+        let w = w / d2.sqrt();
+        let pdf_dir = match &scene.lights.lights[self.light as usize] {
+            Light::Triangle(l) => l.pdf_le(l.normal.dot(w)),
+            _ => uniform_sphere_pdf(),
+        };
+        let mut pdf = pdf_dir / d2;
+        if next.on_surface() {
+            pdf *= next.ng.dot(w).abs();
+        }
+        pdf
+    }
+
+    /// Density of a light subpath starting at this point of its light: the light's choice
+    /// times the point's density per unit area (1 for a point light).
+    fn pdf_light_origin(&self, scene: &PreparedScene) -> f32 {
+        if self.light == NONE {
+            return 0.0;
+        }
+        let pmf = scene.lights.pmf(&ShadingContext::default(), self.light);
+        match &scene.lights.lights[self.light as usize] {
+            Light::Triangle(l) => pmf / l.area,
+            _ => pmf,
+        }
+    }
+
+    /// Radiance an emitter's surface vertex sends toward unit direction `w`.
+    fn le(&self, scene: &PreparedScene, w: Vec3) -> Vec3 {
+        if self.light == NONE {
+            return Vec3::ZERO;
+        }
+        match &scene.lights.lights[self.light as usize] {
+            Light::Triangle(l) if l.emits_toward(w) => {
+                let m = &scene.materials[scene.shading[self.prim as usize].material as usize];
+                let sp = scene.surface_point(self.prim, self.b);
+                material::emission_toward(&scene.textures, m, &sp, self.ng, w)
+            }
+            _ => Vec3::ZERO,
+        }
+    }
+}
+
+/// `integrator::same_side` for a direction of local z `cos_s` and geometric cosine `cos_g`
+/// (relative to the side the frame is on): both on that side, or both beyond for a BSDF that
+/// transmits.
+#[inline]
+fn consistent(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
+    if cos_s > 0.0 {
+        cos_g > 0.0
+    } else {
+        transmits && cos_s < 0.0 && cos_g < 0.0
+    }
+}
+
+/// Turns a pair of local directions half a turn about the tangent when the first lies below the
+/// surface, so that the BSDF sees its first direction above (BSDFs are written that way).
+#[inline]
+fn flip_below(a: Vec3, b: Vec3) -> (Vec3, Vec3) {
+    if a.z < 0.0 {
+        (Vec3::new(a.x, -a.y, -a.z), Vec3::new(b.x, -b.y, -b.z))
+    } else {
+        (a, b)
+    }
+}
+
+/// Which way light travels along a subpath.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    /// A camera subpath: importance flows out from the camera.
+    Radiance,
+    /// A light subpath: light flows out from the light.
+    Importance,
+}
+
+/// Per-thread storage for the two subpaths.
+#[derive(Default)]
+pub struct Paths {
+    camera: Vec<Vertex>,
+    light: Vec<Vertex>,
+}
+
+/// Extends `path` (whose last vertex sent `ray`, with solid-angle density `pdf`) by up to
+/// `max_vertices` surface vertices. Each surface vertex takes 7 sampler numbers: 3 for a light
+/// sample (camera subpaths) or 2 for a lens point and one skipped (light subpaths, for light
+/// tracing), then the lobe, the direction and the roulette.
+#[allow(clippy::too_many_arguments)]
+fn walk(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    mut ray: Ray,
+    mut beta: Vec3,
+    mut pdf: f32,
+    mode: Mode,
+    max_vertices: u32,
+    path: &mut Vec<Vertex>,
+    stats: &mut Stats,
+    unlit: &mut Vec3,
+) {
+    let mut bounces = 0u32;
+    while bounces < max_vertices {
+        stats.rays += 1;
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else { break };
+        let tri = scene.shading[hit.prim as usize];
+        let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+        let Some(ng) = (p1 - p0).cross(p2 - p0).try_normalize() else { break };
+        let wo = -ray.dir.normalize();
+        let front = ng.dot(wo) > 0.0;
+        let ng = if front { ng } else { -ng };
+        let material = &scene.materials[tri.material as usize];
+        let sp = scene.surface_point(hit.prim, b);
+        let mut v = Vertex::new(Kind::Surface, p, beta);
+        v.p_error = interpolation_error([p0, p1, p2], b);
+        v.ng = ng;
+        v.wo = wo;
+        v.prim = hit.prim;
+        v.b = b;
+        v.light = if tri.light == NONE { NONE } else { tri.light };
+        let prev = path.last().expect("a subpath starts with its camera or light vertex");
+        v.pdf_fwd = prev.convert_density(pdf, &v);
+        bounces += 1;
+        if tri.extended && material.unlit {
+            // Seen as its base colour by the camera, and by nothing else.
+            if mode == Mode::Radiance {
+                let base = material::base_color(&scene.textures, material, &sp).truncate();
+                *unlit += beta * base.clamp(Vec3::ZERO, Vec3::ONE);
+            }
+            path.push(v);
+            break;
+        }
+        let (frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, None);
+        v.frame = frame;
+        let bsdf = material::bsdf(&scene.textures, material, &sp, front, [1.0; 2], tri.extended);
+        v.bsdf = Some(bsdf);
+        match mode {
+            Mode::Radiance => {
+                let u = sampler.next_2d();
+                v.u_light = [sampler.next_1d(), u.x, u.y];
+            }
+            Mode::Importance => {
+                let u = sampler.next_2d();
+                v.u_light = [0.0, u.x, u.y];
+                sampler.skip(1);
+            }
+        }
+        path.push(v);
+        if bounces >= max_vertices {
+            break;
+        }
+        let wo_local = frame.to_local(wo);
+        if wo_local.z <= 0.0 {
+            break;
+        }
+        let u_lobe = sampler.next_1d();
+        let u = sampler.next_2d();
+        let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else { break };
+        let wi = frame.to_world(bs.wi);
+        if !consistent(bs.wi.z, wi.dot(ng), bsdf.transmits()) {
+            break;
+        }
+        let n = path.len();
+        let delta = bs.lobe.is_delta();
+        let f = match mode {
+            // Light flows from `wo` toward `wi` on a light subpath.
+            Mode::Importance if !delta => path[n - 1].f(wi, wo),
+            _ => bs.f,
+        };
+        beta *= f * (bs.wi.z.abs() / bs.pdf);
+        if mode == Mode::Importance {
+            // Shading normals make the adjoint BSDF differ by this factor (Veach 5.3.2).
+            let denom = wo.dot(ng).abs() * wi.dot(frame.z).abs();
+            beta *=
+                if denom > 0.0 { wo.dot(frame.z).abs() * wi.dot(ng).abs() / denom } else { 0.0 };
+        }
+        let (pdf_fwd, pdf_rev) =
+            if delta { (0.0, 0.0) } else { (bs.pdf, path[n - 1].pdf_dir(wi, wo)) };
+        if delta {
+            path[n - 1].delta = true;
+        }
+        let rev = path[n - 1].convert_density(pdf_rev, &path[n - 2]);
+        path[n - 2].pdf_rev = rev;
+        if !beta.is_finite() || beta == Vec3::ZERO {
+            break;
+        }
+        // Russian roulette as in the path tracer (unbiased; the MIS weights leave it out, which
+        // keeps them a partition of unity).
+        if bounces <= RR_MIN_DEPTH {
+            sampler.skip(1);
+        } else {
+            let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
+            if sampler.next_1d() < q {
+                break;
+            }
+            beta /= 1.0 - q;
+        }
+        pdf = pdf_fwd;
+        ray = Ray::new(offset_ray_origin(p, path[n - 1].p_error, ng, wi), wi);
+    }
+}
+
+/// The camera subpath of a sample whose film position and lens numbers are drawn: up to
+/// `max_depth + 2` vertices, the camera's first.
+fn camera_subpath(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    film: Vec2,
+    lens: Vec2,
+    path: &mut Vec<Vertex>,
+    stats: &mut Stats,
+) -> Vec3 {
+    path.clear();
+    let ray = scene.camera.generate_ray(film, lens);
+    // An orthographic camera's direction is fixed: its density never enters a weight (no light
+    // subpath connects to it).
+    let pdf_dir = scene.camera.importance(ray.origin, ray.dir).map_or(1.0, |i| i.pdf_dir);
+    path.push(Vertex::new(Kind::Camera, ray.origin, Vec3::ONE));
+    let mut unlit = Vec3::ZERO;
+    walk(
+        scene,
+        sampler,
+        ray,
+        Vec3::ONE,
+        pdf_dir,
+        Mode::Radiance,
+        scene.max_depth + 1,
+        path,
+        stats,
+        &mut unlit,
+    );
+    unlit
+}
+
+/// The light subpath of the current pixel sample: up to `max_depth + 1` vertices, the light's
+/// first. Draws from `LIGHT_DIMENSION` on.
+fn light_subpath(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    path: &mut Vec<Vertex>,
+    stats: &mut Stats,
+) {
+    path.clear();
+    sampler.set_dimension(LIGHT_DIMENSION);
+    let u_choice = sampler.next_1d();
+    let (u_pos, u_dir) = (sampler.next_2d(), sampler.next_2d());
+    let Some((idx, pmf, _)) = scene.lights.choose(&ShadingContext::default(), u_choice) else {
+        return;
+    };
+    let (mut v, beta, ray, pdf_dir) = match &scene.lights.lights[idx as usize] {
+        Light::Triangle(l) => {
+            let Some((b, dir, pdf_dir)) = l.sample_le(u_pos, u_dir) else { return };
+            let p = l.p[0] * b[0] + l.p[1] * b[1] + l.p[2] * b[2];
+            let mut le = if l.textured {
+                let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
+                let sp = scene.surface_point(l.prim, b);
+                material::emission_toward(&scene.textures, m, &sp, l.normal, dir)
+            } else {
+                l.emission
+            };
+            if scene.alpha_tested {
+                le *= scene.coverage(l.prim, b);
+            }
+            let mut v = Vertex::new(Kind::Light, p, le);
+            v.p_error = interpolation_error(l.p, b);
+            v.ng = l.normal;
+            v.prim = l.prim;
+            v.b = b;
+            let pdf_pos = 1.0 / l.area;
+            let beta = le * (l.normal.dot(dir).abs() / (pmf * pdf_pos * pdf_dir));
+            let side = if l.normal.dot(dir) > 0.0 { l.normal } else { -l.normal };
+            (v, beta, Ray::new(offset_ray_origin(p, v.p_error, side, dir), dir), pdf_dir)
+        }
+        Light::Point(l) => {
+            let dir = sample_uniform_sphere(u_dir);
+            let v = Vertex::new(Kind::Light, l.position, l.intensity);
+            (
+                v,
+                l.intensity / (pmf * uniform_sphere_pdf()),
+                Ray::new(l.position, dir),
+                uniform_sphere_pdf(),
+            )
+        }
+        Light::Spot(l) => {
+            let dir = sample_uniform_sphere(u_dir);
+            let le = l.intensity * spot_falloff(dir.dot(l.direction), l.cos_inner, l.cos_outer);
+            let v = Vertex::new(Kind::Light, l.position, le);
+            (v, le / (pmf * uniform_sphere_pdf()), Ray::new(l.position, dir), uniform_sphere_pdf())
+        }
+        _ => return,
+    };
+    v.light = idx;
+    v.delta_light = !matches!(scene.lights.lights[idx as usize], Light::Triangle(_));
+    v.pdf_fwd = v.pdf_light_origin(scene);
+    path.push(v);
+    if beta == Vec3::ZERO || !beta.is_finite() {
+        return;
+    }
+    let mut unlit = Vec3::ZERO;
+    walk(
+        scene,
+        sampler,
+        ray,
+        beta,
+        pdf_dir,
+        Mode::Importance,
+        scene.max_depth,
+        path,
+        stats,
+        &mut unlit,
+    );
+}
+
+/// The balance-heuristic weight of the strategy with `s` light and `t` camera vertices, where
+/// `sampled` replaces the last light vertex (s = 1) or the camera vertex (t = 1) (pbrt's
+/// `MISWeight`): one over the sum, over every strategy that could make the same path, of its
+/// density over this one's.
+fn mis_weight(
+    scene: &PreparedScene,
+    camera: &[Vertex],
+    light: &[Vertex],
+    sampled: Option<&Vertex>,
+    s: usize,
+    t: usize,
+) -> f32 {
+    if s + t == 2 {
+        return 1.0;
+    }
+    let pt = if t == 1 { *sampled.expect("t = 1 samples the camera") } else { camera[t - 1] };
+    let qs = match s {
+        0 => None,
+        1 => Some(*sampled.expect("s = 1 samples the light")),
+        _ => Some(light[s - 1]),
+    };
+    let pt_minus = (t > 1).then(|| &camera[t - 2]);
+    let qs_minus = (s > 1).then(|| &light[s - 2]);
+    // The densities the connection changes: of pt and qs sampled from the other side, and of
+    // their predecessors.
+    let pt_rev = match &qs {
+        Some(qs) => qs.pdf(scene, qs_minus, &pt),
+        None => pt.pdf_light_origin(scene),
+    };
+    let pt_minus_rev = pt_minus.map_or(0.0, |pm| match &qs {
+        Some(qs) => pt.pdf(scene, Some(qs), pm),
+        None => pt.pdf_light(scene, pm),
+    });
+    let qs_rev = qs.as_ref().map_or(0.0, |qs| pt.pdf(scene, pt_minus, qs));
+    let qs_minus_rev = match (&qs, qs_minus) {
+        (Some(qs), Some(qm)) => qs.pdf(scene, Some(&pt), qm),
+        _ => 0.0,
+    };
+    let remap = |f: f32| if f != 0.0 { f } else { 1.0 };
+    let light_tracing = scene.camera.connectable();
+    let mut sum = 0.0f32;
+    let mut ri = 1.0f32;
+    for i in (1..t).rev() {
+        let (fwd, rev, delta) = if i == t - 1 {
+            (pt.pdf_fwd, pt_rev, false)
+        } else if i + 2 == t {
+            (camera[i].pdf_fwd, pt_minus_rev, camera[i].delta)
+        } else {
+            (camera[i].pdf_fwd, camera[i].pdf_rev, camera[i].delta)
+        };
+        ri *= remap(rev) / remap(fwd);
+        if !delta && !camera[i - 1].delta && (i > 1 || light_tracing) {
+            sum += ri;
+        }
+    }
+    ri = 1.0;
+    let light0_delta = match s {
+        0 => false,
+        1 => qs.is_some_and(|q| q.delta_light),
+        _ => light[0].delta_light,
+    };
+    for i in (0..s).rev() {
+        let (fwd, rev, delta) = if i == s - 1 {
+            (qs.expect("s > 0").pdf_fwd, qs_rev, false)
+        } else if i + 2 == s {
+            (light[i].pdf_fwd, qs_minus_rev, light[i].delta)
+        } else {
+            (light[i].pdf_fwd, light[i].pdf_rev, light[i].delta)
+        };
+        ri *= remap(rev) / remap(fwd);
+        let before_delta = if i > 0 { light[i - 1].delta } else { light0_delta };
+        if !delta && !before_delta {
+            sum += ri;
+        }
+    }
+    1.0 / (1.0 + sum)
+}
+
+/// Whether the segment between two vertices is clear.
+fn visible(scene: &PreparedScene, a: &Vertex, b: &Vertex, stats: &mut Stats) -> bool {
+    let w = b.p - a.p;
+    let from = if a.on_surface() { offset_ray_origin(a.p, a.p_error, a.ng, w) } else { a.p };
+    let to = if b.on_surface() { offset_ray_origin(b.p, b.p_error, b.ng, -w) } else { b.p };
+    stats.rays += 1;
+    !scene.occluded(&Ray::new(from, to - from), SHADOW_T_MAX, None)
+}
+
+/// The camera task's part of one sample: every strategy with at least two camera vertices.
+fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) -> Vec3 {
+    let (camera, light) = (&paths.camera, &paths.light);
+    let max_depth = scene.max_depth as usize;
+    let mut total = Vec3::ZERO;
+    for t in 2..=camera.len() {
+        let pt = &camera[t - 1];
+        if pt.kind != Kind::Surface {
+            continue;
+        }
+        for s in 0..=light.len() {
+            if s + t - 2 > max_depth {
+                break;
+            }
+            let (l, sampled) = match s {
+                0 => {
+                    // The camera subpath found a light.
+                    let wo = (camera[t - 2].p - pt.p).normalize();
+                    (pt.beta * pt.le(scene, wo), None)
+                }
+                1 => match sample_light(scene, pt, stats) {
+                    Some((l, v)) => (l, Some(v)),
+                    None => continue,
+                },
+                _ => {
+                    let qs = &light[s - 1];
+                    if qs.bsdf.is_none() || pt.bsdf.is_none() {
+                        continue;
+                    }
+                    let d = qs.p - pt.p;
+                    let d2 = d.length_squared();
+                    if !(d2 > 0.0) {
+                        continue;
+                    }
+                    let w = d / d2.sqrt();
+                    let g = qs.ns().dot(w).abs() * pt.ns().dot(w).abs() / d2;
+                    let l = qs.beta * qs.f(-w, qs.wo) * pt.f(pt.wo, w) * pt.beta * g;
+                    if l == Vec3::ZERO || !visible(scene, pt, qs, stats) {
+                        continue;
+                    }
+                    (l, None)
+                }
+            };
+            if l == Vec3::ZERO || !l.is_finite() {
+                continue;
+            }
+            total += l * mis_weight(scene, camera, light, sampled.as_ref(), s, t);
+        }
+    }
+    total
+}
+
+/// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers,
+/// the unoccluded contribution and the light's vertex.
+fn sample_light(scene: &PreparedScene, pt: &Vertex, stats: &mut Stats) -> Option<(Vec3, Vertex)> {
+    pt.bsdf?;
+    let [u_choice, ux, uy] = pt.u_light;
+    let (idx, pmf, _) = scene.lights.choose(&ShadingContext::default(), u_choice)?;
+    let light = &scene.lights.lights[idx as usize];
+    let ls = light.sample_li(pt.p, Vec2::new(ux, uy))?;
+    let point = ls.point?;
+    let mut li = match light {
+        Light::Triangle(l) if l.textured => {
+            let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
+            let sp = scene.surface_point(l.prim, ls.barycentrics);
+            material::emission_toward(&scene.textures, m, &sp, ls.normal, ls.wi)
+        }
+        _ => ls.li,
+    };
+    if scene.alpha_tested {
+        if let Light::Triangle(l) = light {
+            li *= scene.coverage(l.prim, ls.barycentrics);
+        }
+    }
+    let mut v = Vertex::new(Kind::Light, point, Vec3::ZERO);
+    v.light = idx;
+    v.delta_light = ls.is_delta;
+    if let Light::Triangle(l) = light {
+        v.ng = l.normal;
+        v.p_error = ls.point_error;
+        v.prim = l.prim;
+        v.b = ls.barycentrics;
+    }
+    v.beta = li / (ls.pdf * pmf);
+    v.pdf_fwd = v.pdf_light_origin(scene);
+    let l = pt.beta * pt.f(pt.wo, ls.wi) * v.beta * pt.ns().dot(ls.wi).abs();
+    if l == Vec3::ZERO || !visible(scene, pt, &v, stats) {
+        return None;
+    }
+    Some((l, v))
+}
+
+/// Renders rows `first, first + step, ...` of a camera task with bidirectional path tracing.
+pub fn render_rows(
+    scene: &PreparedScene,
+    seed: u64,
+    task: &TaskSpec,
+    first: u32,
+    step: u32,
+) -> (TileAccum, Stats) {
+    let rect: Rect = task.rect;
+    let mut tile = TileAccum::new(rect);
+    let mut stats = Stats::default();
+    let mut sampler = Sampler::new(seed, task.frame);
+    let mut paths = Paths::default();
+    let mut row = first;
+    while row < rect.height {
+        for col in 0..rect.width {
+            let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
+            for s in task.samples.start..task.samples.end {
+                sampler.start_pixel_sample(pixel, s);
+                let film = pixel.as_vec2() + sampler.next_2d();
+                let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+                let unlit =
+                    camera_subpath(scene, &mut sampler, film, lens, &mut paths.camera, &mut stats);
+                light_subpath(scene, &mut sampler, &mut paths.light, &mut stats);
+                let l = unlit + camera_strategies(scene, &paths, &mut stats);
+                tile.add_sample(col, row, s, l.to_array());
+            }
+        }
+        row += step;
+    }
+    (tile, stats)
+}
+
+/// Renders a light task: for each of its sample indices, the light subpath of every pixel of
+/// the frame connected to the camera, each contribution added to the pixel it lands on; the
+/// frame's sums of one sample index are that sample of every pixel. `task.rect` is the whole
+/// frame. One thread, so that the sums' order is fixed.
+pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (TileAccum, Stats) {
+    let rect = task.rect;
+    let (width, height) = (scene.camera.width as u32, scene.camera.height as u32);
+    let mut tile = TileAccum::new(rect);
+    let mut stats = Stats::default();
+    let mut sampler = Sampler::new(seed, task.frame);
+    let mut light = Vec::new();
+    let mut film = vec![Vec3::ZERO; (width * height) as usize];
+    for s in task.samples.start..task.samples.end {
+        film.fill(Vec3::ZERO);
+        if scene.camera.connectable() {
+            for y in 0..height {
+                for x in 0..width {
+                    sampler.start_pixel_sample(UVec2::new(x, y), s);
+                    light_subpath(scene, &mut sampler, &mut light, &mut stats);
+                    splat_light_path(scene, &light, &mut film, &mut stats);
+                }
+            }
+        }
+        for row in 0..rect.height {
+            for col in 0..rect.width {
+                let l = film[((rect.y0 + row) * width + rect.x0 + col) as usize];
+                tile.add_sample(col, row, s, l.to_array());
+            }
+        }
+    }
+    (tile, stats)
+}
+
+/// Connects each vertex of a light subpath (from the second on) to the camera (t = 1) and adds
+/// the weighted contributions to the film; a thin lens's point comes from the numbers the vertex
+/// drew for it (`u_light`).
+fn splat_light_path(scene: &PreparedScene, light: &[Vertex], film: &mut [Vec3], stats: &mut Stats) {
+    let camera = &scene.camera;
+    let max_depth = scene.max_depth as usize;
+    for s in 2..=light.len() {
+        if s - 1 > max_depth {
+            break;
+        }
+        let qs = &light[s - 1];
+        if qs.bsdf.is_none() {
+            continue;
+        }
+        let lens = camera.lens_point(Vec2::new(qs.u_light[1], qs.u_light[2]));
+        let d = lens - qs.p;
+        let d2 = d.length_squared();
+        if !(d2 > 0.0) {
+            continue;
+        }
+        let wi = d / d2.sqrt();
+        let Some(imp) = camera.importance(lens, -wi) else { continue };
+        let cos_cam = (camera.to_world.transpose() * -wi).z.abs();
+        let pdf = d2 / (cos_cam * camera.lens_area());
+        let mut v = Vertex::new(Kind::Camera, lens, Vec3::splat(imp.we / pdf));
+        v.pdf_fwd = 0.0;
+        let l = qs.beta * qs.f(wi, qs.wo) * v.beta * qs.ns().dot(wi).abs();
+        if l == Vec3::ZERO || !l.is_finite() || !visible(scene, qs, &v, stats) {
+            continue;
+        }
+        let w = mis_weight(scene, &[], light, Some(&v), s, 1);
+        let px = imp.film.as_uvec2();
+        let i = (px.y.min(camera.height as u32 - 1) * camera.width as u32
+            + px.x.min(camera.width as u32 - 1)) as usize;
+        film[i] += l * w;
+    }
+}

@@ -1,0 +1,135 @@
+//! Bidirectional path tracing (`"integrator": "bdpt"`) converges to what the path tracer and the
+//! closed forms give: the Cornell box against the path tracer, the mirror caustic against its
+//! closed form.
+
+mod support;
+
+use common::{
+    film::{Film, Rect},
+    protocol::{SampleRange, TaskKind, TaskSpec},
+    settings::RenderSettings,
+};
+use support::*;
+use worker::render::{render_task, scene::prepare};
+
+/// The camera tasks' film and the light task's film of frame 0 (the image is their sum).
+fn render_bdpt(scene: &common::scene::Scene, settings: &RenderSettings) -> (Film, Film) {
+    let settings = RenderSettings { integrator: "bdpt".into(), ..settings.clone() };
+    let prepared = prepare(scene, &settings).expect("prepare");
+    let camera = render_prepared(&prepared, &settings);
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    let mut light = Film::new(settings.width, settings.height);
+    // Two light tasks, as the farm splits them.
+    let half = settings.spp / 2;
+    for samples in
+        [SampleRange { start: 0, end: half }, SampleRange { start: half, end: settings.spp }]
+    {
+        let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Light };
+        light.merge_tile(&render_task(&prepared, settings.seed, &task).tile);
+    }
+    (camera, light)
+}
+
+/// Per pixel and channel: the sum of the two films' means and of their variances of the mean.
+fn sum(camera: &Film, light: &Film) -> Vec<([f64; 3], [f64; 3])> {
+    camera
+        .pixels
+        .iter()
+        .zip(&light.pixels)
+        .map(|(c, l)| {
+            let (mc, ml, vc, vl) = (c.mean(), l.mean(), c.variance_of_mean(), l.variance_of_mean());
+            ([0, 1, 2].map(|i| mc[i] + ml[i]), [0, 1, 2].map(|i| vc[i] + vl[i]))
+        })
+        .collect()
+}
+
+/// The Cornell box at `max_depth` 5: the sum of the camera tasks' and the light task's films
+/// agrees with the path tracer per channel within 4 standard errors of the image mean (both
+/// films' variances); light tracing carries a fair share of the image (so that the test would
+/// see a wrong splat).
+#[test]
+fn bdpt_cornell_box_matches_the_path_tracer() {
+    let scene = load("cornell-box.gltf");
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 64, max_depth: 5, ..settings("cornell-box") };
+    let t = std::time::Instant::now();
+    let (camera, light) = render_bdpt(&scene, &base);
+    let tb = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
+    let path = render(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
+    let tp = t.elapsed().as_secs_f64();
+    let ours = sum(&camera, &light);
+    let (mut d, mut v) = ([0.0f64; 3], [0.0f64; 3]);
+    let (mut lsum, mut csum) = (0.0, 0.0);
+    for (o, p) in ours.iter().zip(&path.pixels) {
+        let (pm, pv) = (p.mean(), p.variance_of_mean());
+        for c in 0..3 {
+            d[c] += o.0[c] - pm[c];
+            v[c] += o.1[c] + pv[c];
+        }
+    }
+    for (c, l) in camera.pixels.iter().zip(&light.pixels) {
+        csum += c.mean()[0];
+        lsum += l.mean()[0];
+    }
+    let z = [0, 1, 2].map(|c| d[c] / v[c].sqrt());
+    let n = ours.len() as f64;
+    println!(
+        "cornell box 32x32, max_depth 5: bdpt 64 spp in {tb:.2} s, path tracer 256 spp in \
+         {tp:.2} s; z per channel {z:.2?}; mean difference {:.2e?}; of the red mean, camera \
+         tasks {:.4} and light tracing {:.4}",
+        d.map(|x| x / n),
+        csum / n,
+        lsum / n
+    );
+    assert!(z.iter().all(|z| z.abs() < 4.0), "{z:?}");
+    assert!(lsum > 0.1 * (lsum + csum), "light tracing carries {lsum} of {}", lsum + csum);
+}
+
+/// Relative MSE of per-pixel means against `expected` (channel 0: a grey scene).
+fn rel_mse(means: impl Iterator<Item = f64>, expected: &[[f32; 3]]) -> f64 {
+    let (mut sum, mut n) = (0.0, 0);
+    for (m, e) in means.zip(expected) {
+        let e = e[0] as f64;
+        sum += ((m - e) / e).powi(2);
+        n += 1;
+    }
+    sum / n as f64
+}
+
+/// The mirror caustic at `max_depth` 2 (the floor lit only by a small light through a mirror,
+/// `worker::test_scenes::MirrorCaustic`): the image mean within 4 standard errors of the closed
+/// form. Light tracing (t = 1) is the strategy that finds these paths well; the printed figures
+/// compare its error and time with the path tracer's (the benchmark's business, not asserted).
+#[test]
+fn bdpt_mirror_caustic_matches_the_closed_form() {
+    use worker::test_scenes::MirrorCaustic;
+    let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
+    let res = 32;
+    let expected = caustic_expected(&caustic, res);
+    let scene = load_caustic(&caustic);
+    let base =
+        RenderSettings { width: res, height: res, max_depth: 2, seed: 7, ..Default::default() };
+    let t = std::time::Instant::now();
+    let (camera, light) = render_bdpt(&scene, &RenderSettings { spp: 64, ..base.clone() });
+    let tb = t.elapsed().as_secs_f64();
+    let ours = sum(&camera, &light);
+    let (mut d, mut v) = (0.0, 0.0);
+    for (o, e) in ours.iter().zip(&expected) {
+        d += o.0[0] - e[0] as f64;
+        v += o.1[0];
+    }
+    let z = d / v.sqrt();
+    let rb = rel_mse(ours.iter().map(|o| o.0[0]), &expected);
+    let t = std::time::Instant::now();
+    let path = render(&scene, &RenderSettings { spp: 256, ..base.clone() });
+    let tp = t.elapsed().as_secs_f64();
+    let rp = rel_mse(path.pixels.iter().map(|p| p.mean()[0]), &expected);
+    println!(
+        "mirror caustic (light half side 0.125), {res}x{res}, max_depth 2: bdpt 64 spp in \
+         {tb:.2} s, relative MSE {rb:.3e}, image z {z:.2}; path tracer 256 spp in {tp:.2} s, \
+         relative MSE {rp:.3e}; path relMSE x seconds over bdpt's: {:.1}",
+        rp * tp / (rb * tb)
+    );
+    assert!(z.abs() < 4.0, "{z}");
+}
