@@ -24,7 +24,7 @@ use std::collections::BTreeMap;
 
 use common::{
     film::{ErrorEstimate, TileAccum},
-    protocol::{SampleRange, TaskSpec},
+    protocol::{SampleRange, TaskKind, TaskSpec},
     settings::RenderSettings,
 };
 use serde::Serialize;
@@ -262,6 +262,7 @@ impl Job {
             frame: self.frames[key.frame as usize].number,
             rect: self.frames[key.frame as usize].tiles[key.tile as usize].sums.rect,
             samples: SampleRange { start, end: (start + spt).min(self.settings.spp) },
+            kind: TaskKind::Camera,
         }
     }
 
