@@ -76,9 +76,9 @@ fn bdpt_cornell_box_matches_the_path_tracer() {
     let n = ours.len() as f64;
     println!(
         "cornell box 32x32, max_depth 5: bdpt 64 spp in {tb:.2} s, path tracer 256 spp in \
-         {tp:.2} s; z per channel {z:.2?}; mean difference {:.2e?}; of the red mean, camera \
+         {tp:.2} s; z per channel {z:.2?}; mean difference {:?}; of the red mean, camera \
          tasks {:.4} and light tracing {:.4}",
-        d.map(|x| x / n),
+        d.map(|x| (x / n) as f32),
         csum / n,
         lsum / n
     );
