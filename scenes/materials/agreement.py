@@ -4,8 +4,8 @@
   ../shared/bench/peers/.venv/bin/python scenes/materials/agreement.py subsurface-matched \
       IMAGE.exr REF.exr [--block 16]
 
-IMAGE is our EXR (its `variance` part gives each pixel's variance of the mean) or a Mitsuba
-reference written by `mitsuba_peer.py --ref`; REF is such a reference. A reference's per-pixel
+IMAGE is our EXR (its `variance` part gives each pixel's variance of the mean; several joined by
+commas are merged by their `samples`) or a Mitsuba reference written by `mitsuba_peer.py --ref`; REF is such a reference. A reference's per-pixel
 variance comes from its two halves (`REF.half-a.exr`, `REF.half-b.exr`, spp from `REF.ref.json`):
 (a - b)^2 n_a n_b / n^2, unbiased per pixel, so its sums over a region are good estimates. For
 the sphere (the mesh whose material has `KHR_materials_transmission`), the regions are its disc
@@ -28,25 +28,35 @@ import gltf_load  # noqa: E402
 
 
 def read_parts(path):
-    """The R, G, B channels of each part of an EXR by the part's name, (H, W, 3) float64."""
+    """The R, G, B channels of each part of an EXR by the part's name, (H, W, 3) float64, and
+    the `samples` channel (None in a file without one)."""
     import OpenEXR
     with OpenEXR.File(str(path), separate_channels=True) as f:
         parts = {p.name(): {k.split(".")[-1]: v.pixels for k, v in p.channels.items()} for p in f.parts}
+    samples = next((ch["samples"] for ch in parts.values() if "samples" in ch), None)
     return {name: np.stack([ch[c] for c in "RGB"], -1).astype(np.float64)
-            for name, ch in parts.items()}
+            for name, ch in parts.items()}, samples
 
 
 def read(path):
-    """(mean, variance of the mean) per pixel and channel, both (H, W, 3) float64."""
+    """(mean, variance of the mean) per pixel and channel, both (H, W, 3) float64. Our EXRs
+    joined by commas are merged by their `samples` counts."""
+    if "," in str(path):
+        runs = [read_parts(p) for p in str(path).split(",")]
+        n = [s[..., None].astype(np.float64) for _, s in runs]
+        total = sum(n)
+        mean = sum(k * next(iter(parts.values())) for k, (parts, _) in zip(n, runs)) / total
+        var = sum(k * k * parts["variance"] for k, (parts, _) in zip(n, runs)) / (total * total)
+        return mean, var
     path = Path(path)
-    parts = read_parts(path)
+    parts, _ = read_parts(path)
     mean = next(iter(parts.values()))
     if "variance" in parts:
         return mean, parts["variance"]
     stem = path.with_suffix("")
     meta = json.loads(Path(f"{stem}.ref.json").read_text())
     n_a, n_b = meta["half_spp"]
-    halves = [next(iter(read_parts(f"{stem}.half-{h}.exr").values())) for h in "ab"]
+    halves = [next(iter(read_parts(f"{stem}.half-{h}.exr")[0].values())) for h in "ab"]
     d = halves[0] - halves[1]
     return mean, d * d * n_a * n_b / (n_a + n_b) ** 2
 
@@ -100,7 +110,8 @@ def sphere_regions(scene_path, width, height, margin=2, sub=8):
 
 
 def z_of(d, v):
-    return d / np.sqrt(v)
+    """d / sqrt(v); 0 where neither image has noise (the sky, which differs by its rounding)."""
+    return np.where(v > 0, d / np.sqrt(np.where(v > 0, v, 1)), 0.0)
 
 
 def main():
@@ -115,7 +126,8 @@ def main():
     h, w, _ = ref.shape
     inside, band, rest = sphere_regions(HERE / f"{a.scene}.gltf", w, h)
     var = img_var + ref_var
-    print(f"{Path(a.image).name} against {Path(a.reference).name}")
+    names = "+".join(Path(f).name for f in a.image.split(","))
+    print(f"{names} against {Path(a.reference).name}")
     print("region          pixels  ratio R, G, B                 z R, G, B")
     for name, mask in [("sphere inside", inside), ("silhouette band", band), ("rest", rest),
                        ("whole image", np.ones((h, w), bool))]:
