@@ -4,15 +4,20 @@
   ../shared/bench/peers/.venv/bin/python scenes/materials/mitsuba_peer.py glass-smooth \
       --spp 16,64,256,1024,4096 --csv glass.csv
   ../shared/bench/peers/.venv/bin/python scenes/materials/mitsuba_peer.py subsurface --check 2048
+  ../shared/bench/peers/.venv/bin/python scenes/materials/mitsuba_peer.py subsurface-matched \
+      --ref /tmp/subsurface-matched-48.exr --chunk 2048 --minutes 10
 
 The scene is built from the repo's glTF (`<scene>.gltf`, `<scene>.settings.json`), as the
 references `ref/<scene>-48.exr` were: floor and light Lambertian (the light one-sided), the sky a
 constant emitter; a sphere with `KHR_materials_transmission` becomes a `dielectric` (roughness 0)
-or `roughdielectric` (GGX, alpha = roughness^2) from `ext_ior` 1 to its `KHR_materials_ior`, with
-a `homogeneous` medium inside: sigma_t = -ln(attenuationColor) / attenuationDistance per channel,
-albedo 0 for glass, or the single-scattering albedo that `KHR_materials_volume_scatter` gives for
-its `multiscatterColor` (`common::scene::single_scatter_albedo`), and a Henyey-Greenstein phase
-function of g = `scatterAnisotropy`. The integrator is `volpath` for absorbing media and
+or `roughdielectric` (GGX, alpha = roughness^2) from `ext_ior` 1 to its `KHR_materials_ior` (an
+index-matched boundary, ior 1, becomes by `--boundary` a `dielectric` of ior 1.0001, which paths
+cross without light sampled through it, as in ours, or a `null` surface, through which
+`volpathmis` samples the light from inside the medium), with a `homogeneous` medium inside:
+sigma_t = -ln(attenuationColor) / attenuationDistance per channel, albedo 0 for glass, or the
+single-scattering albedo that `KHR_materials_volume_scatter` gives for its `multiscatterColor`
+(`common::scene::single_scatter_albedo`), and a Henyey-Greenstein phase function of
+g = `scatterAnisotropy`. The integrator is `volpath` for absorbing media and
 `volpathmis` for scattering ones (`volpath` leaves fireflies in the red channel of the subsurface
 scene), `max_depth` = ours + 1 (Mitsuba's depth 1 is an emitter seen directly, ours 0),
 Russian roulette from depth 5, `llvm_ad_rgb`, box filter, independent sampler.
@@ -23,6 +28,14 @@ fills Dr.Jit's kernel cache. The CSV has run.py's columns (which `bench --peer-c
 relative MSE against `ref/<scene>-<width>.exr` computed as `bench` does, plus `median_relmse`,
 the median over pixels of each pixel's relative squared error. `--check SPP` renders once and
 prints the image's mean over the reference's per channel instead.
+
+`--ref OUT.exr` renders a reference instead: chunks of `--chunk` spp with seeds `--seed`,
+`--seed` + 1, ... for `--minutes` of wall clock, the chunks alternating between two halves; after
+every chunk it writes their average to OUT.exr, the halves' averages beside it
+(`OUT.half-a.exr`, `OUT.half-b.exr`) and `OUT.ref.json` (stem without `.exr`) with the fields of
+`ref/*.ref.json`: renderer, spp, chunks and the reference's own noise from the two halves
+(`noise_relmse_est`, `noise_rmse_est`: the mean squared half difference times
+n_a n_b / (n_a + n_b)^2, the variance of the whole average).
 """
 import argparse
 import csv
@@ -73,14 +86,24 @@ def rgb(value):
     return {"type": "rgb", "value": [float(c) for c in value]}
 
 
-def surface(mi, material):
-    """The BSDF and (for a transmitting volume) the interior medium of a glTF material."""
+# Mitsuba's `dielectric` needs int_ior != ext_ior: an index-matched boundary is the nearest one.
+NEAR_MATCHED_IOR = 1.0001
+
+
+def surface(mi, material, boundary):
+    """The BSDF and (for a transmitting volume) the interior medium of a glTF material; `boundary`
+    (`dielectric` or `null`) is what an ior-1 boundary becomes."""
     pbr = material.get("pbrMetallicRoughness", {})
     ext = material.get("extensions", {})
     if ext.get("KHR_materials_transmission", {}).get("transmissionFactor", 0.0) == 1.0:
         ior = ext.get("KHR_materials_ior", {}).get("ior", 1.5)
         roughness = pbr.get("roughnessFactor", 1.0)
-        if roughness == 0.0:
+        if ior == 1.0 and boundary == "null":
+            bsdf = {"type": "null"}
+        elif ior == 1.0:
+            assert roughness == 0.0, material["name"]
+            bsdf = {"type": "dielectric", "int_ior": NEAR_MATCHED_IOR, "ext_ior": 1.0}
+        elif roughness == 0.0:
             bsdf = {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
         else:
             bsdf = {"type": "roughdielectric", "distribution": "ggx", "alpha": roughness**2,
@@ -110,11 +133,11 @@ def surface(mi, material):
     return mi.load_dict(bsdf), None, False
 
 
-def build(mi, path, width, height, spp, seed):
+def build(mi, path, width, height, spp, seed, boundary="dielectric"):
     """The Mitsuba scene of a glTF file of this folder, with the integrator its media call for."""
     scene = gltf_load.load(path)
     gltf = json.loads(Path(path).read_text())
-    surfaces = [surface(mi, m) for m in gltf["materials"]]
+    surfaces = [surface(mi, m, boundary) for m in gltf["materials"]]
     scatters = any(s[2] for s in surfaces)
     max_depth = scene.settings["max_depth"] + 1
     camera = scene.camera
@@ -155,13 +178,67 @@ def build(mi, path, width, height, spp, seed):
     return mi.load_dict(d), d["integrator"]
 
 
-def render(mi, path, width, height, spp, seed):
+def render(mi, path, width, height, spp, seed, boundary="dielectric"):
     """Loads and renders; returns the image, the load and render seconds and the integrator."""
     start = time.perf_counter()
-    scene, integrator = build(mi, path, width, height, spp, seed)
+    scene, integrator = build(mi, path, width, height, spp, seed, boundary)
     loaded = time.perf_counter()
     image = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
     return image, loaded - start, time.perf_counter() - loaded, integrator
+
+
+def make_reference(mi, a, path):
+    """Renders the chunks of a reference into two halves until `--minutes` would be passed."""
+    from exrio import write_exr
+    out = Path(a.ref)
+    stem = out.with_suffix("")
+    scene, integrator = build(mi, path, a.size, a.size, a.chunk, a.seed, a.boundary)
+    ior = [m.get("extensions", {}).get("KHR_materials_ior", {}).get("ior")
+           for m in json.loads(path.read_text())["materials"]]
+    boundary = None
+    if 1.0 in ior:
+        boundary = (f"dielectric int_ior={NEAR_MATCHED_IOR} ext_ior=1" if a.boundary == "dielectric"
+                    else "null")
+    sums, counts = [0.0, 0.0], [0, 0]
+    t_start, c_start = time.perf_counter(), time.process_time()
+    last = 0.0
+    k = 0
+    while k == 0 or time.perf_counter() - t_start + last <= a.minutes * 60:
+        t0 = time.perf_counter()
+        image = np.array(mi.render(scene, spp=a.chunk, seed=a.seed + k), dtype=np.float64)[..., :3]
+        last = time.perf_counter() - t0
+        sums[k % 2] = sums[k % 2] + image * a.chunk
+        counts[k % 2] += a.chunk
+        k += 1
+        total = counts[0] + counts[1]
+        ref = (sums[0] + sums[1]) / total
+        write_exr(out, ref)
+        meta = {"scene": a.scene, "peer": f"mitsuba:{VARIANT}", "renderer": "mitsuba",
+                "version": mi.__version__, "variant": VARIANT, "spp": total, "chunks": k,
+                "chunk_spp": a.chunk, "seeds": f"{a.seed}..{a.seed + k - 1}",
+                "wall_seconds": round(time.perf_counter() - t_start, 1),
+                "cpu_seconds": round(time.process_time() - c_start, 1),
+                "config": f"{integrator['type']} max_depth={integrator['max_depth']} rr_depth=5, "
+                          "sampler=independent, rfilter=box(r=0.5)",
+                "render_args": f"scenes/materials/mitsuba_peer.py {a.scene} --ref {out.name} "
+                               f"--boundary {a.boundary} --chunk {a.chunk} --seed {a.seed} "
+                               f"--size {a.size} --threads {a.threads}",
+                "width": a.size, "height": a.size}
+        if boundary:
+            meta["boundary"] = boundary
+        if counts[1]:
+            half_a, half_b = sums[0] / counts[0], sums[1] / counts[1]
+            write_exr(f"{stem}.half-a.exr", half_a)
+            write_exr(f"{stem}.half-b.exr", half_b)
+            d = half_a - half_b
+            share = counts[0] * counts[1] / total**2  # Var(ref) = Var(d) n_a n_b / n^2
+            meta["half_spp"] = counts
+            meta["noise_relmse_est"] = float(np.mean(d * d / (ref * ref + 0.01)) * share)
+            meta["noise_rmse_est"] = float(np.sqrt(np.mean(d * d) * share))
+        Path(f"{stem}.ref.json").write_text(json.dumps(meta, indent=1) + "\n")
+        print(f"chunk {k}: {total} spp, {meta['wall_seconds']} s, noise relmse est "
+              f"{meta.get('noise_relmse_est', float('nan')):.3g}", flush=True)
+    return 0
 
 
 def main():
@@ -174,6 +251,12 @@ def main():
     ap.add_argument("--csv", help="CSV to write (run.py's columns)")
     ap.add_argument("--check", type=int, metavar="SPP",
                     help="render once at SPP and print mean ratios against the reference")
+    ap.add_argument("--boundary", choices=["dielectric", "null"], default="dielectric",
+                    help=f"an ior-1 boundary as a dielectric of ior {NEAR_MATCHED_IOR} (no light "
+                         "sampled through it, as ours) or a null surface")
+    ap.add_argument("--ref", metavar="OUT.exr", help="render a reference in chunks to OUT.exr")
+    ap.add_argument("--chunk", type=int, default=2048, help="spp of a reference's chunk")
+    ap.add_argument("--minutes", type=float, default=10.0, help="wall clock of a reference")
     a = ap.parse_args()
 
     t0 = time.perf_counter()
@@ -183,11 +266,14 @@ def main():
     dr.set_thread_count(a.threads)
     t_import = time.perf_counter() - t0
     path = HERE / f"{a.scene}.gltf"
+    if a.ref:
+        return make_reference(mi, a, path)
     ref = read_exr(HERE / "ref" / f"{a.scene}-{a.size}.exr")
     assert ref.shape[:2] == (a.size, a.size), ref.shape
 
     if a.check:
-        image, t_load, t_render, integrator = render(mi, path, a.size, a.size, a.check, a.seed)
+        image, t_load, t_render, integrator = render(mi, path, a.size, a.size, a.check, a.seed,
+                                                      a.boundary)
         ratio = image.reshape(-1, 3).mean(axis=0) / ref.reshape(-1, 3).mean(axis=0)
         rmse, relmse, _, median = metrics(image, ref)
         print(f"{a.scene}: {integrator['type']} max_depth {integrator['max_depth']}, {a.check} spp in "
@@ -195,13 +281,13 @@ def main():
               f"{', '.join(f'{r:.5f}' for r in ratio)}; relmse {relmse:.3e}, median {median:.3e}")
         return 0
 
-    render(mi, path, a.size, a.size, 4, 0)  # Warm-up: Dr.Jit's kernel cache and the page cache.
+    render(mi, path, a.size, a.size, 4, 0, a.boundary)  # Warm-up: Dr.Jit's kernel cache and the page cache.
     rows = []
     print("scene,spp,seconds,samples_per_s,rmse,relmse,median_relmse,load1")
     for k, spp in enumerate(int(s) for s in a.spp.split(",")):
         seed = a.seed + k
         c0 = time.process_time()
-        image, t_load, t_render, integrator = render(mi, path, a.size, a.size, spp, seed)
+        image, t_load, t_render, integrator = render(mi, path, a.size, a.size, spp, seed, a.boundary)
         cpu = time.process_time() - c0
         rmse, relmse, mae, median = metrics(image, ref)
         load1 = os.getloadavg()[0]
