@@ -182,6 +182,44 @@ impl PixelSums {
         }))
     }
 
+    /// Statistics that stand for the sum of this pixel's estimate and an independent one of the
+    /// same pixel (bidirectional path tracing's camera-traced and light-traced images): the means
+    /// add, and so do the variances of the mean and the half-difference variances; the counts are
+    /// this one's. For showing and writing a frame only, never merged further.
+    pub fn plus_independent(&self, other: &PixelSums) -> PixelSums {
+        if other.n == 0 {
+            return *self;
+        }
+        if self.n == 0 {
+            return *other;
+        }
+        let mut out = *self;
+        let n = self.n as f64;
+        let (va, vb) = (self.variance_of_mean(), other.variance_of_mean());
+        for c in 0..3 {
+            out.mean[c] = self.mean[c] + other.mean[c];
+            if self.n >= 2 {
+                out.m2[c] = (va[c] + vb[c]) * n * (n - 1.0);
+            }
+        }
+        match (self.half_difference_variance(), other.half_difference_variance()) {
+            (Some(ha), Some(hb)) => {
+                // The halves' means 'm0 - m1 = d' with d² n0 n1 / n² = ha + hb, about the mean.
+                let (n0, n1) = (n - self.n_odd as f64, self.n_odd as f64);
+                for c in 0..3 {
+                    let d = ((ha[c] + hb[c]) * n * n / (n0 * n1)).sqrt();
+                    out.mean_odd[c] = out.mean[c] - d * n0 / n;
+                }
+            }
+            _ => {
+                for c in 0..3 {
+                    out.mean_odd[c] = self.mean_odd[c] + other.mean_odd[c];
+                }
+            }
+        }
+        out
+    }
+
     /// Estimated variance of the mean per channel: s² / n with the unbiased sample variance s².
     /// Exact for independent samples; an upper bound for the stratified ones the renderer draws.
     /// Infinite with fewer than two samples (nothing is known about the error yet).
@@ -247,6 +285,33 @@ impl TileAccum {
             a.merge(b);
         }
         self.rejected += other.rejected;
+    }
+
+    /// This tile's pixels plus the same pixels of `frame_wide`, sums over the whole frame (its
+    /// rect starts at the origin), by [`PixelSums::plus_independent`]; a tile with no sums yet
+    /// counts as empty pixels. `frame_wide`'s refused samples are not added (count them once
+    /// for the frame).
+    pub fn plus_frame_wide(&self, frame_wide: &TileAccum) -> TileAccum {
+        let r = self.rect;
+        let fw = frame_wide.rect;
+        assert!(
+            fw.x0 == 0 && fw.y0 == 0 && r.x0 + r.width <= fw.width && r.y0 + r.height <= fw.height
+        );
+        let mut out =
+            TileAccum { rect: r, pixels: Vec::with_capacity(r.area()), rejected: self.rejected };
+        for row in 0..r.height {
+            for col in 0..r.width {
+                let own =
+                    self.pixels.get((row * r.width + col) as usize).copied().unwrap_or_default();
+                let other = frame_wide
+                    .pixels
+                    .get(((r.y0 + row) * fw.width + r.x0 + col) as usize)
+                    .copied()
+                    .unwrap_or_default();
+                out.pixels.push(own.plus_independent(&other));
+            }
+        }
+        out
     }
 }
 

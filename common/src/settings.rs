@@ -12,7 +12,7 @@ pub const MAX_FRAMES: u64 = 100_000;
 /// Upper bound on samples per pixel accepted by `validate`.
 pub const MAX_SPP: u32 = 1 << 20;
 /// The light-transport algorithms a job may name in `integrator`.
-pub const INTEGRATORS: &[&str] = &["path"];
+pub const INTEGRATORS: &[&str] = &["path", "bdpt"];
 
 /// Everything that decides what a job renders. Part of the determinism key: the same settings,
 /// scene and seed give the same image.
@@ -30,9 +30,9 @@ pub struct RenderSettings {
     /// Adaptive stopping: wall-clock budget in seconds.
     pub time_limit_s: Option<f64>,
     /// The light-transport algorithm, one of [`INTEGRATORS`]: "path", the unidirectional path
-    /// tracer with next-event estimation and multiple importance sampling. (The renderer's
-    /// bidirectional path tracer, "bdpt", is not offered yet: the farm does not yet schedule
-    /// its light tasks.)
+    /// tracer with next-event estimation and multiple importance sampling; "bdpt", bidirectional
+    /// path tracing (camera and light subpaths, every connection weighted by MIS; its light
+    /// tracing runs as a light task per sample range over the whole frame).
     pub integrator: String,
     /// Path length limit in bounces: 0 = emitters seen directly, 1 = direct light only.
     pub max_depth: u32,
@@ -260,6 +260,13 @@ impl RenderSettings {
                     self.integrator,
                     INTEGRATORS.join(", ")
                 ),
+            ));
+        }
+        if self.integrator == "bdpt" && self.target_rel_error.is_some() {
+            return Err(err(
+                "target_rel_error",
+                "adaptive sampling is not available with the bdpt integrator yet (its light \
+                 tracing covers the whole frame at once)",
             ));
         }
         if let Some(v) = &self.variant {

@@ -23,7 +23,7 @@ mod status;
 use std::collections::BTreeMap;
 
 use common::{
-    film::{ErrorEstimate, TileAccum},
+    film::{ErrorEstimate, Rect, TileAccum},
     protocol::{SampleRange, TaskKind, TaskSpec},
     settings::RenderSettings,
 };
@@ -117,6 +117,9 @@ pub struct Tile {
     pub converged: bool,
     /// Estimated relative MSE of the merged sums.
     pub rel_mse: f64,
+    /// Bidirectional path tracing's light tile: the whole frame, whose tasks are light tasks
+    /// (`TaskKind::Light`) and whose image adds to the other tiles' (the frame's last tile).
+    pub light: bool,
 }
 
 impl Tile {
@@ -199,7 +202,13 @@ impl Job {
         created_unix: f64,
     ) -> Result<Job, String> {
         let tasks_per_tile = settings.spp.div_ceil(settings.samples_per_task);
-        let rects = tiles(settings.width, settings.height, settings.tile_size);
+        let mut rects = tiles(settings.width, settings.height, settings.tile_size);
+        // Bidirectional path tracing adds a light tile per frame, the whole frame, last.
+        let light = settings.integrator == "bdpt";
+        if light {
+            rects.push(Rect { x0: 0, y0: 0, width: settings.width, height: settings.height });
+        }
+        let n_rects = rects.len();
         let n_frames =
             (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(0) as u128;
         let total = n_frames * rects.len() as u128 * tasks_per_tile as u128;
@@ -214,7 +223,8 @@ impl Job {
                 number,
                 tiles: rects
                     .iter()
-                    .map(|&rect| Tile {
+                    .enumerate()
+                    .map(|(i, &rect)| Tile {
                         // Pixels are allocated by the first result: a long animation holds
                         // only the frames in progress.
                         sums: TileAccum { rect, pixels: Vec::new(), rejected: 0 },
@@ -224,6 +234,7 @@ impl Job {
                         pending: BTreeMap::new(),
                         converged: false,
                         rel_mse: f64::INFINITY,
+                        light: light && i + 1 == n_rects,
                     })
                     .collect(),
                 scale: None,
@@ -262,7 +273,11 @@ impl Job {
             frame: self.frames[key.frame as usize].number,
             rect: self.frames[key.frame as usize].tiles[key.tile as usize].sums.rect,
             samples: SampleRange { start, end: (start + spt).min(self.settings.spp) },
-            kind: TaskKind::Camera,
+            kind: if self.frames[key.frame as usize].tiles[key.tile as usize].light {
+                TaskKind::Light
+            } else {
+                TaskKind::Camera
+            },
         }
     }
 
@@ -351,6 +366,8 @@ impl Job {
         t.merged += 1;
         t.pending.insert(key.k, tile);
         Self::drain_pending(t);
+        // Pixel samples count the camera's: a light task's add no pixel samples of their own.
+        let samples = if t.light { 0 } else { samples };
         self.in_flight -= 1;
         self.samples_done += samples;
         self.frames[key.frame as usize].samples_done += samples;
@@ -511,10 +528,19 @@ impl Job {
     /// The image of frame index `f` (what its files show), built tile by tile.
     pub fn image(&self, f: usize) -> FrameImage {
         let mut image = FrameImage::new(self.settings.width, self.settings.height);
-        for tile in self.frames[f].tiles.iter().filter(|t| !t.sums.pixels.is_empty()) {
-            image.put_tile(&tile.sums);
+        let sums: Vec<&TileAccum> = self.frames[f].tiles.iter().map(|t| &t.sums).collect();
+        for tile in frame_tiles(&sums, self.light_tile()) {
+            image.put_tile(&tile);
+        }
+        if let Some(light) = self.light_tile().map(|i| sums[i]) {
+            image.rejected += light.rejected;
         }
         image
+    }
+
+    /// The index of each frame's light tile (bidirectional path tracing), if it has one.
+    pub fn light_tile(&self) -> Option<usize> {
+        self.frames.first().and_then(|f| f.tiles.iter().position(|t| t.light))
     }
 
     /// The merged film of frame index `f`.
@@ -522,11 +548,32 @@ impl Job {
     #[cfg(test)]
     pub fn film(&self, f: usize) -> common::film::Film {
         let mut film = common::film::Film::new(self.settings.width, self.settings.height);
-        for tile in self.frames[f].tiles.iter().filter(|t| !t.sums.pixels.is_empty()) {
-            film.merge_tile(&tile.sums);
+        let sums: Vec<&TileAccum> = self.frames[f].tiles.iter().map(|t| &t.sums).collect();
+        for tile in frame_tiles(&sums, self.light_tile()) {
+            film.merge_tile(&tile);
         }
         film
     }
+}
+
+/// The tiles a frame's image is made of, from its merged sums (`sums`, by tile index; those
+/// with no samples yet are left out): each tile's own, or with a light tile (`light`, its index)
+/// each other tile plus the light tile's pixels (`TileAccum::plus_frame_wide`).
+pub fn frame_tiles<'a>(
+    sums: &'a [&'a TileAccum],
+    light: Option<usize>,
+) -> impl Iterator<Item = std::borrow::Cow<'a, TileAccum>> + 'a {
+    let light_sums = light.map(|i| sums[i]).filter(|l| !l.pixels.is_empty());
+    sums.iter().enumerate().filter_map(move |(i, t)| {
+        if Some(i) == light {
+            return None;
+        }
+        match light_sums {
+            Some(l) => Some(std::borrow::Cow::Owned(t.plus_frame_wide(l))),
+            None if t.pixels.is_empty() => None,
+            None => Some(std::borrow::Cow::Borrowed(*t)),
+        }
+    })
 }
 
 #[cfg(test)]

@@ -168,7 +168,9 @@ impl Farm {
             return Ok((job.film(f), status));
         }
         let mut film = common::film::Film::new(job.settings.width, job.settings.height);
-        for tile in self.stored_tiles(job, f)? {
+        let stored = self.stored_tiles(job, f)?;
+        let sums: Vec<&TileAccum> = stored.iter().collect();
+        for tile in super::job::frame_tiles(&sums, job.light_tile()) {
             film.merge_tile(&tile);
         }
         Ok((film, status))
@@ -183,8 +185,13 @@ impl Farm {
             return Ok((job.image(f), status));
         }
         let mut image = FrameImage::new(job.settings.width, job.settings.height);
-        for tile in self.stored_tiles(job, f)? {
+        let stored = self.stored_tiles(job, f)?;
+        let sums: Vec<&TileAccum> = stored.iter().collect();
+        for tile in super::job::frame_tiles(&sums, job.light_tile()) {
             image.put_tile(&tile);
+        }
+        if let Some(light) = job.light_tile().map(|i| sums[i]) {
+            image.rejected += light.rejected;
         }
         Ok((image, status))
     }
@@ -199,7 +206,8 @@ impl Farm {
             job: job.id.clone(),
             f,
             size: (s.width, s.height),
-            tiles: job.frames[f].tiles.iter().map(|t| t.sums.rect).collect(),
+            tiles: job.frames[f].tiles.iter().filter(|t| !t.light).map(|t| t.sums.rect).collect(),
+            light_tile: job.light_tile(),
             tile_rows: s.tile_size,
             stored: job.frames[f].evicted,
             info: FrameInfo {
@@ -226,9 +234,20 @@ impl Farm {
         Ok(self.store.tile_reader()?)
     }
 
-    /// The summed tiles of frame index `f` of an evicted job, from the database.
+    /// The summed tiles of frame index `f` of an evicted job, from the database, by tile index
+    /// (a tile never stored has no sums).
     fn stored_tiles(&self, job: &Job, f: usize) -> FarmResult<Vec<TileAccum>> {
-        Ok(self.store.frame_sums(&job.id, f as u32)?)
+        let mut tiles: Vec<TileAccum> = job.frames[f]
+            .tiles
+            .iter()
+            .map(|t| TileAccum { rect: t.sums.rect, pixels: Vec::new(), rejected: 0 })
+            .collect();
+        for (i, sums) in self.store.frame_sums(&job.id, f as u32)? {
+            if let Some(slot) = tiles.get_mut(i as usize) {
+                *slot = sums;
+            }
+        }
+        Ok(tiles)
     }
 
     fn frame_index(job: &Job, number: i64) -> FarmResult<usize> {
@@ -258,6 +277,9 @@ pub struct FrameLayout {
     pub stored: bool,
     /// What the frame's EXR header says.
     pub info: FrameInfo,
+    /// The index of bidirectional path tracing's light tile, the whole frame, whose pixels add
+    /// to every tile's (it is not in `tiles`, which it follows).
+    pub light_tile: Option<usize>,
 }
 
 /// A tile's sums as [`Farm::tile_copy`] found them.

@@ -375,12 +375,12 @@ impl Store {
     }
 
     /// The summed tiles of one frame of a job (pending results left out).
-    pub fn frame_sums(&self, job: &str, frame: u32) -> Result<Vec<TileAccum>> {
+    pub fn frame_sums(&self, job: &str, frame: u32) -> Result<Vec<(u32, TileAccum)>> {
         let rows = self.tile_rows(
             "SELECT frame, tile, prefix, sums FROM tiles WHERE job = ?1 AND frame = ?2",
             params![job, frame],
         )?;
-        Ok(rows.into_iter().map(|(_, _, _, sums)| sums).collect())
+        Ok(rows.into_iter().map(|(_, tile, _, sums)| (tile, sums)).collect())
     }
 
     /// A second connection to the database, read-only, for reading tiles without the farm.

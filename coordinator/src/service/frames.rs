@@ -60,17 +60,38 @@ struct FrameTiles<'a> {
     layout: FrameLayout,
     /// Set once the frame's sums are found to be in the database.
     reader: Option<TileReader>,
+    /// Bidirectional path tracing's light tile, the whole frame, read once: its pixels add to
+    /// every tile's.
+    light: Option<TileAccum>,
 }
 
 impl<'a> FrameTiles<'a> {
     fn open(state: &'a AppState, id: &str, number: i64) -> ApiResult<Self> {
         let layout = state.lock().frame_layout(id, number)?;
         let reader = if layout.stored { Some(state.lock().tile_reader()?) } else { None };
-        Ok(FrameTiles { state, layout, reader })
+        let light_tile = layout.light_tile;
+        let mut tiles = FrameTiles { state, layout, reader, light: None };
+        if let Some(t) = light_tile {
+            tiles.light = tiles.sums(t)?;
+        }
+        Ok(tiles)
     }
 
-    /// Tile `t`'s sums, `None` when it has none yet.
+    /// Tile `t` of the image (a tile of `layout.tiles`), `None` when it has no sums yet.
     fn tile(&mut self, t: usize) -> ApiResult<Option<TileAccum>> {
+        let own = self.sums(t)?;
+        Ok(match (&self.light, own) {
+            (Some(light), own) => {
+                let rect = self.layout.tiles[t];
+                let own = own.unwrap_or(TileAccum { rect, pixels: Vec::new(), rejected: 0 });
+                Some(own.plus_frame_wide(light))
+            }
+            (None, own) => own,
+        })
+    }
+
+    /// The merged sums of tile index `t` of the frame, `None` when it has none yet.
+    fn sums(&mut self, t: usize) -> ApiResult<Option<TileAccum>> {
         if self.reader.is_none() {
             let copy = self.state.lock().tile_copy(&self.layout.job, self.layout.f, t)?;
             match copy {
@@ -105,6 +126,7 @@ fn exr_file(state: &AppState, id: &str, number: i64) -> ApiResult<(std::fs::File
     let mut tiles = FrameTiles::open(state, id, number)?;
     // The header comes first and states totals over the whole frame: one pass for them.
     let mut totals = ExrTotals::default();
+    totals.rejected += tiles.light.as_ref().map_or(0, |l| l.rejected);
     for t in 0..tiles.layout.tiles.len() {
         if let Some(tile) = tiles.tile(t)? {
             totals.add_tile(&tile);
