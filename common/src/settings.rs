@@ -359,14 +359,19 @@ mod tests {
 
     #[test]
     fn the_integrator_is_named_and_an_unknown_one_is_refused_by_key() {
-        let s = RenderSettings::from_json(r#"{"integrator": "path"}"#).unwrap();
-        assert_eq!(s.integrator, "path");
+        for name in ["path", "bdpt"] {
+            let s = RenderSettings::from_json(&format!(r#"{{"integrator": "{name}"}}"#)).unwrap();
+            assert_eq!(s.integrator, name);
+        }
         assert_eq!(RenderSettings::default().integrator, "path");
-        for bad in ["bdpt", "", "Path"] {
+        for bad in ["sppm", "", "Path"] {
             let e =
                 RenderSettings::from_json(&format!(r#"{{"integrator": "{bad}"}}"#)).unwrap_err();
-            assert!(e.contains("integrator") && e.contains("it has: path"), "{e}");
+            assert!(e.contains("integrator") && e.contains("it has: path, bdpt"), "{e}");
         }
+        let e = RenderSettings::from_json(r#"{"integrator": "bdpt", "target_rel_error": 0.1}"#)
+            .unwrap_err();
+        assert!(e.contains("target_rel_error") && e.contains("bdpt"), "{e}");
         // The settings JSON written into EXR headers and job statuses names it.
         let json = serde_json::to_string(&RenderSettings::default()).unwrap();
         assert!(json.contains(r#""integrator":"path""#), "{json}");

@@ -135,10 +135,16 @@ fn render_takes_the_integrator_and_a_time_limit() {
 
     let out = dir.join("bdpt.exr");
     let output = run(&out, &["--integrator", "bdpt"]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let header = String::from_utf8_lossy(&std::fs::read(&out).unwrap()).into_owned();
+    assert!(header.contains(r#""integrator":"bdpt""#), "the header names the integrator");
+
+    let out = dir.join("sppm.exr");
+    let output = run(&out, &["--integrator", "sppm"]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success(), "an unknown integrator rendered");
     assert!(
-        stderr.contains("integrator") && stderr.contains("bdpt") && stderr.contains("path"),
+        stderr.contains("integrator") && stderr.contains("sppm") && stderr.contains("path, bdpt"),
         "{stderr}"
     );
     assert!(!out.exists(), "no image for a refused integrator");

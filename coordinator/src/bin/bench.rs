@@ -21,9 +21,13 @@
 //! the same scene (`scenes/materials/mitsuba_peer.py` writes Mitsuba's), and a plot per scene
 //! (`bench-glass-smooth.svg`, `bench-subsurface.svg`; `docs/perf/materials.md`).
 //!
+//! With `--caustic` it renders the mirror caustic (`worker::test_scenes::MirrorCaustic`, the floor
+//! lit only through a mirror by a small light) with each integrator, scored against the closed
+//! form, and prints each integrator's error at the path tracer's times (`docs/perf/integrators.md`).
+//!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights]
-//! [--materials] [--no-warmup]`; the figures in `docs/perf/` come from this command.
+//! [--materials] [--caustic] [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
 use std::{
     fmt::Write as _,
@@ -67,6 +71,9 @@ struct Args {
     /// `--peer-csv` files then hold runs of those scenes.
     #[arg(long)]
     materials: bool,
+    /// Only the mirror caustic, path tracer against bidirectional path tracing (no Cornell box).
+    #[arg(long)]
+    caustic: bool,
     /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
     #[arg(long = "peer-csv")]
     peer_csv: Vec<PathBuf>,
@@ -179,6 +186,9 @@ fn main() -> Result<()> {
     let args = Args::parse();
     if args.many_lights {
         return many_lights(args.threads);
+    }
+    if args.caustic {
+        return caustic(args.threads);
     }
     if args.materials {
         return materials(&args);
@@ -470,6 +480,55 @@ fn many_lights(threads: usize) -> Result<()> {
         for &(seconds, rel_mse, spp) in &curves[0].points {
             let theirs = curves[1].rel_mse_at(seconds);
             println!("{n},{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
+        }
+    }
+    Ok(())
+}
+
+/// The mirror caustic (light half side 0.125, 64x64, `max_depth` 2) rendered by each integrator
+/// through `coordinator render`'s code path at increasing sample counts: seconds (loading and
+/// rendering) and the relative MSE against the closed form, then each integrator's error at the
+/// path tracer's times (interpolated log-log) over the path tracer's.
+fn caustic(threads: usize) -> Result<()> {
+    use worker::test_scenes::MirrorCaustic;
+    let dir = std::env::temp_dir().join(format!("renderfarm-bench-caustic-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
+    let scene = dir.join("caustic.gltf");
+    std::fs::write(&scene, caustic.gltf())?;
+    let res = 64;
+    let expected: Vec<[f32; 3]> = (0..res * res)
+        .map(|i| [caustic.pixel_radiance(i % res, i / res, res, res) as f32; 3])
+        .collect();
+    let base =
+        RenderSettings { width: res, height: res, max_depth: 2, seed: 5, ..Default::default() };
+    println!("integrator,spp,seconds,relmse,est_relmse");
+    let mut curves = Vec::new();
+    for (integrator, spps) in
+        [("path", &[64u32, 256, 1024, 4096][..]), ("bdpt", &[4u32, 16, 64, 256][..])]
+    {
+        let mut points = Vec::new();
+        for &spp in spps {
+            let settings = RenderSettings { spp, integrator: integrator.into(), ..base.clone() };
+            let out = dir.join(format!("{integrator}-{spp}.exr"));
+            let wall = Instant::now();
+            let report = render_file(&scene, &settings, threads, &out, &|_| {})?;
+            let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
+            let (_, rel_mse) = metrics(&report.mean_rgb, &expected);
+            println!("{integrator},{spp},{seconds:.4},{rel_mse:.6e},{:.6e}", report.est_rel_mse);
+            points.push((seconds, rel_mse, spp));
+        }
+        curves.push(Series { name: integrator.into(), points });
+    }
+    println!("integrator,spp,seconds,relmse,path_relmse_at_its_seconds,path_over_it");
+    for curve in &curves[1..] {
+        for &(seconds, rel_mse, spp) in &curve.points {
+            let path = curves[0].rel_mse_at(seconds);
+            println!(
+                "{},{spp},{seconds:.4},{rel_mse:.6e},{path:.6e},{:.1}",
+                curve.name,
+                path / rel_mse
+            );
         }
     }
     Ok(())
