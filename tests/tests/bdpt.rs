@@ -37,7 +37,10 @@ fn bdpt_images_are_the_same_on_one_or_three_workers_and_after_a_kill() {
     assert_eq!(metric(&cluster.url, "renderfarm_tasks_merged_total"), 40.0);
     drop(cluster);
 
-    // A worker killed while both hold leases.
+    // A worker killed while both hold leases: a longer job (light tasks of 48 x 48 x 128 light
+    // paths), so that both do.
+    let s = settings(512, 128);
+    let one = render_reference(&dir, &s, 2);
     let port = free_port();
     let url = format!("http://127.0.0.1:{port}");
     let kill_dir = temp_dir("bdpt-kill");

@@ -14,8 +14,9 @@
 //! passed without a bounce), and a refractive boundary's relative index is that of the two media
 //! it separates. An absorbing
 //! medium weights each segment by its transmittance; a scattering one samples where the light
-//! is first scattered, and a scattering is a bounce (it counts toward `max_depth` and Russian
-//! roulette) whose direction the phase function picks.
+//! is first scattered (by one channel's exponential for the whole path, weighted by the three
+//! channels' densities of the path: `media::free_flight`), and a scattering is a bounce (it
+//! counts toward `max_depth` and Russian roulette) whose direction the phase function picks.
 
 use common::scene::Volume;
 use glam::{Vec2, Vec3};
@@ -112,6 +113,11 @@ pub fn li(
     // dispersive boundary (drawn first, whether used or not); the wavelength once taken.
     let u_wavelength = if scene.dispersive { sampler.next_1d() } else { 0.0 };
     let mut wavelength: Option<f32> = None;
+    // In a scene with scattering media, the channel the path draws its free flights by (from its
+    // first free flight's first number) and each channel's density of the path so far over their
+    // mean (`media::free_flight`).
+    let mut hero: Option<usize> = None;
+    let mut ratios = Vec3::ONE;
     let lights = &scene.lights;
     loop {
         stats.rays += 1;
@@ -128,7 +134,9 @@ pub fn li(
         let mut scattered_at = None;
         if let Some(v) = &scattering {
             let distance = hit.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
-            let (weight, at) = free_flight(v, distance, sampler.next_2d());
+            let u = sampler.next_2d();
+            let h = *hero.get_or_insert_with(|| media::hero_channel(u.x));
+            let (weight, at) = free_flight(v, distance, h, u.y, &mut ratios);
             beta *= weight;
             scattered_at = at;
         } else {

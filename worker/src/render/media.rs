@@ -21,10 +21,11 @@
 //! `MediumStack::CAPACITY` volumes; a volume entered beyond that is ignored.
 //!
 //! **Transport.** An absorbing medium keeps exp(-sigma_t d) of the light over a distance d; a
-//! scattering one samples free flights per channel ([`free_flight`]).
+//! scattering one samples free flights by one colour channel, the path's hero, and weighs them
+//! by the three channels' densities over the whole path ([`free_flight`]).
 
 use common::scene::{Material, Volume};
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 use super::spectrum;
 
@@ -137,29 +138,50 @@ pub fn transmittance(volume: &Volume, distance: f32) -> Vec3 {
     )
 }
 
-/// Where light travelling `distance` (world units, infinite for an escape) through the
-/// scattering medium `v` is first scattered, from numbers `u`, and the weight (value over
-/// density) of what was sampled: a scattering at the returned distance, or (`None`) none before
-/// `distance`. The extinction differs per channel, so `u.x` picks the channel whose
-/// exponential the distance is drawn from, and the density is the mean of the three channels'
-/// (one-sample multiple importance sampling over the channels, balance heuristic): the weight is
-/// sigma_s T(t) / mean(sigma_t T(t)) for a scattering, T(d) / mean(T(d)) for none, each exactly
-/// the albedo and 1 in a grey medium.
+/// The colour channel a path draws its free flights by (its hero), from a uniform number.
 #[inline]
-pub fn free_flight(v: &Volume, distance: f32, u: Vec2) -> (Vec3, Option<f32>) {
-    let channel = ((u.x * 3.0) as usize).min(2);
-    let sigma = v.extinction[channel];
-    let t = if sigma > 0.0 { -(1.0 - u.y).ln() / sigma } else { f32::INFINITY };
-    if t < distance {
+pub fn hero_channel(u: f32) -> usize {
+    ((u * 3.0) as usize).min(2)
+}
+
+/// Where light travelling `distance` (world units, infinite for an escape) through the
+/// scattering medium `v` is first scattered, from number `u`, and the weight of what was
+/// sampled: a scattering at the returned distance, or (`None`) none before `distance`.
+///
+/// The extinction differs per channel: the distance is drawn from the exponential of the path's
+/// hero channel `hero`, and the weight is the event's value over the three channels' densities
+/// of the whole path so far, averaged (spectral multiple importance sampling over the path, the
+/// balance heuristic; Mitsuba 3's `volpathmis`). `ratios` carries each channel's density of the
+/// path so far over their mean (1, 1, 1 at the start of a path; surface events are the same in
+/// every channel and leave it alone): the weight is f / mean(ratios p) and the ratios become
+/// ratios p / mean(ratios p), with f = sigma_s T(t) and p = sigma_t T(t) for a scattering,
+/// f = p = T(d) for none. In a grey medium that is exactly the albedo and 1. Averaging the
+/// densities per flight instead lets a channel's weight grow by up to 3 a flight, a product over
+/// hundreds of scatterings in a bright medium whose sample mean sits far below its mean.
+#[inline]
+pub fn free_flight(
+    v: &Volume,
+    distance: f32,
+    hero: usize,
+    u: f32,
+    ratios: &mut Vec3,
+) -> (Vec3, Option<f32>) {
+    let sigma = v.extinction[hero];
+    let t = if sigma > 0.0 { -(1.0 - u).ln() / sigma } else { f32::INFINITY };
+    let (f, p, at) = if t < distance {
         let tr = transmittance(v, t);
-        let pdf = (v.extinction * tr).element_sum() / 3.0;
-        let weight = if pdf > 0.0 { v.extinction * v.albedo * tr / pdf } else { Vec3::ZERO };
-        (weight, Some(t))
+        (v.extinction * v.albedo * tr, v.extinction * tr, Some(t))
     } else {
         let tr = transmittance(v, distance);
-        let pdf = tr.element_sum() / 3.0;
-        (if pdf > 0.0 { tr / pdf } else { Vec3::ZERO }, None)
+        (tr, tr, None)
+    };
+    let weighted = *ratios * p;
+    let mean = weighted.element_sum() / 3.0;
+    if !(mean > 0.0) {
+        return (Vec3::ZERO, at);
     }
+    *ratios = weighted / mean;
+    (f / mean, at)
 }
 
 #[cfg(test)]
