@@ -360,13 +360,7 @@ fn a_coloured_medium_of_albedo_one_in_a_white_furnace_is_white_within_the_noise(
 #[test]
 fn a_deep_scattering_slab_reflects_what_chandrasekhars_h_function_says() {
     let colour = [0.8f32, 0.5, 0.2];
-    // Extinction 1 / 0.01 over a slab 2 thick: an optical depth of 200, as deep as infinite.
-    let material = scattering(1.0, ([(-1.0f64).exp(); 3], 0.01), colour.map(f64::from), 0.0);
-    let path = box_scene("deep-slab", [50.0, 1.0, 50.0], [0.0; 3], material, 2.0, 1.0, 0.0, false);
-    let scene = common::gltf::load_path(&path).unwrap();
-    let mut settings = white_furnace(8, 1024);
-    settings.max_depth = 1024;
-    let film = render(&scene, &settings);
+    let film = deep_slab("deep-slab", [(-1.0f64).exp(); 3], colour, 8, 1024);
     for (c, (mean, se)) in image_mean(&film).into_iter().enumerate() {
         let w = common::scene::single_scatter_albedo(colour[c]) as f64;
         let (normal, sky) = semi_infinite_albedo(w);
@@ -572,25 +566,30 @@ fn bad_dispersion_is_refused_with_the_key() {
 fn a_deep_slab_with_a_different_extinction_per_channel_reflects_each_channels_albedo() {
     let colour = [0.85f32, 0.55, 0.3];
     let attenuation = [(-1.0f64).exp(), (-2.0f64).exp(), (-4.0f64).exp()];
-    let material = scattering(1.0, (attenuation, 0.01), colour.map(f64::from), 0.0);
-    let path = box_scene(
-        "deep-slab-channels",
-        [50.0, 1.0, 50.0],
-        [0.0; 3],
-        material,
-        2.0,
-        1.0,
-        0.0,
-        false,
-    );
-    let scene = common::gltf::load_path(&path).unwrap();
-    let mut settings = white_furnace(12, 4096);
-    settings.max_depth = 1024;
-    let film = render(&scene, &settings);
+    let film = deep_slab("deep-slab-channels", attenuation, colour, 12, 4096);
     for (c, (mean, se)) in image_mean(&film).into_iter().enumerate() {
         let w = common::scene::single_scatter_albedo(colour[c]) as f64;
         let (normal, _) = semi_infinite_albedo(w);
         eprintln!("channel {c}: {mean:.5} (standard error {se:.1e}) against {normal:.5}");
         assert!((mean - normal).abs() < 4.0 * se + 1e-4, "channel {c}: {mean} against {normal}");
     }
+}
+
+/// A slab 2 thick and 100 wide of an isotropically scattering medium behind an index-matched
+/// boundary, of `attenuationColor` `attenuation` at 0.01 (extinction -ln(attenuation) / 0.01:
+/// an optical depth of 200 for e^-1, as deep as infinite) and `multiscatterColor` `colour`, seen
+/// straight down in the white furnace at `res` x `res` and `spp`.
+fn deep_slab(
+    name: &str,
+    attenuation: [f64; 3],
+    colour: [f32; 3],
+    res: u32,
+    spp: u32,
+) -> common::film::Film {
+    let material = scattering(1.0, (attenuation, 0.01), colour.map(f64::from), 0.0);
+    let path = box_scene(name, [50.0, 1.0, 50.0], [0.0; 3], material, 2.0, 1.0, 0.0, false);
+    let scene = common::gltf::load_path(&path).unwrap();
+    let mut settings = white_furnace(res, spp);
+    settings.max_depth = 1024;
+    render(&scene, &settings)
 }

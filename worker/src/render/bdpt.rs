@@ -25,16 +25,13 @@
 //! What this first version does not take (`Scene::check_integrator` refuses them before any
 //! work): volumes, motion blur, the environment and directional lights (lights at infinity).
 
-use common::{
-    film::{Rect, TileAccum},
-    protocol::TaskSpec,
-};
+use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
 
 use super::{
     bsdf::Bsdf,
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
-    integrator::{shading_frame, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
+    integrator::{same_side, shading_frame, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
     light::{spot_falloff, ChooseLight, Light, ShadingContext},
     material,
     sampler::Sampler,
@@ -126,8 +123,8 @@ impl Vertex {
         let Some(bsdf) = &self.bsdf else { return Vec3::ZERO };
         let (a, b) = (self.frame.to_local(to), self.frame.to_local(from));
         let transmits = bsdf.transmits();
-        if !consistent(a.z, to.dot(self.ng), transmits)
-            || !consistent(b.z, from.dot(self.ng), transmits)
+        if !same_side(a.z, to.dot(self.ng), transmits)
+            || !same_side(b.z, from.dot(self.ng), transmits)
         {
             return Vec3::ZERO;
         }
@@ -221,18 +218,6 @@ impl Vertex {
             }
             _ => Vec3::ZERO,
         }
-    }
-}
-
-/// `integrator::same_side` for a direction of local z `cos_s` and geometric cosine `cos_g`
-/// (relative to the side the frame is on): both on that side, or both beyond for a BSDF that
-/// transmits.
-#[inline]
-fn consistent(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
-    if cos_s > 0.0 {
-        cos_g > 0.0
-    } else {
-        transmits && cos_s < 0.0 && cos_g < 0.0
     }
 }
 
@@ -340,7 +325,7 @@ fn walk(
         let u = sampler.next_2d();
         let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else { break };
         let wi = frame.to_world(bs.wi);
-        if !consistent(bs.wi.z, wi.dot(ng), bsdf.transmits()) {
+        if !same_side(bs.wi.z, wi.dot(ng), bsdf.transmits()) {
             break;
         }
         let n = path.len();
@@ -681,28 +666,17 @@ pub fn render_rows(
     first: u32,
     step: u32,
 ) -> (TileAccum, Stats) {
-    let rect: Rect = task.rect;
-    let mut tile = TileAccum::new(rect);
     let mut stats = Stats::default();
     let mut sampler = Sampler::new(seed, task.frame);
     let mut paths = Paths::default();
-    let mut row = first;
-    while row < rect.height {
-        for col in 0..rect.width {
-            let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
-            for s in task.samples.start..task.samples.end {
-                sampler.start_pixel_sample(pixel, s);
-                let film = pixel.as_vec2() + sampler.next_2d();
-                let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-                let unlit =
-                    camera_subpath(scene, &mut sampler, film, lens, &mut paths.camera, &mut stats);
-                light_subpath(scene, &mut sampler, &mut paths.light, &mut stats);
-                let l = unlit + camera_strategies(scene, &paths, &mut stats);
-                tile.add_sample(col, row, s, l.to_array());
-            }
-        }
-        row += step;
-    }
+    let tile = super::render_rows_with(task, first, step, |pixel, s| {
+        sampler.start_pixel_sample(pixel, s);
+        let film = pixel.as_vec2() + sampler.next_2d();
+        let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+        let unlit = camera_subpath(scene, &mut sampler, film, lens, &mut paths.camera, &mut stats);
+        light_subpath(scene, &mut sampler, &mut paths.light, &mut stats);
+        unlit + camera_strategies(scene, &paths, &mut stats)
+    });
     (tile, stats)
 }
 

@@ -76,7 +76,7 @@ pub(crate) fn power_heuristic(a: f32, b: f32) -> f32 {
 /// to wo's side) lies on one side of both surfaces: wo's side, or the far side for a BSDF that
 /// transmits. A direction between the two (a bent shading normal) carries no light.
 #[inline]
-fn same_side(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
+pub(crate) fn same_side(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
     if cos_s > 0.0 {
         cos_g > 0.0
     } else {

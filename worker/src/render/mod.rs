@@ -103,23 +103,38 @@ pub fn render_rows_scalar(
     first: u32,
     step: u32,
 ) -> (TileAccum, Stats) {
-    let rect: Rect = task.rect;
-    let mut tile = TileAccum::new(rect);
     let mut stats = Stats::default();
     let mut sampler = Sampler::new(seed, task.frame);
     let mut pose = None;
+    let tile = render_rows_with(task, first, step, |pixel, s| {
+        sample(scene, &mut sampler, pixel, s, &mut stats, &mut pose).radiance
+    });
+    (tile, stats)
+}
+
+/// The sums of rows `first, first + step, ...` of the task's tile, each pixel's samples in index
+/// order, each the radiance `trace(pixel, sample index)` returns.
+#[inline]
+pub(crate) fn render_rows_with(
+    task: &TaskSpec,
+    first: u32,
+    step: u32,
+    mut trace: impl FnMut(UVec2, u32) -> glam::Vec3,
+) -> TileAccum {
+    let rect: Rect = task.rect;
+    let mut tile = TileAccum::new(rect);
     let mut row = first;
     while row < rect.height {
         for col in 0..rect.width {
             let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
             for s in task.samples.start..task.samples.end {
-                let l = sample(scene, &mut sampler, pixel, s, &mut stats, &mut pose).radiance;
+                let l = trace(pixel, s);
                 tile.add_sample(col, row, s, l.to_array());
             }
         }
         row += step;
     }
-    (tile, stats)
+    tile
 }
 
 /// One traced sample, with the numbers that made it (for `worker debug-sample`).
