@@ -1,6 +1,6 @@
 //! Bidirectional path tracing (`"integrator": "bdpt"`) converges to what the path tracer and the
-//! closed forms give: the Cornell box against the path tracer, the mirror caustic against its
-//! closed form.
+//! closed forms give: the Cornell box against the path tracer through a pinhole and a thin lens,
+//! the mirror caustic against its closed form, the closed furnace against 1.
 
 mod support;
 
@@ -132,4 +132,57 @@ fn bdpt_mirror_caustic_matches_the_closed_form() {
         rp * tp / (rb * tb)
     );
     assert!(z.abs() < 4.0, "{z}");
+}
+
+/// Image means per channel of the two films' sum, with their standard errors.
+fn mean_and_se(camera: &Film, light: &Film) -> [(f64, f64); 3] {
+    let ours = sum(camera, light);
+    let n = ours.len() as f64;
+    [0, 1, 2].map(|c| {
+        let mean = ours.iter().map(|o| o.0[c]).sum::<f64>() / n;
+        let var = ours.iter().map(|o| o.1[c]).sum::<f64>() / (n * n);
+        (mean, var.sqrt())
+    })
+}
+
+/// The closed furnace (every surface emits what it does not reflect, so that radiance is 1
+/// everywhere), its long paths included: the image mean within 4 standard errors of 1.
+#[test]
+fn bdpt_closed_furnace_is_one() {
+    let scene = load("furnace-closed.gltf");
+    let settings = RenderSettings { width: 16, height: 16, spp: 16, ..settings("furnace-closed") };
+    let (camera, light) = render_bdpt(&scene, &settings);
+    for (c, (mean, se)) in mean_and_se(&camera, &light).into_iter().enumerate() {
+        println!("closed furnace, bdpt, channel {c}: {mean:.5} (standard error {se:.1e})");
+        assert!((mean - 1.0).abs() < 4.0 * se + 1e-4, "channel {c}: {mean} ({se})");
+    }
+}
+
+/// Depth of field: the Cornell box through the thin lens of `scenes/cornell-dof.settings.json`
+/// agrees with the path tracer's image (light tracing connects to points on the lens).
+#[test]
+fn bdpt_thin_lens_matches_the_path_tracer() {
+    let scene = load("cornell-box.gltf");
+    let dof: RenderSettings = RenderSettings::from_json(
+        &std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../scenes/cornell-dof.settings.json"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let base = RenderSettings { width: 32, height: 32, spp: 64, max_depth: 5, ..dof };
+    let (camera, light) = render_bdpt(&scene, &base);
+    let path = render(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
+    let ours = mean_and_se(&camera, &light);
+    let n = path.pixels.len() as f64;
+    for c in 0..3 {
+        let pm = path.pixels.iter().map(|p| p.mean()[c]).sum::<f64>() / n;
+        let pv = path.pixels.iter().map(|p| p.variance_of_mean()[c]).sum::<f64>() / (n * n);
+        let z = (ours[c].0 - pm) / (ours[c].1 * ours[c].1 + pv).sqrt();
+        println!("thin lens, channel {c}: bdpt {:.5}, path {pm:.5}, z {z:.2}", ours[c].0);
+        assert!(z.abs() < 4.0, "channel {c}: z {z}");
+    }
+    let light_share = light.pixels.iter().map(|p| p.mean()[0]).sum::<f64>() / n / ours[0].0;
+    assert!(light_share > 0.05, "light tracing carries {light_share} of the image");
 }
