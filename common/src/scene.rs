@@ -518,17 +518,18 @@ impl Scene {
     }
 
     /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
-    /// does not take yet (volumes, an environment, directional lights, motion blur) and the
-    /// light it must start paths from. `Ok` for the path tracer.
+    /// and photon mapping do not take yet (volumes, an environment, directional lights, motion
+    /// blur) and the light they must start paths from. `Ok` for the path tracer.
     pub fn check_integrator(
         &self,
         settings: &crate::settings::RenderSettings,
     ) -> Result<(), String> {
-        if settings.integrator != "bdpt" {
+        let name = settings.integrator.as_str();
+        if name == "path" {
             return Ok(());
         }
         let refuse = |what: &str| {
-            Err(format!("integrator: bdpt does not render {what} yet (\"path\" does)"))
+            Err(format!("integrator: {name} does not render {what} yet (\"path\" does)"))
         };
         if self.materials.iter().any(|m| m.volume.is_some()) {
             return refuse("volumes (KHR_materials_volume)");
@@ -547,9 +548,10 @@ impl Scene {
             m.emissive.max_element() > 0.0 && !m.unlit
         });
         if !emissive && !self.lights.iter().any(|l| l.intensity.max_element() > 0.0) {
-            return Err("integrator: bdpt traces paths from the lights, and the scene has none \
-                        (no emissive material, no KHR_lights_punctual light)"
-                .into());
+            return Err(format!(
+                "integrator: {name} traces paths from the lights, and the scene has none (no \
+                 emissive material, no KHR_lights_punctual light)"
+            ));
         }
         Ok(())
     }

@@ -12,7 +12,9 @@ pub const MAX_FRAMES: u64 = 100_000;
 /// Upper bound on samples per pixel accepted by `validate`.
 pub const MAX_SPP: u32 = 1 << 20;
 /// The light-transport algorithms a job may name in `integrator`.
-pub const INTEGRATORS: &[&str] = &["path", "bdpt"];
+pub const INTEGRATORS: &[&str] = &["path", "bdpt", "sppm"];
+/// Upper bound on `sppm.photons_per_pass` accepted by `validate`.
+pub const MAX_PHOTONS_PER_PASS: u32 = 1 << 24;
 
 /// Everything that decides what a job renders. Part of the determinism key: the same settings,
 /// scene and seed give the same image.
@@ -32,8 +34,13 @@ pub struct RenderSettings {
     /// The light-transport algorithm, one of [`INTEGRATORS`]: "path", the unidirectional path
     /// tracer with next-event estimation and multiple importance sampling; "bdpt", bidirectional
     /// path tracing (camera and light subpaths, every connection weighted by MIS; its light
-    /// tracing runs as a light task per sample range over the whole frame).
+    /// tracing runs as a light task per sample range over the whole frame); "sppm", stochastic
+    /// progressive photon mapping (each sample index a photon pass over the whole frame; see
+    /// [`Sppm`]).
     pub integrator: String,
+    /// Photon mapping's parameters (only with `"integrator": "sppm"`; default: see [`Sppm`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sppm: Option<Sppm>,
     /// Path length limit in bounces: 0 = emitters seen directly, 1 = direct light only.
     pub max_depth: u32,
     /// Seed of the sample sequences.
@@ -66,6 +73,7 @@ impl Default for RenderSettings {
             target_rel_error: None,
             time_limit_s: None,
             integrator: "path".into(),
+            sppm: None,
             max_depth: 64,
             seed: 0,
             camera: None,
@@ -77,6 +85,27 @@ impl Default for RenderSettings {
             tile_size: 32,
             samples_per_task: 64,
         }
+    }
+}
+
+/// Stochastic progressive photon mapping (`"integrator": "sppm"`): sample index `i` of a pixel
+/// is photon pass `i`, whose gather radius shrinks with `i` by the progressive rule.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Sppm {
+    /// The first pass's gather radius in scene units; default: two pixel footprints at the
+    /// distance of the scene's centre from the camera.
+    pub radius: Option<f64>,
+    /// Photons traced from the lights per pass; default: one per pixel of the image.
+    pub photons_per_pass: Option<u32>,
+    /// The progressive rule's alpha in (0, 1): pass i's squared radius is pass i - 1's times
+    /// (i + alpha) / (i + 1), passes counted from 0 (the share of new photons each pass keeps).
+    pub alpha: f64,
+}
+
+impl Default for Sppm {
+    fn default() -> Self {
+        Sppm { radius: None, photons_per_pass: None, alpha: 2.0 / 3.0 }
     }
 }
 
@@ -262,12 +291,49 @@ impl RenderSettings {
                 ),
             ));
         }
-        if self.integrator == "bdpt" && self.target_rel_error.is_some() {
+        if self.integrator != "path" && self.target_rel_error.is_some() {
             return Err(err(
                 "target_rel_error",
-                "adaptive sampling is not available with the bdpt integrator yet (its light \
-                 tracing covers the whole frame at once)",
+                format!(
+                    "adaptive sampling is not available with the {} integrator yet (its light \
+                     tracing covers the whole frame at once)",
+                    self.integrator
+                ),
             ));
+        }
+        if let Some(p) = &self.sppm {
+            if self.integrator != "sppm" {
+                return Err(err(
+                    "sppm",
+                    format!("applies to \"integrator\": \"sppm\", not {:?}", self.integrator),
+                ));
+            }
+            if let Some(r) = p.radius {
+                if !(r.is_finite() && r > 0.0) {
+                    return Err(err(
+                        "sppm.radius",
+                        format!("{r} is not a positive number (photons are gathered within it)"),
+                    ));
+                }
+            }
+            if let Some(n) = p.photons_per_pass {
+                if n == 0 || n > MAX_PHOTONS_PER_PASS {
+                    return Err(err(
+                        "sppm.photons_per_pass",
+                        format!("{n} is not in 1..={MAX_PHOTONS_PER_PASS}"),
+                    ));
+                }
+            }
+            if !(p.alpha > 0.0 && p.alpha < 1.0) {
+                return Err(err(
+                    "sppm.alpha",
+                    format!(
+                        "{} is not in (0, 1): at 1 the radius never shrinks and the image \
+                         never converges, at 0 or below it has no photons left",
+                        p.alpha
+                    ),
+                ));
+            }
         }
         if let Some(v) = &self.variant {
             if v.is_empty() || v.chars().any(char::is_control) {
@@ -359,22 +425,53 @@ mod tests {
 
     #[test]
     fn the_integrator_is_named_and_an_unknown_one_is_refused_by_key() {
-        for name in ["path", "bdpt"] {
+        for name in ["path", "bdpt", "sppm"] {
             let s = RenderSettings::from_json(&format!(r#"{{"integrator": "{name}"}}"#)).unwrap();
             assert_eq!(s.integrator, name);
         }
         assert_eq!(RenderSettings::default().integrator, "path");
-        for bad in ["sppm", "", "Path"] {
+        for bad in ["photons", "", "Path"] {
             let e =
                 RenderSettings::from_json(&format!(r#"{{"integrator": "{bad}"}}"#)).unwrap_err();
-            assert!(e.contains("integrator") && e.contains("it has: path, bdpt"), "{e}");
+            assert!(e.contains("integrator") && e.contains("it has: path, bdpt, sppm"), "{e}");
         }
         let e = RenderSettings::from_json(r#"{"integrator": "bdpt", "target_rel_error": 0.1}"#)
             .unwrap_err();
         assert!(e.contains("target_rel_error") && e.contains("bdpt"), "{e}");
-        // The settings JSON written into EXR headers and job statuses names it.
+        // The settings JSON written into EXR headers and job statuses names it (and has no
+        // photon-mapping keys unless they were given).
         let json = serde_json::to_string(&RenderSettings::default()).unwrap();
-        assert!(json.contains(r#""integrator":"path""#), "{json}");
+        assert!(json.contains(r#""integrator":"path""#) && !json.contains("sppm"), "{json}");
+    }
+
+    #[test]
+    fn sppm_settings_that_cannot_converge_name_their_key() {
+        let s = RenderSettings::from_json(
+            r#"{"integrator": "sppm", "sppm": {"radius": 0.1, "photons_per_pass": 1000}}"#,
+        )
+        .unwrap();
+        let p = s.sppm.unwrap();
+        assert_eq!((p.radius, p.photons_per_pass, p.alpha), (Some(0.1), Some(1000), 2.0 / 3.0));
+        for (json, key) in [
+            (r#"{"integrator": "sppm", "sppm": {"radius": 0}}"#, "sppm.radius"),
+            (r#"{"integrator": "sppm", "sppm": {"radius": -1}}"#, "sppm.radius"),
+            (r#"{"integrator": "sppm", "sppm": {"photons_per_pass": 0}}"#, "sppm.photons_per_pass"),
+            (
+                r#"{"integrator": "sppm", "sppm": {"photons_per_pass": 100000000}}"#,
+                "sppm.photons_per_pass",
+            ),
+            (r#"{"integrator": "sppm", "sppm": {"alpha": 1}}"#, "sppm.alpha"),
+            (r#"{"integrator": "sppm", "sppm": {"alpha": 0}}"#, "sppm.alpha"),
+            (r#"{"integrator": "path", "sppm": {"radius": 1}}"#, "sppm"),
+            (r#"{"integrator": "sppm", "target_rel_error": 0.1}"#, "target_rel_error"),
+        ] {
+            let e = RenderSettings::from_json(json).unwrap_err();
+            assert!(e.contains(&format!("`{key}`")), "{json}: {e}");
+        }
+        let e =
+            RenderSettings::from_json(r#"{"integrator": "sppm", "sppm": {"radius": 1, "r": 2}}"#)
+                .unwrap_err();
+        assert!(e.contains("unknown field `r`"), "{e}");
     }
 
     #[test]

@@ -71,7 +71,8 @@ struct Args {
     /// `--peer-csv` files then hold runs of those scenes.
     #[arg(long)]
     materials: bool,
-    /// Only the mirror caustic, path tracer against bidirectional path tracing (no Cornell box).
+    /// Only the mirror caustic: the path tracer against bidirectional path tracing and photon
+    /// mapping (no Cornell box).
     #[arg(long)]
     caustic: bool,
     /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
@@ -486,6 +487,7 @@ fn many_lights(threads: usize) -> Result<()> {
 }
 
 /// The mirror caustic (light half side 0.125, 64x64, `max_depth` 2) rendered by each integrator
+/// (path, bdpt, sppm)
 /// through `coordinator render`'s code path at increasing sample counts: seconds (loading and
 /// rendering) and the relative MSE against the closed form, then each integrator's error at the
 /// path tracer's times (interpolated log-log) over the path tracer's.
@@ -504,12 +506,26 @@ fn caustic(threads: usize) -> Result<()> {
         RenderSettings { width: res, height: res, max_depth: 2, seed: 5, ..Default::default() };
     println!("integrator,spp,seconds,relmse,est_relmse");
     let mut curves = Vec::new();
-    for (integrator, spps) in
-        [("path", &[64u32, 256, 1024, 4096][..]), ("bdpt", &[4u32, 16, 64, 256][..])]
-    {
+    for (integrator, spps) in [
+        ("path", &[64u32, 256, 1024, 4096][..]),
+        ("bdpt", &[4u32, 16, 64, 256][..]),
+        ("sppm", &[16u32, 64, 256, 1024, 4096][..]),
+    ] {
         let mut points = Vec::new();
         for &spp in spps {
-            let settings = RenderSettings { spp, integrator: integrator.into(), ..base.clone() };
+            // A photon-mapping task is a range of passes over the whole frame: ranges small
+            // enough to keep every worker busy.
+            let samples_per_task = if integrator == "sppm" {
+                spp.div_ceil(4 * threads as u32).max(1)
+            } else {
+                base.samples_per_task
+            };
+            let settings = RenderSettings {
+                spp,
+                samples_per_task,
+                integrator: integrator.into(),
+                ..base.clone()
+            };
             let out = dir.join(format!("{integrator}-{spp}.exr"));
             let wall = Instant::now();
             let report = render_file(&scene, &settings, threads, &out, &|_| {})?;

@@ -202,11 +202,18 @@ impl Job {
         created_unix: f64,
     ) -> Result<Job, String> {
         let tasks_per_tile = settings.spp.div_ceil(settings.samples_per_task);
-        let mut rects = tiles(settings.width, settings.height, settings.tile_size);
+        let whole = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+        // Photon mapping renders a pass over the whole frame at once (its photons land anywhere):
+        // one tile, the frame, whose task `k` is the passes of sample range `k`.
+        let mut rects = if settings.integrator == "sppm" {
+            vec![whole]
+        } else {
+            tiles(settings.width, settings.height, settings.tile_size)
+        };
         // Bidirectional path tracing adds a light tile per frame, the whole frame, last.
         let light = settings.integrator == "bdpt";
         if light {
-            rects.push(Rect { x0: 0, y0: 0, width: settings.width, height: settings.height });
+            rects.push(whole);
         }
         let n_rects = rects.len();
         let n_frames =

@@ -208,7 +208,8 @@ impl Farm {
             size: (s.width, s.height),
             tiles: job.frames[f].tiles.iter().filter(|t| !t.light).map(|t| t.sums.rect).collect(),
             light_tile: job.light_tile(),
-            tile_rows: s.tile_size,
+            // Photon mapping's one tile is the whole frame.
+            tile_rows: if s.integrator == "sppm" { s.height } else { s.tile_size },
             stored: job.frames[f].evicted,
             info: FrameInfo {
                 settings_json: serde_json::to_string(s).unwrap_or_default(),

@@ -44,7 +44,7 @@ use super::{
 pub const LIGHT_DIMENSION: u32 = 1 << 16;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kind {
+pub(super) enum Kind {
     Camera,
     Light,
     Surface,
@@ -52,34 +52,34 @@ enum Kind {
 
 /// A vertex of a subpath.
 #[derive(Clone, Copy, Debug)]
-struct Vertex {
-    kind: Kind,
-    p: Vec3,
-    p_error: Vec3,
+pub(super) struct Vertex {
+    pub(super) kind: Kind,
+    pub(super) p: Vec3,
+    pub(super) p_error: Vec3,
     /// Geometric normal: a surface's on the side it was reached from, an area light's front
     /// face's; zero for the camera and point lights (not on a surface).
-    ng: Vec3,
+    pub(super) ng: Vec3,
     /// Shading frame (surfaces), +z on `ng`'s side.
-    frame: Frame,
+    pub(super) frame: Frame,
     /// The BSDF (surfaces that scatter).
-    bsdf: Option<Bsdf>,
+    pub(super) bsdf: Option<Bsdf>,
     /// Unit direction toward the previous vertex of its own subpath (surfaces).
-    wo: Vec3,
+    pub(super) wo: Vec3,
     /// Throughput arriving at the vertex.
-    beta: Vec3,
-    pdf_fwd: f32,
-    pdf_rev: f32,
+    pub(super) beta: Vec3,
+    pub(super) pdf_fwd: f32,
+    pub(super) pdf_rev: f32,
     /// Sampled from a delta lobe (no connection can reach it).
-    delta: bool,
+    pub(super) delta: bool,
     /// The light it lies on (light vertices, surfaces of emitters), else `NONE`.
-    light: u32,
+    pub(super) light: u32,
     /// A point or spot light's vertex.
-    delta_light: bool,
+    pub(super) delta_light: bool,
     /// Triangle and barycentrics (surfaces and area lights), for emission.
-    prim: u32,
-    b: [f32; 3],
+    pub(super) prim: u32,
+    pub(super) b: [f32; 3],
     /// The numbers of the light sample taken from this camera vertex (s = 1).
-    u_light: [f32; 3],
+    pub(super) u_light: [f32; 3],
 }
 
 impl Vertex {
@@ -119,7 +119,7 @@ impl Vertex {
 
     /// The BSDF for light arriving from unit direction `from` and leaving toward `to` (radiance
     /// order), zero where either direction lies between the shading and geometric surfaces.
-    fn f(&self, to: Vec3, from: Vec3) -> Vec3 {
+    pub(super) fn f(&self, to: Vec3, from: Vec3) -> Vec3 {
         let Some(bsdf) = &self.bsdf else { return Vec3::ZERO };
         let (a, b) = (self.frame.to_local(to), self.frame.to_local(from));
         let transmits = bsdf.transmits();
@@ -206,7 +206,7 @@ impl Vertex {
     }
 
     /// Radiance an emitter's surface vertex sends toward unit direction `w`.
-    fn le(&self, scene: &PreparedScene, w: Vec3) -> Vec3 {
+    pub(super) fn le(&self, scene: &PreparedScene, w: Vec3) -> Vec3 {
         if self.light == NONE {
             return Vec3::ZERO;
         }
@@ -267,41 +267,20 @@ fn walk(
 ) {
     let mut bounces = 0u32;
     while bounces < max_vertices {
-        stats.rays += 1;
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else { break };
-        let tri = scene.shading[hit.prim as usize];
-        let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
-        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
-        let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
-        let Some(ng) = (p1 - p0).cross(p2 - p0).try_normalize() else { break };
-        let wo = -ray.dir.normalize();
-        let front = ng.dot(wo) > 0.0;
-        let ng = if front { ng } else { -ng };
-        let material = &scene.materials[tri.material as usize];
-        let sp = scene.surface_point(hit.prim, b);
-        let mut v = Vertex::new(Kind::Surface, p, beta);
-        v.p_error = interpolation_error([p0, p1, p2], b);
-        v.ng = ng;
-        v.wo = wo;
-        v.prim = hit.prim;
-        v.b = b;
-        v.light = if tri.light == NONE { NONE } else { tri.light };
+        let Some((mut v, unlit_base)) = surface_vertex(scene, &ray, beta, stats) else { break };
         let prev = path.last().expect("a subpath starts with its camera or light vertex");
         v.pdf_fwd = prev.convert_density(pdf, &v);
         bounces += 1;
-        if tri.extended && material.unlit {
+        if let Some(base) = unlit_base {
             // Seen as its base colour by the camera, and by nothing else.
             if mode == Mode::Radiance {
-                let base = material::base_color(&scene.textures, material, &sp).truncate();
-                *unlit += beta * base.clamp(Vec3::ZERO, Vec3::ONE);
+                *unlit += beta * base;
             }
             path.push(v);
             break;
         }
-        let (frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, None);
-        v.frame = frame;
-        let bsdf = material::bsdf(&scene.textures, material, &sp, front, [1.0; 2], tri.extended);
-        v.bsdf = Some(bsdf);
+        let (p, ng, wo, frame) = (v.p, v.ng, v.wo, v.frame);
+        let bsdf = v.bsdf.expect("a lit surface vertex has a BSDF");
         match mode {
             Mode::Radiance => {
                 let u = sampler.next_2d();
@@ -368,6 +347,44 @@ fn walk(
     }
 }
 
+/// What `ray` hits first, as a surface vertex reached with throughput `beta` (its densities
+/// left for the caller), with its shading frame and BSDF; an unlit material's vertex has no BSDF
+/// and comes with the base colour the camera sees.
+pub(super) fn surface_vertex(
+    scene: &PreparedScene,
+    ray: &Ray,
+    beta: Vec3,
+    stats: &mut Stats,
+) -> Option<(Vertex, Option<Vec3>)> {
+    stats.rays += 1;
+    let hit = scene.intersect(ray, f32::INFINITY, None)?;
+    let tri = scene.shading[hit.prim as usize];
+    let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+    let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+    let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+    let ng = (p1 - p0).cross(p2 - p0).try_normalize()?;
+    let wo = -ray.dir.normalize();
+    let front = ng.dot(wo) > 0.0;
+    let ng = if front { ng } else { -ng };
+    let material = &scene.materials[tri.material as usize];
+    let sp = scene.surface_point(hit.prim, b);
+    let mut v = Vertex::new(Kind::Surface, p, beta);
+    v.p_error = interpolation_error([p0, p1, p2], b);
+    v.ng = ng;
+    v.wo = wo;
+    v.prim = hit.prim;
+    v.b = b;
+    v.light = if tri.light == NONE { NONE } else { tri.light };
+    if tri.extended && material.unlit {
+        let base = material::base_color(&scene.textures, material, &sp).truncate();
+        return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
+    }
+    let (frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, None);
+    v.frame = frame;
+    v.bsdf = Some(material::bsdf(&scene.textures, material, &sp, front, [1.0; 2], tri.extended));
+    Some((v, None))
+}
+
 /// The camera subpath of a sample whose film position and lens numbers are drawn: up to
 /// `max_depth + 2` vertices, the camera's first.
 fn camera_subpath(
@@ -402,7 +419,7 @@ fn camera_subpath(
 
 /// The light subpath of the current pixel sample: up to `max_depth + 1` vertices, the light's
 /// first. Draws from `LIGHT_DIMENSION` on.
-fn light_subpath(
+pub(super) fn light_subpath(
     scene: &PreparedScene,
     sampler: &mut Sampler,
     path: &mut Vec<Vertex>,
@@ -620,7 +637,11 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
 
 /// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers,
 /// the unoccluded contribution and the light's vertex.
-fn sample_light(scene: &PreparedScene, pt: &Vertex, stats: &mut Stats) -> Option<(Vec3, Vertex)> {
+pub(super) fn sample_light(
+    scene: &PreparedScene,
+    pt: &Vertex,
+    stats: &mut Stats,
+) -> Option<(Vec3, Vertex)> {
     pt.bsdf?;
     let [u_choice, ux, uy] = pt.u_light;
     let (idx, pmf, _) = scene.lights.choose(&ShadingContext::default(), u_choice)?;

@@ -3,8 +3,8 @@
 //! Synchronous and free of I/O: no `.await`, no logging inside loops. Data flows one way, each
 //! module using only modules before it: `geometry`, `sampling`, `lanes`, `texture` -> `sampler`
 //! -> `sah_build` -> `accel`, `camera`, `bsdf`, `light` -> `material`, `motion` ->
-//! `wavefront_tables` -> `scene` (`prepare`) -> `integrator` (`li`) -> `wavefront` -> this module
-//! (`render_task`).
+//! `wavefront_tables` -> `scene` (`prepare`) -> `integrator` (`li`) -> `bdpt` -> `sppm`,
+//! `wavefront` -> this module (`render_task`).
 
 pub mod accel;
 pub mod bdpt;
@@ -22,6 +22,7 @@ pub mod sampler;
 pub mod sampling;
 pub mod scene;
 pub mod spectrum;
+pub mod sppm;
 pub mod texture;
 pub mod wavefront;
 pub mod wavefront_tables;
@@ -50,6 +51,10 @@ pub fn render_task_threads(
     task: &TaskSpec,
     threads: usize,
 ) -> TaskResult {
+    if let Some(params) = &scene.sppm {
+        let (tile, stats) = sppm::render_task(scene, params, seed, task, threads);
+        return TaskResult { spec: *task, tile, rays: stats.rays };
+    }
     if task.kind == TaskKind::Light {
         // One thread: the frame's light paths add into one film in a fixed order.
         let (tile, stats) = bdpt::render_light_task(scene, seed, task);

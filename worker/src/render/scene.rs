@@ -98,9 +98,66 @@ pub struct PreparedScene {
     pub build_seconds: f64,
     /// Bidirectional path tracing (`"integrator": "bdpt"`) instead of the path tracer.
     pub bdpt: bool,
+    /// Photon mapping (`"integrator": "sppm"`) instead of the path tracer, with its parameters.
+    pub sppm: Option<SppmParams>,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
     pub wavefront: Option<super::wavefront_tables::Tables>,
+}
+
+/// Stochastic progressive photon mapping's parameters for a prepared scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SppmParams {
+    /// The first pass's gather radius in scene units.
+    pub radius: f32,
+    /// Photons traced per pass.
+    pub photons: u32,
+    /// The progressive rule's alpha.
+    pub alpha: f64,
+}
+
+impl SppmParams {
+    /// The settings' parameters, with the defaults resolved: one photon per pixel, and a first
+    /// radius of two pixel footprints where the scene's bounding box's centre lies (the width one
+    /// pixel's rays spread to at that distance, the footprint an orthographic pixel has).
+    fn new(settings: &RenderSettings, camera: &Camera, accel: &Accel, scene_radius: f32) -> Self {
+        let p = settings.sppm.unwrap_or_default();
+        let photons = p.photons_per_pass.unwrap_or(settings.width.saturating_mul(settings.height));
+        let radius = p.radius.map(|r| r as f32).unwrap_or_else(|| {
+            let centre = scene_centre(accel);
+            let middle = Vec2::new(camera.width, camera.height) * 0.5;
+            let (a, b) = (
+                camera.generate_ray(middle, Vec2::ZERO),
+                camera.generate_ray(middle + Vec2::X, Vec2::ZERO),
+            );
+            let t = (centre - a.origin).length().max(1e-3 * scene_radius);
+            let footprint =
+                ((b.origin + b.dir.normalize() * t) - (a.origin + a.dir.normalize() * t)).length();
+            let r = 2.0 * footprint;
+            if r.is_finite() && r > 0.0 {
+                r
+            } else {
+                1e-3 * scene_radius
+            }
+        });
+        SppmParams { radius, photons: photons.max(1), alpha: p.alpha }
+    }
+
+    /// The gather radius of pass `pass` (0 for the first): the squared radius shrinks by
+    /// (i + alpha) / (i + 1) from pass i - 1 to pass i (Knaus and Zwicker 2011's sequence, the
+    /// expected shrinking of Hachisuka and Jensen's per-pixel rule), as i^(alpha - 1) in the end.
+    pub fn radius(&self, pass: u32) -> f32 {
+        let mut r2 = 1.0f64;
+        for i in 1..=pass as u64 {
+            r2 *= (i as f64 + self.alpha) / (i as f64 + 1.0);
+        }
+        (self.radius as f64 * r2.sqrt()) as f32
+    }
+}
+
+/// The centre of the scene's bounding box.
+fn scene_centre(accel: &Accel) -> Vec3 {
+    scene_bounds(accel).map_or(Vec3::ZERO, |(lo, hi)| 0.5 * (lo + hi))
 }
 
 /// Why a scene cannot be prepared for these settings.
@@ -444,7 +501,9 @@ fn prepare_inner(
     // Bidirectional path tracing chooses lights blind to the point (the mixture), for its light
     // subpaths and its light samples alike.
     let bdpt = settings.integrator == "bdpt";
-    let choice = if bdpt { LightChoice::Mixture } else { choice };
+    let sppm = (settings.integrator == "sppm")
+        .then(|| SppmParams::new(settings, &camera, &accel, scene_radius));
+    let choice = if bdpt || sppm.is_some() { LightChoice::Mixture } else { choice };
     let lights = LightSampler::with_choice(lights, &emitters, scene_radius, choice);
     let wavefront = super::wavefront_tables::Tables::new(
         &scene.materials,
@@ -452,7 +511,7 @@ fn prepare_inner(
         &lights,
         motion.is_some() || alpha_tested || !colors.is_empty(),
     )
-    .filter(|_| !bdpt);
+    .filter(|_| !bdpt && sppm.is_none());
     Ok(PreparedScene {
         origin,
         camera,
@@ -477,6 +536,7 @@ fn prepare_inner(
         build_seconds,
         motion,
         bdpt,
+        sppm,
         wavefront,
     })
 }
@@ -641,6 +701,11 @@ fn coverage_number(ray: &Ray, prim: u32) -> f32 {
 }
 
 fn scene_radius(accel: &Accel) -> f32 {
+    scene_bounds(accel).map_or(1.0, |(lo, hi)| 0.5 * (hi - lo).length())
+}
+
+/// The scene's bounding box (`None` without triangles).
+fn scene_bounds(accel: &Accel) -> Option<(Vec3, Vec3)> {
     let mut lo = Vec3::splat(f32::INFINITY);
     let mut hi = Vec3::splat(f32::NEG_INFINITY);
     for i in 0..accel.len() as u32 {
@@ -649,8 +714,5 @@ fn scene_radius(accel: &Accel) -> f32 {
             hi = hi.max(p);
         }
     }
-    if lo.x > hi.x {
-        return 1.0;
-    }
-    0.5 * (hi - lo).length()
+    (lo.x <= hi.x).then_some((lo, hi))
 }

@@ -122,6 +122,15 @@ impl<M: Microfacet> MetalRough<M> {
         MetalRough { transmission, ..self }
     }
 
+    /// Whether it has a Lambertian lobe (reflected or diffusely transmitted) that carries light.
+    #[inline]
+    pub fn has_diffuse(&self) -> bool {
+        self.metallic < 1.0
+            && self.transmission < 1.0
+            && (self.base.max_element() > 0.0
+                || self.diffuse_transmission_color.max_element() * self.diffuse_transmission > 0.0)
+    }
+
     /// Whether light can pass through to the far side.
     #[inline]
     pub fn transmits(&self) -> bool {

@@ -24,6 +24,10 @@ pub use thin_film::ThinFilm;
 
 use glam::{Vec2, Vec3};
 
+/// The GGX alpha (roughness²) from which photon mapping gathers photons at a glossy surface
+/// rather than following its reflection (roughness about 0.32).
+pub const GATHER_ALPHA: f32 = 0.1;
+
 /// Which lobe a sample came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Lobe {
@@ -116,6 +120,22 @@ impl Bsdf {
             Bsdf::MetalRough(b) => b.transmits(),
             Bsdf::Dielectric(_) => true,
             Bsdf::Layered(b) => b.transmits(),
+        }
+    }
+
+    /// Whether photon mapping takes the light arriving here from photons (a diffuse component,
+    /// or a glossy lobe at least as rough as `GATHER_ALPHA`), ending its camera paths here; a
+    /// near-mirror or a smooth refraction is followed instead.
+    pub fn gathers_photons(&self) -> bool {
+        match self {
+            Bsdf::Diffuse(_) => true,
+            Bsdf::MetalRough(b) => b.has_diffuse() || b.ggx.alpha >= GATHER_ALPHA,
+            Bsdf::Dielectric(b) => b.ggx.is_some_and(|g| g.alpha >= GATHER_ALPHA),
+            Bsdf::Layered(b) => {
+                b.base.has_diffuse()
+                    || b.base.ggx.alpha_x.min(b.base.ggx.alpha_y) >= GATHER_ALPHA
+                    || b.sheen.is_some()
+            }
         }
     }
 

@@ -1,0 +1,114 @@
+//! The integrators beyond the path tracer on the farm: bidirectional path tracing
+//! (`"integrator": "bdpt"`: camera tasks over tiles and light tasks over the whole frame) and
+//! photon mapping (`"integrator": "sppm"`: one tile, the frame, whose tasks are ranges of
+//! passes). The image is bitwise the same whatever the number of workers, in one process or as
+//! `worker --join` processes, and after a worker is killed mid-job. What an integrator does not
+//! take yet is refused naming the setting before any work is leased.
+
+use std::time::Duration;
+
+use serde_json::{json, Value};
+use tests::*;
+
+const TIMEOUT: Duration = Duration::from_secs(240);
+
+fn settings(integrator: &str, spp: u32, spt: u32) -> Value {
+    json!({
+        "width": 48, "height": 48, "spp": spp, "samples_per_task": spt, "tile_size": 16,
+        "max_depth": 6, "seed": 11, "integrator": integrator
+    })
+}
+
+/// `integrator`'s image of the Cornell box on 1 and 3 workers of one process, on serve + 3
+/// worker processes (which merge `tasks` tasks) and after one of two workers is kill -9'd while
+/// both hold leases (a longer job, so that both do): the same bits.
+fn same_image_on_any_workers_and_after_a_kill(integrator: &str, tasks: f64) {
+    let dir = temp_dir(&format!("{integrator}-farm"));
+    let s = settings(integrator, 64, 16);
+    let one = render_reference(&dir, &s, 1);
+    let three = render_reference(&dir, &s, 3);
+    assert_same_image(&one, &three, "coordinator render --workers 1 vs 3");
+    assert!(sample_counts(&one).iter().all(|&n| n == 64));
+
+    // Three worker processes.
+    let cluster = Cluster::start(&temp_dir(&format!("{integrator}-cluster")), 3, &[]);
+    let id = create_job(&cluster.url, &cluster.scene, &s, 0);
+    let status = wait_done(&cluster.url, &id, TIMEOUT);
+    assert_eq!(status["samples_done"], 48 * 48 * 64, "camera samples only: {status:#}");
+    assert_same_image(&one, &fetch_exr(&cluster.url, &id, 0), "serve + 3 workers vs render");
+    assert_eq!(metric(&cluster.url, "renderfarm_tasks_merged_total"), tasks);
+    drop(cluster);
+
+    let s = settings(integrator, 512, 128);
+    let one = render_reference(&dir, &s, 2);
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let kill_dir = temp_dir(&format!("{integrator}-kill"));
+    let _coordinator = start_coordinator(&kill_dir.join("data"), port, &["--lease-timeout", "1"]);
+    let mut victim = start_worker(&url, 1, kill_dir.join("victim.log"));
+    let _survivor = start_worker(&url, 1, kill_dir.join("survivor.log"));
+    let scene = upload(&url, &cornell_zip());
+    let id = create_job(&url, &scene, &s, 0);
+    wait_for(&url, &id, TIMEOUT, |st| st["tasks_in_flight"].as_u64() == Some(2));
+    victim.kill9();
+    wait_done(&url, &id, TIMEOUT);
+    assert_same_image(&one, &fetch_exr(&url, &id, 0), "after a worker was killed");
+}
+
+#[test]
+fn bdpt_images_are_the_same_on_one_or_three_workers_and_after_a_kill() {
+    // 9 tiles and the light tile, 4 tasks each; the kill job's light tasks are 48 x 48 x 128
+    // light paths.
+    same_image_on_any_workers_and_after_a_kill("bdpt", 40.0);
+}
+
+#[test]
+fn sppm_images_are_the_same_on_one_or_three_workers_and_after_a_kill() {
+    // One tile, the frame: 4 tasks of 16 passes; the kill job's tasks are 128 passes.
+    same_image_on_any_workers_and_after_a_kill("sppm", 4.0);
+}
+
+#[test]
+fn what_bdpt_and_sppm_do_not_take_is_refused_naming_the_setting() {
+    let dir = temp_dir("integrator-refusals");
+    let cluster = Cluster::start(&dir, 0, &[]);
+    let url = &cluster.url;
+    let job = |settings: Value| {
+        post_json(
+            &format!("{url}/api/v1/jobs"),
+            &json!({"scene": cluster.scene, "settings": settings}),
+        )
+    };
+    let adaptive = job(json!({"integrator": "bdpt", "target_rel_error": 0.05}));
+    assert_eq!(adaptive.status, 422, "{}", adaptive.error());
+    assert!(adaptive.error().contains("target_rel_error"), "{}", adaptive.error());
+    let sky = job(json!({"integrator": "bdpt", "environment": {"color": [1, 1, 1]}}));
+    assert_eq!(sky.status, 422, "{}", sky.error());
+    assert!(
+        sky.error().contains("integrator") && sky.error().contains("environment"),
+        "{}",
+        sky.error()
+    );
+    let unknown = job(json!({"integrator": "sppm-typo"}));
+    assert!(
+        unknown.error().contains("integrator") && unknown.error().contains("bdpt, sppm"),
+        "{}",
+        unknown.error()
+    );
+    // Photon mapping: the same scene checks, and parameters that cannot converge.
+    let sky = job(json!({"integrator": "sppm", "environment": {"color": [1, 1, 1]}}));
+    assert_eq!(sky.status, 422, "{}", sky.error());
+    assert!(sky.error().contains("sppm") && sky.error().contains("environment"), "{}", sky.error());
+    for (sppm, key) in [
+        (json!({"radius": 0}), "sppm.radius"),
+        (json!({"radius": -0.5}), "sppm.radius"),
+        (json!({"photons_per_pass": 0}), "sppm.photons_per_pass"),
+        (json!({"alpha": 1.0}), "sppm.alpha"),
+    ] {
+        let bad = job(json!({"integrator": "sppm", "sppm": sppm}));
+        assert_eq!(bad.status, 422, "{}", bad.error());
+        assert!(bad.error().contains(key), "{key}: {}", bad.error());
+    }
+    let jobs = get(&format!("{url}/api/v1/jobs")).json();
+    assert_eq!(jobs["jobs"].as_array().map(Vec::len), Some(0), "{jobs:#}");
+}

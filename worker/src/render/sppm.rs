@@ -1,0 +1,423 @@
+//! Stochastic progressive photon mapping (Hachisuka and Jensen 2009), in the probabilistic
+//! formulation of Knaus and Zwicker 2011 so that its passes are independent of one another.
+//!
+//! Sample index `i` of every pixel is photon pass `i`: the pass traces each pixel's camera path
+//! to its first surface that gathers photons (`Bsdf::gathers_photons`: a diffuse component or a
+//! broad glossy lobe; near-mirrors and smooth refraction are followed by BSDF sampling), its
+//! visible point, adding the light the path meets on the way and the direct light at the visible
+//! point (one light sample); then it traces `photons` photon paths from the lights and adds, at
+//! every visible point within the pass's radius r_i of a photon that arrived after at least one
+//! bounce, f x the photon's flux / (pi r_i² photons). The pass's radius follows the progressive
+//! rule r_i² = r_{i-1}² (i + alpha) / (i + 1) (`SppmParams::radius`): each pass alone is a biased
+//! estimate, their bias shrinks as r_i² and their variance grows more slowly than their number,
+//! so the mean over passes, which is the film's mean over samples, converges to the solution.
+//! Hachisuka and Jensen shrink each pixel's radius by the photons it has gathered; this global
+//! sequence is that rule's expected shrinking (Knaus and Zwicker), and it makes a pass a function
+//! of (scene, settings, seed, pass) alone, which the farm splits like any other sample range.
+//!
+//! Each path is counted once: light seen along the camera path (before its visible point and at
+//! it) by the camera path, light arriving straight from a light at the visible point by its
+//! light sample, and everything that bounced at least once on its way from the light to the
+//! visible point by the photons (those that arrive with no bounce are left out). A photon
+//! counts at a visible point only if the whole path stays within `max_depth` bounces.
+//!
+//! Determinism: camera paths are per pixel; photon `j` of pass `i` draws the numbers of sample
+//! `i` of pseudo-pixel (j, u32::MAX), from `LIGHT_DIMENSION` on; photons are traced in chunks of
+//! `CHUNK` whose gathered sums are added in chunk order, whatever the number of threads.
+//!
+//! What it does not take yet (`Scene::check_integrator` refuses them before any work): volumes,
+//! motion blur, the environment and directional lights.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use common::{film::TileAccum, protocol::TaskSpec};
+use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
+
+use super::{
+    bdpt::{light_subpath, sample_light, surface_vertex, Vertex},
+    geometry::{offset_ray_origin, Ray},
+    integrator::{same_side, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE},
+    sampler::{mix64, Sampler},
+    scene::{PreparedScene, SppmParams, NONE},
+};
+
+/// Photons traced as one unit of work; their sums are added in this unit's order.
+const CHUNK: u32 = 1024;
+
+/// A pixel's visible point of one pass.
+struct VisiblePoint {
+    /// The camera path's vertex there (its throughput, BSDF, frame and direction to the eye).
+    vertex: Vertex,
+    /// Bounces before it (0: seen straight from the camera).
+    depth: u32,
+    /// Index of its pixel in the task's rectangle.
+    pixel: u32,
+    /// Its grid cell.
+    cell: IVec3,
+}
+
+/// Renders a task (a rectangle of the frame x a range of passes) on `threads` threads; each
+/// pass gives one sample of each of the rectangle's pixels. The result does not depend on
+/// `threads`.
+pub fn render_task(
+    scene: &PreparedScene,
+    params: &SppmParams,
+    seed: u64,
+    task: &TaskSpec,
+    threads: usize,
+) -> (TileAccum, Stats) {
+    let rect = task.rect;
+    let mut tile = TileAccum::new(rect);
+    let mut stats = Stats::default();
+    let threads = threads.max(1);
+    for pass in task.samples.start..task.samples.end {
+        let radius = params.radius(pass);
+        let (seen, points) = camera_pass(scene, seed, task, pass, radius, threads, &mut stats);
+        let gathered = photon_pass(scene, params, seed, task, pass, radius, &points, threads);
+        stats.rays += gathered.1;
+        let scale = 1.0 / (std::f64::consts::PI * (radius as f64).powi(2) * params.photons as f64);
+        let mut image = seen;
+        for (vp, sum) in points.iter().zip(&gathered.0) {
+            let add = vp.vertex.beta.as_dvec3() * *sum * scale;
+            image[vp.pixel as usize] += add.as_vec3();
+        }
+        for row in 0..rect.height {
+            for col in 0..rect.width {
+                let l = image[(row * rect.width + col) as usize];
+                tile.add_sample(col, row, pass, l.to_array());
+            }
+        }
+    }
+    (tile, stats)
+}
+
+/// The camera paths of one pass: each pixel's light seen before and at its visible point, and
+/// the visible points (in pixel order).
+fn camera_pass(
+    scene: &PreparedScene,
+    seed: u64,
+    task: &TaskSpec,
+    pass: u32,
+    radius: f32,
+    threads: usize,
+    stats: &mut Stats,
+) -> (Vec<Vec3>, Vec<VisiblePoint>) {
+    let rect = task.rect;
+    let rows: Vec<(Vec<(Vec3, Option<(Vertex, u32)>)>, Stats)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads as u32)
+            .map(|t| {
+                s.spawn(move || {
+                    let mut sampler = Sampler::new(seed, task.frame);
+                    let mut stats = Stats::default();
+                    let mut out = Vec::new();
+                    let mut row = t;
+                    while row < rect.height {
+                        for col in 0..rect.width {
+                            let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
+                            out.push(camera_path(scene, &mut sampler, pixel, pass, &mut stats));
+                        }
+                        row += threads as u32;
+                    }
+                    (out, stats)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().expect("sppm camera thread panicked")).collect()
+    });
+    let n = (rect.width * rect.height) as usize;
+    let mut seen = vec![Vec3::ZERO; n];
+    let mut by_pixel: Vec<Option<(Vertex, u32)>> = vec![None; n];
+    for (t, (out, s)) in rows.into_iter().enumerate() {
+        stats.rays += s.rays;
+        let mut it = out.into_iter();
+        let mut row = t as u32;
+        while row < rect.height {
+            for col in 0..rect.width {
+                let i = (row * rect.width + col) as usize;
+                let (l, vp) = it.next().expect("a result per pixel");
+                seen[i] = l;
+                by_pixel[i] = vp;
+            }
+            row += threads as u32;
+        }
+    }
+    let points = by_pixel
+        .into_iter()
+        .enumerate()
+        .filter_map(|(i, vp)| {
+            vp.map(|(vertex, depth)| VisiblePoint {
+                cell: cell_of(vertex.p, radius),
+                vertex,
+                depth,
+                pixel: i as u32,
+            })
+        })
+        .collect();
+    (seen, points)
+}
+
+/// Pass `pass`'s camera path through `pixel`: the light it sees before and at its visible point
+/// (emitters it hits, the light sample at the visible point) and the visible point with the
+/// bounces before it. Each vertex takes 7 numbers, as a bidirectional camera subpath's do: the
+/// light sample's 3, the lobe, the direction and the roulette.
+fn camera_path(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    pixel: UVec2,
+    pass: u32,
+    stats: &mut Stats,
+) -> (Vec3, Option<(Vertex, u32)>) {
+    sampler.start_pixel_sample(pixel, pass);
+    let film = pixel.as_vec2() + sampler.next_2d();
+    let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+    let mut ray = scene.camera.generate_ray(film, lens);
+    let mut beta = Vec3::ONE;
+    let mut seen = Vec3::ZERO;
+    for depth in 0..=scene.max_depth {
+        let Some((mut v, unlit)) = surface_vertex(scene, &ray, beta, stats) else { break };
+        if let Some(base) = unlit {
+            seen += beta * base;
+            break;
+        }
+        // Emitters met along the way: no vertex before this one sampled a light (the visible
+        // point is the first that does), so each counts whole.
+        if v.light != NONE {
+            seen += beta * v.le(scene, v.wo);
+        }
+        if depth == scene.max_depth {
+            break;
+        }
+        let u = sampler.next_2d();
+        v.u_light = [sampler.next_1d(), u.x, u.y];
+        let bsdf = v.bsdf.expect("a lit surface vertex has a BSDF");
+        if bsdf.gathers_photons() {
+            if let Some((direct, _)) = sample_light(scene, &v, stats) {
+                seen += direct;
+            }
+            return (seen, Some((v, depth)));
+        }
+        let wo_local = v.frame.to_local(v.wo);
+        if wo_local.z <= 0.0 {
+            break;
+        }
+        let u_lobe = sampler.next_1d();
+        let u = sampler.next_2d();
+        let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else { break };
+        let wi = v.frame.to_world(bs.wi);
+        if !same_side(bs.wi.z, wi.dot(v.ng), bsdf.transmits()) {
+            break;
+        }
+        beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
+        if !beta.is_finite() || beta == Vec3::ZERO {
+            break;
+        }
+        if depth + 1 <= RR_MIN_DEPTH {
+            sampler.skip(1);
+        } else {
+            let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
+            if sampler.next_1d() < q {
+                break;
+            }
+            beta /= 1.0 - q;
+        }
+        ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
+    }
+    (seen, None)
+}
+
+/// The grid cell of edge `radius` that holds `p`.
+fn cell_of(p: Vec3, radius: f32) -> IVec3 {
+    let c = (p / radius).floor();
+    // Far outside any sensible grid the cells merge: only speed suffers, never the result.
+    c.clamp(Vec3::splat(-1e9), Vec3::splat(1e9)).as_ivec3()
+}
+
+fn cell_hash(c: IVec3) -> u64 {
+    mix64((c.x as u32 as u64) ^ ((c.y as u32 as u64) << 21) ^ ((c.z as u32 as u64) << 42))
+}
+
+/// The visible points by grid cell: a hash table of cells (collisions are told apart by each
+/// point's own cell), each bucket's points in pixel order.
+struct Grid {
+    mask: u64,
+    /// Bucket `b`'s points are `entries[starts[b]..starts[b + 1]]`.
+    starts: Vec<u32>,
+    entries: Vec<u32>,
+}
+
+impl Grid {
+    fn new(points: &[VisiblePoint]) -> Grid {
+        let buckets = (2 * points.len()).next_power_of_two().max(1);
+        let mask = buckets as u64 - 1;
+        let mut starts = vec![0u32; buckets + 1];
+        for vp in points {
+            starts[(cell_hash(vp.cell) & mask) as usize + 1] += 1;
+        }
+        for b in 0..buckets {
+            starts[b + 1] += starts[b];
+        }
+        let mut fill = starts.clone();
+        let mut entries = vec![0u32; points.len()];
+        for (i, vp) in points.iter().enumerate() {
+            let b = (cell_hash(vp.cell) & mask) as usize;
+            entries[fill[b] as usize] = i as u32;
+            fill[b] += 1;
+        }
+        Grid { mask, starts, entries }
+    }
+
+    /// Calls `visit` with each visible point within `radius` of `p`, cell by cell.
+    fn near(
+        &self,
+        points: &[VisiblePoint],
+        p: Vec3,
+        radius: f32,
+        mut visit: impl FnMut(u32, &VisiblePoint),
+    ) {
+        let centre = cell_of(p, radius);
+        let r2 = radius * radius;
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let cell = centre + IVec3::new(dx, dy, dz);
+                    let b = (cell_hash(cell) & self.mask) as usize;
+                    for &i in &self.entries[self.starts[b] as usize..self.starts[b + 1] as usize] {
+                        let vp = &points[i as usize];
+                        if vp.cell == cell && vp.vertex.p.distance_squared(p) < r2 {
+                            visit(i, vp);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Traces pass `pass`'s photons and returns, per visible point, the sum over the photons within
+/// `radius` of f x flux (and the rays traced).
+#[allow(clippy::too_many_arguments)]
+fn photon_pass(
+    scene: &PreparedScene,
+    params: &SppmParams,
+    seed: u64,
+    task: &TaskSpec,
+    pass: u32,
+    radius: f32,
+    points: &[VisiblePoint],
+    threads: usize,
+) -> (Vec<DVec3>, u64) {
+    let mut sums = vec![DVec3::ZERO; points.len()];
+    if points.is_empty() {
+        return (sums, 0);
+    }
+    let grid = Grid::new(points);
+    let chunks = params.photons.div_ceil(CHUNK) as usize;
+    // A wave of chunks at a time, so that the gathered lists held at once stay bounded.
+    let wave = threads * 8;
+    let mut rays = 0;
+    let mut first = 0;
+    while first < chunks {
+        let last = (first + wave).min(chunks);
+        let next = AtomicUsize::new(first);
+        let done: Vec<(Vec<(usize, Vec<(u32, Vec3)>)>, u64)> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..threads)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut sampler = Sampler::new(seed, task.frame);
+                        let mut stats = Stats::default();
+                        let mut path = Vec::new();
+                        let mut out = Vec::new();
+                        loop {
+                            let c = next.fetch_add(1, Ordering::Relaxed);
+                            if c >= last {
+                                break;
+                            }
+                            let mut gathered = Vec::new();
+                            let start = c as u32 * CHUNK;
+                            for j in start..(start + CHUNK).min(params.photons) {
+                                sampler.start_pixel_sample(UVec2::new(j, u32::MAX), pass);
+                                light_subpath(scene, &mut sampler, &mut path, &mut stats);
+                                deposit(scene, &grid, points, &path, radius, &mut gathered);
+                            }
+                            out.push((c, gathered));
+                        }
+                        (out, stats.rays)
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().expect("sppm photon thread panicked")).collect()
+        });
+        let mut lists: Vec<(usize, Vec<(u32, Vec3)>)> = Vec::with_capacity(last - first);
+        for (out, r) in done {
+            rays += r;
+            lists.extend(out);
+        }
+        lists.sort_unstable_by_key(|(c, _)| *c);
+        for (_, gathered) in lists {
+            for (i, add) in gathered {
+                sums[i as usize] += add.as_dvec3();
+            }
+        }
+        first = last;
+    }
+    (sums, rays)
+}
+
+/// Adds a photon path's contributions at the visible points near its vertices: from its second
+/// surface vertex on (the first is direct light, which the visible points sample themselves),
+/// at surfaces that gather photons, where the whole path stays within `max_depth` bounces.
+fn deposit(
+    scene: &PreparedScene,
+    grid: &Grid,
+    points: &[VisiblePoint],
+    path: &[Vertex],
+    radius: f32,
+    gathered: &mut Vec<(u32, Vec3)>,
+) {
+    // path[0] is on the light; path[i] (i >= 1) is the photon's i-th surface, after i - 1
+    // bounces.
+    for (i, photon) in path.iter().enumerate().skip(2) {
+        let Some(bsdf) = &photon.bsdf else { continue };
+        if !bsdf.gathers_photons() {
+            continue;
+        }
+        let bounces = i as u32 - 1;
+        grid.near(points, photon.p, radius, |index, vp| {
+            if vp.depth + 1 + bounces > scene.max_depth {
+                return;
+            }
+            let v = &vp.vertex;
+            // Light arrives from the photon's previous vertex and leaves toward the eye.
+            let f = v.f(v.wo, photon.wo);
+            let add = f * photon.beta;
+            if add != Vec3::ZERO && add.is_finite() {
+                gathered.push((index, add));
+            }
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_radius_shrinks_by_the_progressive_rule() {
+        let p = SppmParams { radius: 2.0, photons: 10, alpha: 0.5 };
+        assert_eq!(p.radius(0), 2.0);
+        // r1² = r0² (1 + alpha) / 2, r2² = r1² (2 + alpha) / 3.
+        assert!((p.radius(1) - 2.0 * 0.75f32.sqrt()).abs() < 1e-6);
+        assert!((p.radius(2) - 2.0 * (0.75f32 * 2.5 / 3.0).sqrt()).abs() < 1e-6);
+        // r_i² falls as i^(alpha - 1): from pass 1,000 to 10,000 by about 10^-0.5.
+        let ratio = (p.radius(10_000) / p.radius(1_000)).powi(2);
+        assert!((ratio - 10f32.powf(-0.5)).abs() < 0.01, "{ratio}");
+    }
+
+    #[test]
+    fn cells_are_told_apart_in_a_shared_bucket() {
+        let a = cell_of(Vec3::new(0.5, 0.5, 0.5), 1.0);
+        let b = cell_of(Vec3::new(-0.5, 0.5, 0.5), 1.0);
+        assert_eq!((a, b), (IVec3::ZERO, IVec3::new(-1, 0, 0)));
+        assert_eq!(cell_of(Vec3::splat(1e30), 1e-9), IVec3::splat(1_000_000_000));
+    }
+}
