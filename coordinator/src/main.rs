@@ -63,7 +63,7 @@ struct SettingsArgs {
     /// `"variant": NAME` in the settings.
     #[arg(long, value_name = "NAME")]
     variant: Option<String>,
-    /// The light-transport algorithm (`path` or `bdpt`); the same as `"integrator": NAME` in the
+    /// The light-transport algorithm (`path`, `bdpt` or `sppm`); the same as `"integrator": NAME` in the
     /// settings.
     #[arg(long, value_name = "NAME")]
     integrator: Option<String>,
