@@ -167,3 +167,63 @@ fn sppm_is_the_same_on_any_threads_and_split() {
     }
     assert!(one.mean_rgb().iter().flatten().any(|&v| v > 0.0));
 }
+
+/// The photon-mapping film against the path tracer's by their means per channel over the
+/// pixels where both are below `cap` (the lights seen straight on, whose edges' noise would hide
+/// the rest, are left out): within 4 standard errors of both plus `bias` (relative); prints the
+/// figures under `what`.
+fn assert_means_agree(what: &str, ours: &Film, path: &Film, cap: f64, bias: f64) {
+    let kept: Vec<usize> = (0..ours.pixels.len())
+        .filter(|&i| {
+            let below = |f: &Film| f.pixels[i].mean().iter().all(|&v| v < cap);
+            below(ours) && below(path)
+        })
+        .collect();
+    let n = kept.len() as f64;
+    let stats = |f: &Film, c: usize| {
+        let mean = kept.iter().map(|&i| f.pixels[i].mean()[c]).sum::<f64>() / n;
+        let var = kept.iter().map(|&i| f.pixels[i].variance_of_mean()[c]).sum::<f64>() / (n * n);
+        (mean, var.sqrt())
+    };
+    for c in 0..3 {
+        let ((m, se), (pm, pse)) = (stats(ours, c), stats(path, c));
+        let sigma = (se * se + pse * pse).sqrt();
+        println!(
+            "{what} ({} of {} pixels), channel {c}: sppm {m:.5} +- {se:.1e}, path {pm:.5} +- \
+             {pse:.1e}, z {:.2}",
+            kept.len(),
+            ours.pixels.len(),
+            (m - pm) / sigma
+        );
+        assert!((m - pm).abs() < 4.0 * sigma + bias * pm, "{what}, channel {c}: {m} vs {pm}");
+    }
+}
+
+/// A glossy scene (`veach-mis-s`: four metal plates of GGX alpha 0.005 to 0.1 lit by four
+/// lights of different sizes, followed to the floor they reflect) and
+/// depth of field (the Cornell box through the thin lens of `cornell-dof`): image means within
+/// the noise plus 1% of the path tracer's (on the plates, the lights seen straight on left out).
+#[test]
+fn sppm_glossy_plates_and_thin_lens_match_the_path_tracer() {
+    let path = shared().join("bench/peers/scenes/veach-mis-s.gltf");
+    let scene = common::gltf::load_path(&path).unwrap();
+    let base =
+        RenderSettings { width: 48, height: 32, spp: 256, max_depth: 5, ..Default::default() };
+    let film = render_sppm(&scene, &base, 128, 2);
+    let reference = render(&scene, &RenderSettings { spp: 1024, seed: 3, ..base.clone() });
+    assert_means_agree("veach-mis-s", &film, &reference, 2.0, 0.01);
+
+    let scene = load("cornell-box.gltf");
+    let dof: RenderSettings = RenderSettings::from_json(
+        &std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../scenes/cornell-dof.settings.json"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let base = RenderSettings { width: 32, height: 32, spp: 128, max_depth: 5, ..dof };
+    let film = render_sppm(&scene, &base, 64, 2);
+    let reference = render(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
+    assert_means_agree("cornell box, thin lens", &film, &reference, f64::INFINITY, 0.01);
+}

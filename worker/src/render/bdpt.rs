@@ -134,7 +134,7 @@ impl Vertex {
 
     /// Density per solid angle of the BSDF sampling unit direction `to` given the path came
     /// from `from` (the BSDF samples "wi" for a "wo"; the frame is turned when `from` lies below).
-    fn pdf_dir(&self, from: Vec3, to: Vec3) -> f32 {
+    pub(super) fn pdf_dir(&self, from: Vec3, to: Vec3) -> f32 {
         let Some(bsdf) = &self.bsdf else { return 0.0 };
         let (a, b) = flip_below(self.frame.to_local(from), self.frame.to_local(to));
         bsdf.pdf(a, b)
@@ -194,7 +194,7 @@ impl Vertex {
 
     /// Density of a light subpath starting at this point of its light: the light's choice
     /// times the point's density per unit area (1 for a point light).
-    fn pdf_light_origin(&self, scene: &PreparedScene) -> f32 {
+    pub(super) fn pdf_light_origin(&self, scene: &PreparedScene) -> f32 {
         if self.light == NONE {
             return 0.0;
         }
@@ -604,7 +604,7 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
                     (pt.beta * pt.le(scene, wo), None)
                 }
                 1 => match sample_light(scene, pt, stats) {
-                    Some((l, v)) => (l, Some(v)),
+                    Some((l, v, _)) => (l, Some(v)),
                     None => continue,
                 },
                 _ => {
@@ -636,12 +636,13 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
 }
 
 /// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers,
-/// the unoccluded contribution and the light's vertex.
+/// the unoccluded contribution, the light's vertex and the sample's density per solid angle
+/// (the light's choice included; infinite for a point or spot light).
 pub(super) fn sample_light(
     scene: &PreparedScene,
     pt: &Vertex,
     stats: &mut Stats,
-) -> Option<(Vec3, Vertex)> {
+) -> Option<(Vec3, Vertex, f32)> {
     pt.bsdf?;
     let [u_choice, ux, uy] = pt.u_light;
     let (idx, pmf, _) = scene.lights.choose(&ShadingContext::default(), u_choice)?;
@@ -676,7 +677,7 @@ pub(super) fn sample_light(
     if l == Vec3::ZERO || !visible(scene, pt, &v, stats) {
         return None;
     }
-    Some((l, v))
+    Some((l, v, if ls.is_delta { f32::INFINITY } else { ls.pdf * pmf }))
 }
 
 /// Renders rows `first, first + step, ...` of a camera task with bidirectional path tracing.

@@ -4,8 +4,8 @@
 //! Sample index `i` of every pixel is photon pass `i`: the pass traces each pixel's camera path
 //! to its first surface that gathers photons (`Bsdf::gathers_photons`: a diffuse component or a
 //! broad glossy lobe; near-mirrors and smooth refraction are followed by BSDF sampling), its
-//! visible point, adding the light the path meets on the way and the direct light at the visible
-//! point (one light sample); then it traces `photons` photon paths from the lights and adds, at
+//! visible point, adding the direct light at each vertex on the way and at the visible point (a
+//! light sample and a BSDF sample weighted by the power heuristic, as the path tracer does); then it traces `photons` photon paths from the lights and adds, at
 //! every visible point within the pass's radius r_i of a photon that arrived after at least one
 //! bounce, f x the photon's flux / (pi r_i² photons). The pass's radius follows the progressive
 //! rule r_i² = r_{i-1}² (i + alpha) / (i + 1) (`SppmParams::radius`): each pass alone is a biased
@@ -15,11 +15,11 @@
 //! sequence is that rule's expected shrinking (Knaus and Zwicker), and it makes a pass a function
 //! of (scene, settings, seed, pass) alone, which the farm splits like any other sample range.
 //!
-//! Each path is counted once: light seen along the camera path (before its visible point and at
-//! it) by the camera path, light arriving straight from a light at the visible point by its
-//! light sample, and everything that bounced at least once on its way from the light to the
-//! visible point by the photons (those that arrive with no bounce are left out). A photon
-//! counts at a visible point only if the whole path stays within `max_depth` bounces.
+//! Each path is counted once: light reaching the camera path's vertices up to its visible point
+//! straight from a light by the camera path (its light and BSDF samples, weighted against each
+//! other), and everything that bounced at least once on its way from the light to the visible
+//! point by the photons (those that arrive with no bounce are left out). A photon counts at a
+//! visible point only if the whole path stays within `max_depth` bounces.
 //!
 //! Determinism: camera paths are per pixel; photon `j` of pass `i` draws the numbers of sample
 //! `i` of pseudo-pixel (j, u32::MAX), from `LIGHT_DIMENSION` on; photons are traced in chunks of
@@ -36,7 +36,7 @@ use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 use super::{
     bdpt::{light_subpath, sample_light, surface_vertex, Vertex},
     geometry::{offset_ray_origin, Ray},
-    integrator::{same_side, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE},
+    integrator::{power_heuristic, same_side, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE},
     sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
@@ -157,9 +157,12 @@ fn camera_pass(
 }
 
 /// Pass `pass`'s camera path through `pixel`: the light it sees before and at its visible point
-/// (emitters it hits, the light sample at the visible point) and the visible point with the
-/// bounces before it. Each vertex takes 7 numbers, as a bidirectional camera subpath's do: the
-/// light sample's 3, the lobe, the direction and the roulette.
+/// and the visible point with the bounces before it. Direct light is taken at every vertex that
+/// is not a delta lobe by a light sample and a BSDF sample weighted by the power heuristic (the
+/// path's next direction is a followed vertex's BSDF sample; a visible point traces one for it),
+/// so that neither a small light on a rough surface nor a large one on a sharp lobe leaves heavy
+/// tails. Each vertex takes 7 numbers, as a bidirectional camera subpath's do: the light
+/// sample's 3, the lobe, the direction and the roulette.
 fn camera_path(
     scene: &PreparedScene,
     sampler: &mut Sampler,
@@ -173,16 +176,18 @@ fn camera_path(
     let mut ray = scene.camera.generate_ray(film, lens);
     let mut beta = Vec3::ONE;
     let mut seen = Vec3::ZERO;
+    // The density of the BSDF sample that made `ray` (0: a camera ray, whose emitter counts
+    // whole) and the point it left.
+    let mut prev_pdf = 0.0f32;
+    let mut prev_p = ray.origin;
     for depth in 0..=scene.max_depth {
         let Some((mut v, unlit)) = surface_vertex(scene, &ray, beta, stats) else { break };
         if let Some(base) = unlit {
             seen += beta * base;
             break;
         }
-        // Emitters met along the way: no vertex before this one sampled a light (the visible
-        // point is the first that does), so each counts whole.
         if v.light != NONE {
-            seen += beta * v.le(scene, v.wo);
+            seen += beta * v.le(scene, v.wo) * emitter_weight(scene, &v, prev_p, prev_pdf);
         }
         if depth == scene.max_depth {
             break;
@@ -190,28 +195,39 @@ fn camera_path(
         let u = sampler.next_2d();
         v.u_light = [sampler.next_1d(), u.x, u.y];
         let bsdf = v.bsdf.expect("a lit surface vertex has a BSDF");
-        if bsdf.gathers_photons() {
-            if let Some((direct, _)) = sample_light(scene, &v, stats) {
-                seen += direct;
-            }
-            return (seen, Some((v, depth)));
-        }
         let wo_local = v.frame.to_local(v.wo);
-        if wo_local.z <= 0.0 {
-            break;
+        if let Some((direct, light, light_pdf)) = sample_light(scene, &v, stats) {
+            let bsdf_pdf = v.pdf_dir(v.wo, (light.p - v.p).normalize());
+            seen += direct * power_heuristic(light_pdf, bsdf_pdf);
         }
         let u_lobe = sampler.next_1d();
         let u = sampler.next_2d();
-        let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else { break };
-        let wi = v.frame.to_world(bs.wi);
-        if !same_side(bs.wi.z, wi.dot(v.ng), bsdf.transmits()) {
-            break;
+        let sampled = if wo_local.z > 0.0 { bsdf.sample(wo_local, u_lobe, u) } else { None };
+        let next = sampled.and_then(|bs| {
+            let wi = v.frame.to_world(bs.wi);
+            same_side(bs.wi.z, wi.dot(v.ng), bsdf.transmits()).then_some((bs, wi))
+        });
+        if bsdf.gathers_photons() {
+            // The BSDF's half of the direct light, then the path ends here.
+            if let Some((bs, wi)) = next {
+                let weight = beta * bs.f * (bs.wi.z.abs() / bs.pdf);
+                let ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
+                if let Some((hit, None)) = surface_vertex(scene, &ray, weight, stats) {
+                    if hit.light != NONE {
+                        let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
+                        seen +=
+                            weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, v.p, pdf);
+                    }
+                }
+            }
+            return (seen, Some((v, depth)));
         }
+        let Some((bs, wi)) = next else { break };
         beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
-        if depth + 1 <= RR_MIN_DEPTH {
+        if depth < RR_MIN_DEPTH {
             sampler.skip(1);
         } else {
             let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
@@ -220,9 +236,23 @@ fn camera_path(
             }
             beta /= 1.0 - q;
         }
+        prev_pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
+        prev_p = v.p;
         ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
     }
     (seen, None)
+}
+
+/// The multiple-importance weight of emitter vertex `hit` found by a BSDF sample of density
+/// `pdf` (per solid angle) from `from`, against sampling the light from there; 1 when `pdf` is 0
+/// (a camera ray or a delta lobe, which no light sample could make).
+fn emitter_weight(scene: &PreparedScene, hit: &Vertex, from: Vec3, pdf: f32) -> f32 {
+    if pdf == 0.0 {
+        return 1.0;
+    }
+    let cos = hit.ng.dot(hit.wo).abs();
+    let light_pdf = hit.pdf_light_origin(scene) * hit.p.distance_squared(from) / cos;
+    power_heuristic(pdf, light_pdf)
 }
 
 /// The grid cell of edge `radius` that holds `p`.

@@ -25,8 +25,10 @@ pub use thin_film::ThinFilm;
 use glam::{Vec2, Vec3};
 
 /// The GGX alpha (roughness²) from which photon mapping gathers photons at a glossy surface
-/// rather than following its reflection (roughness about 0.32).
-pub const GATHER_ALPHA: f32 = 0.1;
+/// rather than following its reflection (roughness 0.5): on the glossy plates of `veach-mis` a
+/// plate of alpha 0.1 that gathered stayed 12% dark at 1,024 passes (the few photons that arrive
+/// within its narrow lobe carry its reflection), and followed it agrees with the path tracer.
+pub const GATHER_ALPHA: f32 = 0.25;
 
 /// Which lobe a sample came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
