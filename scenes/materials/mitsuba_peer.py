@@ -20,7 +20,9 @@ single-scattering albedo that `KHR_materials_volume_scatter` gives for its `mult
 g = `scatterAnisotropy`. The integrator is `volpath` for absorbing media and
 `volpathmis` for scattering ones (`volpath` leaves fireflies in the red channel of the subsurface
 scene), `max_depth` = ours + 1 (Mitsuba's depth 1 is an emitter seen directly, ours 0),
-Russian roulette from depth 5, `llvm_ad_rgb`, box filter, independent sampler.
+Russian roulette from depth 5 (`--rr-depth`: a reference of a scene with a scattering medium
+wants it off, e.g. 5000; `volpathmis` biases light reached after a bounce past rr_depth, see
+docs/perf/materials.md), `llvm_ad_rgb`, box filter, independent sampler.
 
 Each run builds the scene and renders it (`seconds` = load + render, as `../shared/bench/peers/
 run.py` counts them: no Python import, no image writing) after one untimed warm-up render that
@@ -133,8 +135,9 @@ def surface(mi, material, boundary):
     return mi.load_dict(bsdf), None, False
 
 
-def build(mi, path, width, height, spp, seed, boundary="dielectric"):
-    """The Mitsuba scene of a glTF file of this folder, with the integrator its media call for."""
+def build(mi, path, width, height, spp, seed, boundary="dielectric", rr_depth=5):
+    """The Mitsuba scene of a glTF file of this folder, with the integrator its media call for
+    (Russian roulette from `rr_depth`; one beyond `max_depth` turns it off)."""
     scene = gltf_load.load(path)
     gltf = json.loads(Path(path).read_text())
     surfaces = [surface(mi, m, boundary) for m in gltf["materials"]]
@@ -144,7 +147,7 @@ def build(mi, path, width, height, spp, seed, boundary="dielectric"):
     d = {
         "type": "scene",
         "integrator": {"type": "volpathmis" if scatters else "volpath", "max_depth": max_depth,
-                       "rr_depth": 5, "hide_emitters": False},
+                       "rr_depth": rr_depth, "hide_emitters": False},
         "sensor": {
             "type": "perspective", "fov": math.degrees(camera.yfov), "fov_axis": "y",
             "near_clip": 1e-3, "far_clip": 1e5,
@@ -178,10 +181,10 @@ def build(mi, path, width, height, spp, seed, boundary="dielectric"):
     return mi.load_dict(d), d["integrator"]
 
 
-def render(mi, path, width, height, spp, seed, boundary="dielectric"):
+def render(mi, path, width, height, spp, seed, boundary="dielectric", rr_depth=5):
     """Loads and renders; returns the image, the load and render seconds and the integrator."""
     start = time.perf_counter()
-    scene, integrator = build(mi, path, width, height, spp, seed, boundary)
+    scene, integrator = build(mi, path, width, height, spp, seed, boundary, rr_depth)
     loaded = time.perf_counter()
     image = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
     return image, loaded - start, time.perf_counter() - loaded, integrator
@@ -192,7 +195,7 @@ def make_reference(mi, a, path):
     from exrio import write_exr
     out = Path(a.ref)
     stem = out.with_suffix("")
-    scene, integrator = build(mi, path, a.size, a.size, a.chunk, a.seed, a.boundary)
+    scene, integrator = build(mi, path, a.size, a.size, a.chunk, a.seed, a.boundary, a.rr_depth)
     ior = [m.get("extensions", {}).get("KHR_materials_ior", {}).get("ior")
            for m in json.loads(path.read_text())["materials"]]
     boundary = None
@@ -218,10 +221,11 @@ def make_reference(mi, a, path):
                 "chunk_spp": a.chunk, "seeds": f"{a.seed}..{a.seed + k - 1}",
                 "wall_seconds": round(time.perf_counter() - t_start, 1),
                 "cpu_seconds": round(time.process_time() - c_start, 1),
-                "config": f"{integrator['type']} max_depth={integrator['max_depth']} rr_depth=5, "
-                          "sampler=independent, rfilter=box(r=0.5)",
+                "config": f"{integrator['type']} max_depth={integrator['max_depth']} "
+                          f"rr_depth={integrator['rr_depth']}, sampler=independent, rfilter=box(r=0.5)",
                 "render_args": f"scenes/materials/mitsuba_peer.py {a.scene} --ref {out.name} "
-                               f"--boundary {a.boundary} --chunk {a.chunk} --seed {a.seed} "
+                               f"--boundary {a.boundary} --rr-depth {a.rr_depth} --chunk {a.chunk} "
+                               f"--seed {a.seed} "
                                f"--size {a.size} --threads {a.threads}",
                 "width": a.size, "height": a.size}
         if boundary:
@@ -254,6 +258,13 @@ def main():
     ap.add_argument("--boundary", choices=["dielectric", "null"], default="dielectric",
                     help=f"an ior-1 boundary as a dielectric of ior {NEAR_MATCHED_IOR} (no light "
                          "sampled through it, as ours) or a null surface")
+    ap.add_argument("--rr-depth", type=int, default=5,
+                    help="Mitsuba's rr_depth (default 5); one beyond max_depth (e.g. 5000) turns "
+                         "Russian roulette off, which a reference of a scene with media needs: "
+                         "volpathmis puts the survival probability into the MIS weight of an emitter "
+                         "that BSDF or phase sampling hits, not into that of the light sample, and so "
+                         "darkens light reached after a bounce at depth > rr_depth "
+                         "(docs/perf/materials.md)")
     ap.add_argument("--ref", metavar="OUT.exr", help="render a reference in chunks to OUT.exr")
     ap.add_argument("--chunk", type=int, default=2048, help="spp of a reference's chunk")
     ap.add_argument("--minutes", type=float, default=10.0, help="wall clock of a reference")
@@ -273,7 +284,7 @@ def main():
 
     if a.check:
         image, t_load, t_render, integrator = render(mi, path, a.size, a.size, a.check, a.seed,
-                                                      a.boundary)
+                                                      a.boundary, a.rr_depth)
         ratio = image.reshape(-1, 3).mean(axis=0) / ref.reshape(-1, 3).mean(axis=0)
         rmse, relmse, _, median = metrics(image, ref)
         print(f"{a.scene}: {integrator['type']} max_depth {integrator['max_depth']}, {a.check} spp in "
@@ -281,13 +292,14 @@ def main():
               f"{', '.join(f'{r:.5f}' for r in ratio)}; relmse {relmse:.3e}, median {median:.3e}")
         return 0
 
-    render(mi, path, a.size, a.size, 4, 0, a.boundary)  # Warm-up: Dr.Jit's kernel cache and the page cache.
+    render(mi, path, a.size, a.size, 4, 0, a.boundary, a.rr_depth)  # Warm-up: Dr.Jit's kernel cache and the page cache.
     rows = []
     print("scene,spp,seconds,samples_per_s,rmse,relmse,median_relmse,load1")
     for k, spp in enumerate(int(s) for s in a.spp.split(",")):
         seed = a.seed + k
         c0 = time.process_time()
-        image, t_load, t_render, integrator = render(mi, path, a.size, a.size, spp, seed, a.boundary)
+        image, t_load, t_render, integrator = render(mi, path, a.size, a.size, spp, seed, a.boundary,
+                                                      a.rr_depth)
         cpu = time.process_time() - c0
         rmse, relmse, mae, median = metrics(image, ref)
         load1 = os.getloadavg()[0]
