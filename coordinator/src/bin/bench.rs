@@ -444,7 +444,8 @@ fn render_prepared(
 
 /// The light tree against the power mixture on a floor lit by N small emitters: relative MSE
 /// and seconds for each N at a few sample counts, and the mixture's error at the tree's time
-/// (interpolated log-log) over the tree's. Each run's seconds count
+/// (interpolated log-log) over the tree's; at 1,024 emitters also the path tracer, bidirectional
+/// path tracing and photon mapping through the farm's code path. Each run's seconds count
 /// preparing the scene (the tree's build) and rendering; the reference is the tree at 1024 spp
 /// with another seed.
 fn many_lights(threads: usize) -> Result<()> {
@@ -482,6 +483,25 @@ fn many_lights(threads: usize) -> Result<()> {
             let theirs = curves[1].rel_mse_at(seconds);
             println!("{n},{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
         }
+        if n == 1024 {
+            // The integrators on the same scene through the farm's code path (bidirectional
+            // path tracing and photon mapping choose lights by the mixture), against the tree's
+            // reference.
+            let prefix = format!("{n},");
+            let curves = integrator_curves(
+                &path,
+                &base,
+                threads,
+                &reference,
+                &[
+                    ("path", &[4, 16, 64, 256]),
+                    ("bdpt", &[1, 4, 16, 64]),
+                    ("sppm", &[4, 16, 64, 256]),
+                ],
+                &prefix,
+            )?;
+            print_against_path(&curves, &prefix);
+        }
     }
     Ok(())
 }
@@ -504,13 +524,38 @@ fn caustic(threads: usize) -> Result<()> {
         .collect();
     let base =
         RenderSettings { width: res, height: res, max_depth: 2, seed: 5, ..Default::default() };
-    println!("integrator,spp,seconds,relmse,est_relmse");
+    let curves = integrator_curves(
+        &scene,
+        &base,
+        threads,
+        &expected,
+        &[
+            ("path", &[64, 256, 1024, 4096]),
+            ("bdpt", &[4, 16, 64, 256]),
+            ("sppm", &[16, 64, 256, 1024, 4096]),
+        ],
+        "",
+    )?;
+    print_against_path(&curves, "");
+    Ok(())
+}
+
+/// Renders `scene` with each integrator at its sample counts through `coordinator render`'s
+/// code path (`render_file`, `threads` local workers) and prints a CSV row per run (`prefix`
+/// first): seconds (loading and rendering, not writing), the relative MSE against `expected` and
+/// the film's estimate of it. The path tracer's curve comes first.
+fn integrator_curves(
+    scene: &Path,
+    base: &RenderSettings,
+    threads: usize,
+    expected: &[[f32; 3]],
+    runs: &[(&str, &[u32])],
+    prefix: &str,
+) -> Result<Vec<Series>> {
+    let dir = scene.parent().unwrap_or(Path::new("."));
+    println!("{prefix}integrator,spp,seconds,relmse,est_relmse");
     let mut curves = Vec::new();
-    for (integrator, spps) in [
-        ("path", &[64u32, 256, 1024, 4096][..]),
-        ("bdpt", &[4u32, 16, 64, 256][..]),
-        ("sppm", &[16u32, 64, 256, 1024, 4096][..]),
-    ] {
+    for &(integrator, spps) in runs {
         let mut points = Vec::new();
         for &spp in spps {
             // A photon-mapping task is a range of passes over the whole frame: ranges small
@@ -528,26 +573,34 @@ fn caustic(threads: usize) -> Result<()> {
             };
             let out = dir.join(format!("{integrator}-{spp}.exr"));
             let wall = Instant::now();
-            let report = render_file(&scene, &settings, threads, &out, &|_| {})?;
+            let report = render_file(scene, &settings, threads, &out, &|_| {})?;
             let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
-            let (_, rel_mse) = metrics(&report.mean_rgb, &expected);
-            println!("{integrator},{spp},{seconds:.4},{rel_mse:.6e},{:.6e}", report.est_rel_mse);
+            let (_, rel_mse) = metrics(&report.mean_rgb, expected);
+            println!(
+                "{prefix}{integrator},{spp},{seconds:.4},{rel_mse:.6e},{:.6e}",
+                report.est_rel_mse
+            );
             points.push((seconds, rel_mse, spp));
         }
         curves.push(Series { name: integrator.into(), points });
     }
-    println!("integrator,spp,seconds,relmse,path_relmse_at_its_seconds,path_over_it");
+    Ok(curves)
+}
+
+/// Each curve after the first (the path tracer's) at its runs' seconds against the path tracer's
+/// error there (interpolated log-log): the ratio above 1 is how much lower its error is.
+fn print_against_path(curves: &[Series], prefix: &str) {
+    println!("{prefix}integrator,spp,seconds,relmse,path_relmse_at_its_seconds,path_over_it");
     for curve in &curves[1..] {
         for &(seconds, rel_mse, spp) in &curve.points {
             let path = curves[0].rel_mse_at(seconds);
             println!(
-                "{},{spp},{seconds:.4},{rel_mse:.6e},{path:.6e},{:.1}",
+                "{prefix}{},{spp},{seconds:.4},{rel_mse:.6e},{path:.6e},{:.1}",
                 curve.name,
                 path / rel_mse
             );
         }
     }
-    Ok(())
 }
 
 /// One renderer's error against time: (seconds, relative MSE, spp), by increasing seconds.
