@@ -1,12 +1,14 @@
 //! Glass and subsurface scattering against an independent renderer.
 //!
 //! The scenes of `scenes/materials/` (a smooth and a rough absorbing glass sphere, and a sphere of
-//! a scattering medium behind a smooth ior-1.5 boundary, on a checkered floor under an area light
-//! and a sky colour) rendered at 48x48 by Mitsuba 3's volumetric path tracer at tens of thousands
-//! of samples per pixel are `scenes/materials/ref/<scene>-48.exr`; each `.ref.json` beside them
-//! records how (`../shared/bench/peers/make_ref.py`, whose loader maps the glTF volume to
-//! Mitsuba's `dielectric` or `roughdielectric` and a `homogeneous` medium) and the reference's
-//! own noise. Our render at a modest sample count must agree with it over the whole image and per
+//! a scattering medium behind a smooth ior-1.5 and behind an index-matched boundary, on a
+//! checkered floor under an area light and a sky colour) rendered at 48x48 by Mitsuba 3's
+//! volumetric path tracer at tens of thousands of samples per pixel are
+//! `scenes/materials/ref/<scene>-48.exr`; each `.ref.json` beside them records how
+//! (`../shared/bench/peers/make_ref.py` or `scenes/materials/mitsuba_peer.py --ref`, whose loaders
+//! map the glTF volume to Mitsuba's `dielectric` or `roughdielectric` and a `homogeneous` medium)
+//! and the reference's own noise. The scattering media's references are rendered without Russian
+//! roulette, which biases Mitsuba's `volpathmis` (`docs/perf/materials.md`). Our render at a modest sample count must agree with it over the whole image and per
 //! 16x16 block, within the noise the film measures plus the reference's (see
 //! `docs/perf/materials.md` for the full-size comparison).
 
@@ -72,4 +74,9 @@ fn rough_glass_matches_mitsuba() {
 #[test]
 fn subsurface_scattering_matches_mitsuba() {
     matches_reference("subsurface", 256);
+}
+
+#[test]
+fn index_matched_subsurface_scattering_matches_mitsuba() {
+    matches_reference("subsurface-matched", 256);
 }
