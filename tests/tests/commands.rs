@@ -141,10 +141,18 @@ fn render_takes_the_integrator_and_a_time_limit() {
 
     let out = dir.join("sppm.exr");
     let output = run(&out, &["--integrator", "sppm"]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let header = String::from_utf8_lossy(&std::fs::read(&out).unwrap()).into_owned();
+    assert!(header.contains(r#""integrator":"sppm""#), "the header names the integrator");
+
+    let out = dir.join("mlt.exr");
+    let output = run(&out, &["--integrator", "mlt"]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success(), "an unknown integrator rendered");
     assert!(
-        stderr.contains("integrator") && stderr.contains("sppm") && stderr.contains("path, bdpt"),
+        stderr.contains("integrator")
+            && stderr.contains("mlt")
+            && stderr.contains("path, bdpt, sppm"),
         "{stderr}"
     );
     assert!(!out.exists(), "no image for a refused integrator");

@@ -163,14 +163,7 @@ fn bdpt_closed_furnace_is_one() {
 #[test]
 fn bdpt_thin_lens_matches_the_path_tracer() {
     let scene = load("cornell-box.gltf");
-    let dof: RenderSettings = RenderSettings::from_json(
-        &std::fs::read_to_string(
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../scenes/cornell-dof.settings.json"),
-        )
-        .unwrap(),
-    )
-    .unwrap();
+    let dof = cornell_dof_settings();
     let base = RenderSettings { width: 32, height: 32, spp: 64, max_depth: 5, ..dof };
     let (camera, light) = render_bdpt(&scene, &base);
     let path = render(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });

@@ -214,14 +214,7 @@ fn sppm_glossy_plates_and_thin_lens_match_the_path_tracer() {
     assert_means_agree("veach-mis-s", &film, &reference, 2.0, 0.01);
 
     let scene = load("cornell-box.gltf");
-    let dof: RenderSettings = RenderSettings::from_json(
-        &std::fs::read_to_string(
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../scenes/cornell-dof.settings.json"),
-        )
-        .unwrap(),
-    )
-    .unwrap();
+    let dof = cornell_dof_settings();
     let base = RenderSettings { width: 32, height: 32, spp: 128, max_depth: 5, ..dof };
     let film = render_sppm(&scene, &base, 64, 2);
     let reference = render(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });

@@ -333,18 +333,29 @@ fn walk(
         }
         // Russian roulette as in the path tracer (unbiased; the MIS weights leave it out, which
         // keeps them a partition of unity).
-        if bounces <= RR_MIN_DEPTH {
-            sampler.skip(1);
-        } else {
-            let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
-            if sampler.next_1d() < q {
-                break;
-            }
-            beta /= 1.0 - q;
+        if !roulette(sampler, &mut beta, bounces) {
+            break;
         }
         pdf = pdf_fwd;
         ray = Ray::new(offset_ray_origin(p, path[n - 1].p_error, ng, wi), wi);
     }
+}
+
+/// Russian roulette after `bounces` bounces, as the path tracer plays it: past `RR_MIN_DEPTH`
+/// the path survives with probability min(1, `RR_SURVIVAL_SCALE` x its largest throughput
+/// channel) and its throughput grows by its inverse; before it the number is skipped. False when
+/// the path ends.
+pub(super) fn roulette(sampler: &mut Sampler, beta: &mut Vec3, bounces: u32) -> bool {
+    if bounces <= RR_MIN_DEPTH {
+        sampler.skip(1);
+        return true;
+    }
+    let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
+    if sampler.next_1d() < q {
+        return false;
+    }
+    *beta /= 1.0 - q;
+    true
 }
 
 /// What `ray` hits first, as a surface vertex reached with throughput `beta` (its densities

@@ -34,9 +34,9 @@ use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
-    bdpt::{light_subpath, sample_light, surface_vertex, Vertex},
+    bdpt::{light_subpath, roulette, sample_light, surface_vertex, Vertex},
     geometry::{offset_ray_origin, Ray},
-    integrator::{power_heuristic, same_side, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE},
+    integrator::{power_heuristic, same_side, Stats},
     sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
@@ -227,14 +227,8 @@ fn camera_path(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
-        if depth < RR_MIN_DEPTH {
-            sampler.skip(1);
-        } else {
-            let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
-            if sampler.next_1d() < q {
-                break;
-            }
-            beta /= 1.0 - q;
+        if !roulette(sampler, &mut beta, depth + 1) {
+            break;
         }
         prev_pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
         prev_p = v.p;

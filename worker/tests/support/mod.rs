@@ -282,3 +282,9 @@ pub fn load_caustic(caustic: &worker::test_scenes::MirrorCaustic) -> Scene {
 pub fn caustic_expected(caustic: &worker::test_scenes::MirrorCaustic, res: u32) -> Vec<[f32; 3]> {
     (0..res * res).map(|i| [caustic.pixel_radiance(i % res, i / res, res, res) as f32; 3]).collect()
 }
+
+/// The Cornell box's depth-of-field settings (`scenes/cornell-dof.settings.json`: its thin lens).
+pub fn cornell_dof_settings() -> RenderSettings {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-dof.settings.json");
+    RenderSettings::from_json(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
