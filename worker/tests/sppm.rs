@@ -220,3 +220,24 @@ fn sppm_glossy_plates_and_thin_lens_match_the_path_tracer() {
     let reference = render(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
     assert_means_agree("cornell box, thin lens", &film, &reference, f64::INFINITY, 0.01);
 }
+
+/// A radius larger than the scene (every photon lands near every visible point): each chunk of
+/// photons sums per visible point instead of listing its contributions, and the image is still
+/// finite and the same bits on one thread or three.
+#[test]
+fn sppm_with_a_radius_larger_than_the_scene_stays_bounded_and_the_same() {
+    let scene = load("cornell-box.gltf");
+    let base = RenderSettings {
+        width: 8,
+        height: 8,
+        spp: 2,
+        max_depth: 3,
+        sppm: Some(common::settings::Sppm { radius: Some(100.0), ..Default::default() }),
+        ..settings("cornell-box")
+    };
+    let one = render_sppm(&scene, &base, 2, 1);
+    let three = render_sppm(&scene, &base, 2, 3);
+    assert_eq!(one.rejected, 0);
+    assert!(one.pixels.iter().zip(&three.pixels).all(|(a, b)| a == b), "1 vs 3 threads");
+    assert!(one.mean_rgb().iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
+}

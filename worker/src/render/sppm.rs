@@ -336,14 +336,15 @@ fn photon_pass(
     }
     let grid = Grid::new(points);
     let chunks = params.photons.div_ceil(CHUNK) as usize;
-    // A wave of chunks at a time, so that the gathered lists held at once stay bounded.
-    let wave = threads * 8;
+    // A wave of chunks at a time, so that the gathered sums held at once stay bounded (each
+    // chunk's at most one visible point's worth of 16 bytes: `Gathered`).
+    let wave = threads * 4;
     let mut rays = 0;
     let mut first = 0;
     while first < chunks {
         let last = (first + wave).min(chunks);
         let next = AtomicUsize::new(first);
-        let done: Vec<(Vec<(usize, Vec<(u32, Vec3)>)>, u64)> = std::thread::scope(|s| {
+        let done: Vec<(Vec<(usize, Gathered)>, u64)> = std::thread::scope(|s| {
             let handles: Vec<_> = (0..threads)
                 .map(|_| {
                     s.spawn(|| {
@@ -356,7 +357,7 @@ fn photon_pass(
                             if c >= last {
                                 break;
                             }
-                            let mut gathered = Vec::new();
+                            let mut gathered = Gathered::List(Vec::new());
                             let start = c as u32 * CHUNK;
                             for j in start..(start + CHUNK).min(params.photons) {
                                 sampler.start_pixel_sample(UVec2::new(j, u32::MAX), pass);
@@ -371,20 +372,55 @@ fn photon_pass(
                 .collect();
             handles.into_iter().map(|h| h.join().expect("sppm photon thread panicked")).collect()
         });
-        let mut lists: Vec<(usize, Vec<(u32, Vec3)>)> = Vec::with_capacity(last - first);
+        let mut lists: Vec<(usize, Gathered)> = Vec::with_capacity(last - first);
         for (out, r) in done {
             rays += r;
             lists.extend(out);
         }
         lists.sort_unstable_by_key(|(c, _)| *c);
         for (_, gathered) in lists {
-            for (i, add) in gathered {
-                sums[i as usize] += add.as_dvec3();
+            match gathered {
+                Gathered::List(list) => {
+                    for (i, add) in list {
+                        sums[i as usize] += add.as_dvec3();
+                    }
+                }
+                Gathered::Dense(dense) => {
+                    for (sum, add) in sums.iter_mut().zip(dense) {
+                        *sum += add.as_dvec3();
+                    }
+                }
             }
         }
         first = last;
     }
     (sums, rays)
+}
+
+/// What a chunk of photons left at the visible points, in the order it was found: a list of
+/// (visible point, f x flux), or once the list would outgrow one value per visible point (a
+/// radius that takes in many points per photon), a value per visible point. Which one depends on
+/// the chunk's photons alone, so the sums stay the same whatever the threads.
+enum Gathered {
+    List(Vec<(u32, Vec3)>),
+    Dense(Vec<Vec3>),
+}
+
+impl Gathered {
+    fn add(&mut self, index: u32, value: Vec3, points: usize) {
+        match self {
+            Gathered::List(list) if list.len() < points => list.push((index, value)),
+            Gathered::List(list) => {
+                let mut dense = vec![Vec3::ZERO; points];
+                for &(i, v) in list.iter() {
+                    dense[i as usize] += v;
+                }
+                dense[index as usize] += value;
+                *self = Gathered::Dense(dense);
+            }
+            Gathered::Dense(dense) => dense[index as usize] += value,
+        }
+    }
 }
 
 /// Adds a photon path's contributions at the visible points near its vertices: from its second
@@ -396,7 +432,7 @@ fn deposit(
     points: &[VisiblePoint],
     path: &[Vertex],
     radius: f32,
-    gathered: &mut Vec<(u32, Vec3)>,
+    gathered: &mut Gathered,
 ) {
     // path[0] is on the light; path[i] (i >= 1) is the photon's i-th surface, after i - 1
     // bounces.
@@ -415,7 +451,7 @@ fn deposit(
             let f = v.f(v.wo, photon.wo);
             let add = f * photon.beta;
             if add != Vec3::ZERO && add.is_finite() {
-                gathered.push((index, add));
+                gathered.add(index, add, points.len());
             }
         });
     }
