@@ -241,3 +241,23 @@ fn sppm_with_a_radius_larger_than_the_scene_stays_bounded_and_the_same() {
     assert!(one.pixels.iter().zip(&three.pixels).all(|(a, b)| a == b), "1 vs 3 threads");
     assert!(one.mean_rgb().iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
 }
+
+/// Many lights (64 small emitters over a floor): the light samples of the camera paths choose by
+/// the light tree, as the path tracer's do, and photons leave the lights by the power mixture;
+/// the image means agree with the path tracer's within the noise plus 1%.
+#[test]
+fn sppm_with_the_light_tree_matches_the_path_tracer() {
+    let dir = std::env::temp_dir().join(format!("renderfarm-sppm-many-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("many-64.gltf");
+    std::fs::write(&path, worker::test_scenes::many_lights_gltf(64)).unwrap();
+    let scene = common::gltf::load_path(&path).unwrap();
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 128, max_depth: 4, ..Default::default() };
+    let prepared =
+        prepare(&scene, &RenderSettings { integrator: "sppm".into(), ..base.clone() }).unwrap();
+    assert!(prepared.lights.uses_tree() && prepared.emission.is_some());
+    let film = render_sppm(&scene, &base, 64, 2);
+    let reference = render(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
+    assert_means_agree("64 lights", &film, &reference, f64::INFINITY, 0.01);
+}

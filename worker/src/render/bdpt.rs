@@ -440,9 +440,11 @@ pub(super) fn light_subpath(
     sampler.set_dimension(LIGHT_DIMENSION);
     let u_choice = sampler.next_1d();
     let (u_pos, u_dir) = (sampler.next_2d(), sampler.next_2d());
-    let Some((idx, pmf, _)) = scene.lights.choose(&ShadingContext::default(), u_choice) else {
-        return;
+    let choice = match &scene.emission {
+        Some(mixture) => ChooseLight::choose(mixture, &ShadingContext::default(), u_choice),
+        None => scene.lights.choose(&ShadingContext::default(), u_choice),
     };
+    let Some((idx, pmf, _)) = choice else { return };
     let (mut v, beta, ray, pdf_dir) = match &scene.lights.lights[idx as usize] {
         Light::Triangle(l) => {
             let Some((b, dir, pdf_dir)) = l.sample_le(u_pos, u_dir) else { return };
@@ -614,7 +616,7 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
                     let wo = (camera[t - 2].p - pt.p).normalize();
                     (pt.beta * pt.le(scene, wo), None)
                 }
-                1 => match sample_light(scene, pt, stats) {
+                1 => match sample_light(scene, pt, &ShadingContext::default(), stats) {
                     Some((l, v, _)) => (l, Some(v)),
                     None => continue,
                 },
@@ -646,17 +648,19 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
     total
 }
 
-/// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers,
+/// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers
+/// (chosen as `ctx` says: bidirectional path tracing's MIS weights need the point-blind choice),
 /// the unoccluded contribution, the light's vertex and the sample's density per solid angle
 /// (the light's choice included; infinite for a point or spot light).
 pub(super) fn sample_light(
     scene: &PreparedScene,
     pt: &Vertex,
+    ctx: &ShadingContext,
     stats: &mut Stats,
 ) -> Option<(Vec3, Vertex, f32)> {
     pt.bsdf?;
     let [u_choice, ux, uy] = pt.u_light;
-    let (idx, pmf, _) = scene.lights.choose(&ShadingContext::default(), u_choice)?;
+    let (idx, pmf, _) = scene.lights.choose(ctx, u_choice)?;
     let light = &scene.lights.lights[idx as usize];
     let ls = light.sample_li(pt.p, Vec2::new(ux, uy))?;
     let point = ls.point?;

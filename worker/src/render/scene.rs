@@ -20,7 +20,7 @@ use super::{
     geometry::Ray,
     light::{
         DirectionalLight, Environment as EnvironmentLight, Light, LightChoice, LightSampler,
-        MapEnvironment, PointLight, SpotLight, TriangleLight,
+        MapEnvironment, PointLight, PowerMixture, SpotLight, TriangleLight,
     },
     material::{self, SurfacePoint},
     motion::{Motion, MotionInstance, Pose},
@@ -100,6 +100,9 @@ pub struct PreparedScene {
     pub bdpt: bool,
     /// Photon mapping (`"integrator": "sppm"`) instead of the path tracer, with its parameters.
     pub sppm: Option<SppmParams>,
+    /// Photon mapping's choice of the light a photon leaves, blind to any point (the power
+    /// mixture), whatever `lights` chooses by.
+    pub emission: Option<PowerMixture>,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
     pub wavefront: Option<super::wavefront_tables::Tables>,
@@ -503,7 +506,10 @@ fn prepare_inner(
     let bdpt = settings.integrator == "bdpt";
     let sppm = (settings.integrator == "sppm")
         .then(|| SppmParams::new(settings, &camera, &accel, scene_radius));
-    let choice = if bdpt || sppm.is_some() { LightChoice::Mixture } else { choice };
+    // Photon mapping chooses the light a photon leaves by the power mixture too, and its light
+    // samples as the path tracer does (by the tree, from the shaded point, in scenes of many).
+    let emission = sppm.is_some().then(|| PowerMixture::new(&lights, &emitters, scene_radius));
+    let choice = if bdpt { LightChoice::Mixture } else { choice };
     let lights = LightSampler::with_choice(lights, &emitters, scene_radius, choice);
     let wavefront = super::wavefront_tables::Tables::new(
         &scene.materials,
@@ -537,6 +543,7 @@ fn prepare_inner(
         motion,
         bdpt,
         sppm,
+        emission,
         wavefront,
     })
 }

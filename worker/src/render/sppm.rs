@@ -37,6 +37,7 @@ use super::{
     bdpt::{light_subpath, roulette, sample_light, surface_vertex, Vertex},
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
+    light::{ChooseLight, Light, ShadingContext},
     sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
@@ -179,7 +180,7 @@ fn camera_path(
     // The density of the BSDF sample that made `ray` (0: a camera ray, whose emitter counts
     // whole) and the point it left.
     let mut prev_pdf = 0.0f32;
-    let mut prev_p = ray.origin;
+    let mut prev_ctx = ShadingContext::default();
     for depth in 0..=scene.max_depth {
         let Some((mut v, unlit)) = surface_vertex(scene, &ray, beta, stats) else { break };
         if let Some(base) = unlit {
@@ -187,7 +188,7 @@ fn camera_path(
             break;
         }
         if v.light != NONE {
-            seen += beta * v.le(scene, v.wo) * emitter_weight(scene, &v, prev_p, prev_pdf);
+            seen += beta * v.le(scene, v.wo) * emitter_weight(scene, &v, &prev_ctx, prev_pdf);
         }
         if depth == scene.max_depth {
             break;
@@ -196,7 +197,8 @@ fn camera_path(
         v.u_light = [sampler.next_1d(), u.x, u.y];
         let bsdf = v.bsdf.expect("a lit surface vertex has a BSDF");
         let wo_local = v.frame.to_local(v.wo);
-        if let Some((direct, light, light_pdf)) = sample_light(scene, &v, stats) {
+        let ctx = ShadingContext { p: v.p, n: v.frame.z };
+        if let Some((direct, light, light_pdf)) = sample_light(scene, &v, &ctx, stats) {
             let bsdf_pdf = v.pdf_dir(v.wo, (light.p - v.p).normalize());
             seen += direct * power_heuristic(light_pdf, bsdf_pdf);
         }
@@ -216,7 +218,7 @@ fn camera_path(
                     if hit.light != NONE {
                         let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
                         seen +=
-                            weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, v.p, pdf);
+                            weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, &ctx, pdf);
                     }
                 }
             }
@@ -231,21 +233,23 @@ fn camera_path(
             break;
         }
         prev_pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
-        prev_p = v.p;
+        prev_ctx = ctx;
         ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
     }
     (seen, None)
 }
 
 /// The multiple-importance weight of emitter vertex `hit` found by a BSDF sample of density
-/// `pdf` (per solid angle) from `from`, against sampling the light from there; 1 when `pdf` is 0
-/// (a camera ray or a delta lobe, which no light sample could make).
-fn emitter_weight(scene: &PreparedScene, hit: &Vertex, from: Vec3, pdf: f32) -> f32 {
+/// `pdf` (per solid angle) from the shading point `from`, against sampling the light from there;
+/// 1 when `pdf` is 0 (a camera ray or a delta lobe, which no light sample could make).
+fn emitter_weight(scene: &PreparedScene, hit: &Vertex, from: &ShadingContext, pdf: f32) -> f32 {
     if pdf == 0.0 {
         return 1.0;
     }
+    let Light::Triangle(l) = &scene.lights.lights[hit.light as usize] else { return 1.0 };
     let cos = hit.ng.dot(hit.wo).abs();
-    let light_pdf = hit.pdf_light_origin(scene) * hit.p.distance_squared(from) / cos;
+    let pmf = scene.lights.pmf(from, hit.light);
+    let light_pdf = pmf / l.area * hit.p.distance_squared(from.p) / cos;
     power_heuristic(pdf, light_pdf)
 }
 
