@@ -150,11 +150,28 @@ impl SppmParams {
     /// (i + alpha) / (i + 1) from pass i - 1 to pass i (Knaus and Zwicker 2011's sequence, the
     /// expected shrinking of Hachisuka and Jensen's per-pixel rule), as i^(alpha - 1) in the end.
     pub fn radius(&self, pass: u32) -> f32 {
+        self.radii(pass).next().expect("an endless sequence")
+    }
+
+    /// The gather radii of passes `first`, `first + 1`, ...: the same numbers as `radius`, in
+    /// time O(first) for the first and O(1) for each next.
+    pub fn radii(&self, first: u32) -> impl Iterator<Item = f32> + '_ {
         let mut r2 = 1.0f64;
-        for i in 1..=pass as u64 {
-            r2 *= (i as f64 + self.alpha) / (i as f64 + 1.0);
+        for i in 1..=first as u64 {
+            r2 *= self.step(i);
         }
-        (self.radius as f64 * r2.sqrt()) as f32
+        let mut pass = first as u64;
+        std::iter::from_fn(move || {
+            let r = (self.radius as f64 * r2.sqrt()) as f32;
+            pass += 1;
+            r2 *= self.step(pass);
+            Some(r)
+        })
+    }
+
+    /// The squared radius's factor from pass `i - 1` to pass `i`.
+    fn step(&self, i: u64) -> f64 {
+        (i as f64 + self.alpha) / (i as f64 + 1.0)
     }
 }
 

@@ -71,8 +71,8 @@ pub fn render_task(
     let mut tile = TileAccum::new(rect);
     let mut stats = Stats::default();
     let threads = threads.max(1);
-    for pass in task.samples.start..task.samples.end {
-        let radius = params.radius(pass);
+    let radii = params.radii(task.samples.start);
+    for (pass, radius) in (task.samples.start..task.samples.end).zip(radii) {
         let (seen, points) = camera_pass(scene, seed, task, pass, radius, threads, &mut stats);
         let gathered = photon_pass(scene, params, seed, task, pass, radius, &points, threads);
         stats.rays += gathered.1;
@@ -475,6 +475,9 @@ mod tests {
         // r_i² falls as i^(alpha - 1): from pass 1,000 to 10,000 by about 10^-0.5.
         let ratio = (p.radius(10_000) / p.radius(1_000)).powi(2);
         assert!((ratio - 10f32.powf(-0.5)).abs() < 0.01, "{ratio}");
+        // A task's radii are the passes' own, bit for bit, wherever the task starts.
+        let radii: Vec<f32> = p.radii(997).take(5).collect();
+        assert_eq!(radii, (997..1002).map(|i| p.radius(i)).collect::<Vec<_>>());
     }
 
     #[test]
