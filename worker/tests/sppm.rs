@@ -223,7 +223,7 @@ fn sppm_glossy_plates_and_thin_lens_match_the_path_tracer() {
 
 /// A radius larger than the scene (every photon lands near every visible point): each chunk of
 /// photons sums per visible point instead of listing its contributions, and the image is still
-/// finite and the same bits on one thread or three.
+/// finite and the same bits on one thread or three; a radius too small for f32 makes no NaN.
 #[test]
 fn sppm_with_a_radius_larger_than_the_scene_stays_bounded_and_the_same() {
     let scene = load("cornell-box.gltf");
@@ -240,6 +240,13 @@ fn sppm_with_a_radius_larger_than_the_scene_stays_bounded_and_the_same() {
     assert_eq!(one.rejected, 0);
     assert!(one.pixels.iter().zip(&three.pixels).all(|(a, b)| a == b), "1 vs 3 threads");
     assert!(one.mean_rgb().iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
+    // And one too small to have an area in f32: no photon is gathered, and no NaN made.
+    let tiny = RenderSettings {
+        sppm: Some(common::settings::Sppm { radius: Some(1e-60), ..Default::default() }),
+        ..base
+    };
+    let film = render_sppm(&scene, &tiny, 2, 2);
+    assert_eq!(film.rejected, 0, "non-finite samples");
 }
 
 /// Many lights (64 small emitters over a floor): the light samples of the camera paths choose by

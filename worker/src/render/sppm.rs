@@ -79,6 +79,10 @@ pub fn render_task(
         let scale = 1.0 / (std::f64::consts::PI * (radius as f64).powi(2) * params.photons as f64);
         let mut image = seen;
         for (vp, sum) in points.iter().zip(&gathered.0) {
+            // Nothing gathered adds nothing (also where a radius too small for f32 has no area).
+            if *sum == DVec3::ZERO {
+                continue;
+            }
             let add = vp.vertex.beta.as_dvec3() * *sum * scale;
             image[vp.pixel as usize] += add.as_vec3();
         }
