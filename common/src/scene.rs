@@ -518,8 +518,9 @@ impl Scene {
     }
 
     /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
-    /// and photon mapping do not take yet (volumes, an environment, directional lights, motion
-    /// blur) and the light they must start paths from. `Ok` for the path tracer.
+    /// and photon mapping do not take yet (volumes, an environment, directional lights; for
+    /// photon mapping an emitter that moves within the shutter) and the light they must start
+    /// paths from. `Ok` for the path tracer.
     pub fn check_integrator(
         &self,
         settings: &crate::settings::RenderSettings,
@@ -540,8 +541,19 @@ impl Scene {
         if self.lights.iter().any(|l| l.kind == PunctualKind::Directional) {
             return refuse("directional lights");
         }
-        if self.animation.is_some() && settings.shutter.open < settings.shutter.close {
-            return refuse("motion blur (an animated scene with an open shutter)");
+        if name == "sppm" && settings.shutter.open < settings.shutter.close {
+            if let Some(anim) = &self.animation {
+                let moving_emitter = self.instances.iter().any(|inst| {
+                    let m = &self.materials[self.meshes[inst.mesh].material];
+                    anim.moves(inst.node) && m.emissive.max_element() > 0.0 && !m.unlit
+                });
+                if moving_emitter {
+                    return refuse(
+                        "an emissive mesh that moves within the shutter (photons leave only \
+                         lights that stay put)",
+                    );
+                }
+            }
         }
         let emissive = self.instances.iter().any(|inst| {
             let m = &self.materials[self.meshes[inst.mesh].material];

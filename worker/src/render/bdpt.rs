@@ -22,21 +22,29 @@
 //! BSDFs that are not symmetric need no adjoint; a light subpath's throughput takes the
 //! shading-normal correction of Veach's thesis (5.3.2).
 //!
-//! What this first version does not take (`Scene::check_integrator` refuses them before any
-//! work): volumes, motion blur, the environment and directional lights (lights at infinity).
+//! Motion blur: a sample's time is drawn as the path tracer draws it (after the film and lens
+//! numbers) and both its subpaths and every connection see the scene and the camera at that
+//! time (`At`); the light task draws the same number for the same sample. An emitter that moves
+//! is not in the light list (as in the path tracer), so only the camera subpath hitting it
+//! (s = 0) finds it, with weight 1.
+//!
+//! What this version does not take (`Scene::check_integrator` refuses them before any work):
+//! volumes, the environment and directional lights (lights at infinity).
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
 
 use super::{
     bsdf::Bsdf,
+    camera::PlacedCamera,
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
     integrator::{same_side, shading_frame, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
     light::{spot_falloff, ChooseLight, Light, ShadingContext},
     material,
+    motion::Pose,
     sampler::Sampler,
     sampling::{sample_uniform_sphere, uniform_sphere_pdf},
-    scene::{PreparedScene, NONE},
+    scene::{PreparedScene, NONE, UNSAMPLED},
 };
 
 /// The sampler dimension a light subpath starts at (the camera subpath's come first and never
@@ -80,6 +88,9 @@ pub(super) struct Vertex {
     pub(super) b: [f32; 3],
     /// The numbers of the light sample taken from this camera vertex (s = 1).
     pub(super) u_light: [f32; 3],
+    /// Radiance toward `wo` of an emitter that moves within the shutter (no light subpath or
+    /// light sample starts on one, so only a camera subpath that hits it counts it, in full).
+    pub(super) moving_le: Vec3,
 }
 
 impl Vertex {
@@ -101,6 +112,7 @@ impl Vertex {
             prim: NONE,
             b: [0.0; 3],
             u_light: [0.0; 3],
+            moving_le: Vec3::ZERO,
         }
     }
 
@@ -156,13 +168,19 @@ impl Vertex {
 
     /// Density per unit area at `next` of this vertex sampling it, the path having come from
     /// `prev` (pbrt's `Vertex::Pdf`).
-    fn pdf(&self, scene: &PreparedScene, prev: Option<&Vertex>, next: &Vertex) -> f32 {
+    fn pdf(
+        &self,
+        scene: &PreparedScene,
+        camera: &PlacedCamera,
+        prev: Option<&Vertex>,
+        next: &Vertex,
+    ) -> f32 {
         if self.kind == Kind::Light {
             return self.pdf_light(scene, next);
         }
         let Some(wn) = (next.p - self.p).try_normalize() else { return 0.0 };
         let pdf = match self.kind {
-            Kind::Camera => scene.camera.importance(self.p, wn).map_or(0.0, |i| i.pdf_dir),
+            Kind::Camera => camera.importance(self.p, wn).map_or(0.0, |i| i.pdf_dir),
             _ => {
                 let Some(prev) = prev else { return 0.0 };
                 let Some(wp) = (prev.p - self.p).try_normalize() else { return 0.0 };
@@ -193,12 +211,16 @@ impl Vertex {
     }
 
     /// Density of a light subpath starting at this point of its light: the light's choice
-    /// times the point's density per unit area (1 for a point light).
+    /// (blind to any point) times the point's density per unit area (1 for a point light).
     pub(super) fn pdf_light_origin(&self, scene: &PreparedScene) -> f32 {
         if self.light == NONE {
             return 0.0;
         }
-        let pmf = scene.lights.pmf(&ShadingContext::default(), self.light);
+        let blind = ShadingContext::default();
+        let pmf = match &scene.emission {
+            Some(mixture) => mixture.pmf(&blind, self.light),
+            None => scene.lights.pmf(&blind, self.light),
+        };
         match &scene.lights.lights[self.light as usize] {
             Light::Triangle(l) => pmf / l.area,
             _ => pmf,
@@ -241,6 +263,35 @@ enum Mode {
     Importance,
 }
 
+/// What one sample's time places: the geometry that moves (`None`: nothing does) and the
+/// camera. Both subpaths of a sample, and all its connections, see the same time.
+#[derive(Clone, Copy)]
+pub(super) struct At<'p> {
+    pub(super) pose: Option<&'p Pose<'p>>,
+    pub(super) camera: PlacedCamera,
+}
+
+impl<'p> At<'p> {
+    /// A scene where nothing moves.
+    pub(super) fn still(scene: &PreparedScene) -> Self {
+        At { pose: None, camera: PlacedCamera::still(scene.camera) }
+    }
+
+    /// The scene at the time `u` (in [0, 1)) picks within the shutter, `pose` reset to it; the
+    /// still scene when nothing moves.
+    pub(super) fn time<'s: 'p>(
+        scene: &'s PreparedScene,
+        u: Option<f32>,
+        pose: &'p mut Option<Pose<'s>>,
+    ) -> Self {
+        let (Some(m), Some(u)) = (&scene.motion, u) else { return At::still(scene) };
+        let time = m.time(u);
+        let pose = pose.get_or_insert_with(|| Pose::new(m, time));
+        pose.set_time(time);
+        At { pose: Some(pose), camera: m.camera_at(&scene.camera, time) }
+    }
+}
+
 /// Per-thread storage for the two subpaths.
 #[derive(Default)]
 pub struct Paths {
@@ -255,6 +306,7 @@ pub struct Paths {
 #[allow(clippy::too_many_arguments)]
 fn walk(
     scene: &PreparedScene,
+    at: &At<'_>,
     sampler: &mut Sampler,
     mut ray: Ray,
     mut beta: Vec3,
@@ -267,7 +319,9 @@ fn walk(
 ) {
     let mut bounces = 0u32;
     while bounces < max_vertices {
-        let Some((mut v, unlit_base)) = surface_vertex(scene, &ray, beta, stats) else { break };
+        let Some((mut v, unlit_base)) = surface_vertex(scene, at, &ray, beta, stats) else {
+            break;
+        };
         let prev = path.last().expect("a subpath starts with its camera or light vertex");
         v.pdf_fwd = prev.convert_density(pdf, &v);
         bounces += 1;
@@ -363,34 +417,42 @@ pub(super) fn roulette(sampler: &mut Sampler, beta: &mut Vec3, bounces: u32) -> 
 /// and comes with the base colour the camera sees.
 pub(super) fn surface_vertex(
     scene: &PreparedScene,
+    at: &At<'_>,
     ray: &Ray,
     beta: Vec3,
     stats: &mut Stats,
 ) -> Option<(Vertex, Option<Vec3>)> {
     stats.rays += 1;
-    let hit = scene.intersect(ray, f32::INFINITY, None)?;
+    let hit = scene.intersect(ray, f32::INFINITY, at.pose)?;
     let tri = scene.shading[hit.prim as usize];
-    let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+    let ([p0, p1, p2], moved) = scene.triangle(hit.prim, at.pose);
     let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
     let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
-    let ng = (p1 - p0).cross(p2 - p0).try_normalize()?;
+    let winding = (p1 - p0).cross(p2 - p0).try_normalize()?;
     let wo = -ray.dir.normalize();
-    let front = ng.dot(wo) > 0.0;
-    let ng = if front { ng } else { -ng };
+    let front = winding.dot(wo) > 0.0;
+    let ng = if front { winding } else { -winding };
     let material = &scene.materials[tri.material as usize];
     let sp = scene.surface_point(hit.prim, b);
     let mut v = Vertex::new(Kind::Surface, p, beta);
     v.p_error = interpolation_error([p0, p1, p2], b);
+    if moved {
+        // The vertices went through a transform: a few more roundings of their size.
+        v.p_error += (p0.abs().max(p1.abs()).max(p2.abs())) * (8.0 * f32::EPSILON);
+    }
     v.ng = ng;
     v.wo = wo;
     v.prim = hit.prim;
     v.b = b;
-    v.light = if tri.light == NONE { NONE } else { tri.light };
+    v.light = if tri.light == NONE || tri.light == UNSAMPLED { NONE } else { tri.light };
+    if tri.light == UNSAMPLED && (material.double_sided || front) {
+        v.moving_le = material::emission_toward(&scene.textures, material, &sp, winding, wo);
+    }
     if tri.extended && material.unlit {
         let base = material::base_color(&scene.textures, material, &sp).truncate();
         return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
     }
-    let (frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, None);
+    let (frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, at.pose);
     v.frame = frame;
     v.bsdf = Some(material::bsdf(&scene.textures, material, &sp, front, [1.0; 2], tri.extended));
     Some((v, None))
@@ -400,6 +462,7 @@ pub(super) fn surface_vertex(
 /// `max_depth + 2` vertices, the camera's first.
 fn camera_subpath(
     scene: &PreparedScene,
+    at: &At<'_>,
     sampler: &mut Sampler,
     film: Vec2,
     lens: Vec2,
@@ -407,14 +470,15 @@ fn camera_subpath(
     stats: &mut Stats,
 ) -> Vec3 {
     path.clear();
-    let ray = scene.camera.generate_ray(film, lens);
+    let ray = at.camera.generate_ray(film, lens);
     // An orthographic camera's direction is fixed: its density never enters a weight (no light
     // subpath connects to it).
-    let pdf_dir = scene.camera.importance(ray.origin, ray.dir).map_or(1.0, |i| i.pdf_dir);
+    let pdf_dir = at.camera.importance(ray.origin, ray.dir).map_or(1.0, |i| i.pdf_dir);
     path.push(Vertex::new(Kind::Camera, ray.origin, Vec3::ONE));
     let mut unlit = Vec3::ZERO;
     walk(
         scene,
+        at,
         sampler,
         ray,
         Vec3::ONE,
@@ -432,6 +496,7 @@ fn camera_subpath(
 /// first. Draws from `LIGHT_DIMENSION` on.
 pub(super) fn light_subpath(
     scene: &PreparedScene,
+    at: &At<'_>,
     sampler: &mut Sampler,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
@@ -497,6 +562,7 @@ pub(super) fn light_subpath(
     let mut unlit = Vec3::ZERO;
     walk(
         scene,
+        at,
         sampler,
         ray,
         beta,
@@ -513,8 +579,15 @@ pub(super) fn light_subpath(
 /// `sampled` replaces the last light vertex (s = 1) or the camera vertex (t = 1) (pbrt's
 /// `MISWeight`): one over the sum, over every strategy that could make the same path, of its
 /// density over this one's.
+///
+/// Where lights are chosen by the tree, the strategy that samples the light from the path's
+/// vertex next to it (s = 1) chooses it with the tree's probability there, and every strategy
+/// whose light subpath starts on it (s >= 2) with the point-blind mixture's: the ratios between
+/// the two kinds carry the quotient of those probabilities (pbrt-v4's BDPT sidesteps this by
+/// choosing blind for both).
 fn mis_weight(
     scene: &PreparedScene,
+    view: &PlacedCamera,
     camera: &[Vertex],
     light: &[Vertex],
     sampled: Option<&Vertex>,
@@ -535,20 +608,37 @@ fn mis_weight(
     // The densities the connection changes: of pt and qs sampled from the other side, and of
     // their predecessors.
     let pt_rev = match &qs {
-        Some(qs) => qs.pdf(scene, qs_minus, &pt),
+        Some(qs) => qs.pdf(scene, view, qs_minus, &pt),
         None => pt.pdf_light_origin(scene),
     };
     let pt_minus_rev = pt_minus.map_or(0.0, |pm| match &qs {
-        Some(qs) => pt.pdf(scene, Some(qs), pm),
+        Some(qs) => pt.pdf(scene, view, Some(qs), pm),
         None => pt.pdf_light(scene, pm),
     });
-    let qs_rev = qs.as_ref().map_or(0.0, |qs| pt.pdf(scene, pt_minus, qs));
+    let qs_rev = qs.as_ref().map_or(0.0, |qs| pt.pdf(scene, view, pt_minus, qs));
     let qs_minus_rev = match (&qs, qs_minus) {
-        (Some(qs), Some(qm)) => qs.pdf(scene, Some(&pt), qm),
+        (Some(qs), Some(qm)) => qs.pdf(scene, view, Some(&pt), qm),
         _ => 0.0,
     };
     let remap = |f: f32| if f != 0.0 { f } else { 1.0 };
-    let light_tracing = scene.camera.connectable();
+    let light_tracing = view.camera.connectable();
+    // The tree's choice of the path's light from the vertex next to it over the mixture's: the
+    // s = 1 strategy's light density over the others' (1 where both choose by the mixture).
+    let tree = scene.emission.as_ref().map_or(1.0, |mixture| {
+        let (on_light, next) = match s {
+            0 => (&pt, &camera[t - 2]),
+            1 => (qs.as_ref().expect("s = 1 samples the light"), &pt),
+            _ => (&light[0], &light[1]),
+        };
+        let ctx = ShadingContext { p: next.p, n: next.ns() };
+        let blind = mixture.pmf(&ShadingContext::default(), on_light.light);
+        let ratio = scene.lights.pmf(&ctx, on_light.light) / blind;
+        if ratio.is_finite() {
+            ratio
+        } else {
+            0.0
+        }
+    });
     let mut sum = 0.0f32;
     let mut ri = 1.0f32;
     for i in (1..t).rev() {
@@ -561,7 +651,12 @@ fn mis_weight(
         };
         ri *= remap(rev) / remap(fwd);
         if !delta && !camera[i - 1].delta && (i > 1 || light_tracing) {
-            sum += ri;
+            // The strategy with s + t - i light vertices, against this one.
+            sum += match s {
+                0 if i == t - 1 => ri * tree,
+                1 => ri / tree,
+                _ => ri,
+            };
         }
     }
     ri = 1.0;
@@ -581,23 +676,24 @@ fn mis_weight(
         ri *= remap(rev) / remap(fwd);
         let before_delta = if i > 0 { light[i - 1].delta } else { light0_delta };
         if !delta && !before_delta {
-            sum += ri;
+            // The strategy with i light vertices, against this one.
+            sum += if i == 1 { ri * tree } else { ri };
         }
     }
     1.0 / (1.0 + sum)
 }
 
 /// Whether the segment between two vertices is clear.
-fn visible(scene: &PreparedScene, a: &Vertex, b: &Vertex, stats: &mut Stats) -> bool {
+fn visible(scene: &PreparedScene, at: &At<'_>, a: &Vertex, b: &Vertex, stats: &mut Stats) -> bool {
     let w = b.p - a.p;
     let from = if a.on_surface() { offset_ray_origin(a.p, a.p_error, a.ng, w) } else { a.p };
     let to = if b.on_surface() { offset_ray_origin(b.p, b.p_error, b.ng, -w) } else { b.p };
     stats.rays += 1;
-    !scene.occluded(&Ray::new(from, to - from), SHADOW_T_MAX, None)
+    !scene.occluded(&Ray::new(from, to - from), SHADOW_T_MAX, at.pose)
 }
 
 /// The camera task's part of one sample: every strategy with at least two camera vertices.
-fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) -> Vec3 {
+fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &mut Stats) -> Vec3 {
     let (camera, light) = (&paths.camera, &paths.light);
     let max_depth = scene.max_depth as usize;
     let mut total = Vec3::ZERO;
@@ -605,6 +701,10 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
         let pt = &camera[t - 1];
         if pt.kind != Kind::Surface {
             continue;
+        }
+        if pt.moving_le != Vec3::ZERO {
+            // An emitter that moves: only this strategy (s = 0) finds it.
+            total += pt.beta * pt.moving_le;
         }
         for s in 0..=light.len() {
             if s + t - 2 > max_depth {
@@ -616,7 +716,13 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
                     let wo = (camera[t - 2].p - pt.p).normalize();
                     (pt.beta * pt.le(scene, wo), None)
                 }
-                1 => match sample_light(scene, pt, &ShadingContext::default(), stats) {
+                1 => match sample_light(
+                    scene,
+                    at,
+                    pt,
+                    &ShadingContext { p: pt.p, n: pt.ns() },
+                    stats,
+                ) {
                     Some((l, v, _)) => (l, Some(v)),
                     None => continue,
                 },
@@ -633,7 +739,7 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
                     let w = d / d2.sqrt();
                     let g = qs.ns().dot(w).abs() * pt.ns().dot(w).abs() / d2;
                     let l = qs.beta * qs.f(-w, qs.wo) * pt.f(pt.wo, w) * pt.beta * g;
-                    if l == Vec3::ZERO || !visible(scene, pt, qs, stats) {
+                    if l == Vec3::ZERO || !visible(scene, at, pt, qs, stats) {
                         continue;
                     }
                     (l, None)
@@ -642,18 +748,19 @@ fn camera_strategies(scene: &PreparedScene, paths: &Paths, stats: &mut Stats) ->
             if l == Vec3::ZERO || !l.is_finite() {
                 continue;
             }
-            total += l * mis_weight(scene, camera, light, sampled.as_ref(), s, t);
+            total += l * mis_weight(scene, &at.camera, camera, light, sampled.as_ref(), s, t);
         }
     }
     total
 }
 
 /// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers
-/// (chosen as `ctx` says: bidirectional path tracing's MIS weights need the point-blind choice),
-/// the unoccluded contribution, the light's vertex and the sample's density per solid angle
-/// (the light's choice included; infinite for a point or spot light).
+/// (chosen as the scene's light choice does at `ctx`), the unoccluded contribution, the light's
+/// vertex (its `pdf_fwd` that choice's density) and the sample's density per solid angle (the
+/// light's choice included; infinite for a point or spot light).
 pub(super) fn sample_light(
     scene: &PreparedScene,
+    at: &At<'_>,
     pt: &Vertex,
     ctx: &ShadingContext,
     stats: &mut Stats,
@@ -687,9 +794,13 @@ pub(super) fn sample_light(
         v.b = ls.barycentrics;
     }
     v.beta = li / (ls.pdf * pmf);
-    v.pdf_fwd = v.pdf_light_origin(scene);
+    v.pdf_fwd = match light {
+        _ if !scene.lights.uses_tree() => v.pdf_light_origin(scene),
+        Light::Triangle(l) => pmf / l.area,
+        _ => pmf,
+    };
     let l = pt.beta * pt.f(pt.wo, ls.wi) * v.beta * pt.ns().dot(ls.wi).abs();
-    if l == Vec3::ZERO || !visible(scene, pt, &v, stats) {
+    if l == Vec3::ZERO || !visible(scene, at, pt, &v, stats) {
         return None;
     }
     Some((l, v, if ls.is_delta { f32::INFINITY } else { ls.pdf * pmf }))
@@ -706,13 +817,18 @@ pub fn render_rows(
     let mut stats = Stats::default();
     let mut sampler = Sampler::new(seed, task.frame);
     let mut paths = Paths::default();
+    let mut pose = None;
     let tile = super::render_rows_with(task, first, step, |pixel, s| {
         sampler.start_pixel_sample(pixel, s);
         let film = pixel.as_vec2() + sampler.next_2d();
         let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-        let unlit = camera_subpath(scene, &mut sampler, film, lens, &mut paths.camera, &mut stats);
-        light_subpath(scene, &mut sampler, &mut paths.light, &mut stats);
-        unlit + camera_strategies(scene, &paths, &mut stats)
+        // The time (as the path tracer draws it: only when something moves within the shutter).
+        let u_time = scene.motion.is_some().then(|| sampler.next_1d());
+        let at = At::time(scene, u_time, &mut pose);
+        let (camera, light) = (&mut paths.camera, &mut paths.light);
+        let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
+        light_subpath(scene, &at, &mut sampler, light, &mut stats);
+        unlit + camera_strategies(scene, &at, &paths, &mut stats)
     });
     (tile, stats)
 }
@@ -729,14 +845,21 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
     let mut sampler = Sampler::new(seed, task.frame);
     let mut light = Vec::new();
     let mut film = vec![Vec3::ZERO; (width * height) as usize];
+    let mut pose = None;
     for s in task.samples.start..task.samples.end {
         film.fill(Vec3::ZERO);
         if scene.camera.connectable() {
             for y in 0..height {
                 for x in 0..width {
                     sampler.start_pixel_sample(UVec2::new(x, y), s);
-                    light_subpath(scene, &mut sampler, &mut light, &mut stats);
-                    splat_light_path(scene, &light, &mut film, &mut stats);
+                    // The camera task's time for this sample: after its film and lens numbers.
+                    let u_time = scene.motion.is_some().then(|| {
+                        sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
+                        sampler.next_1d()
+                    });
+                    let at = At::time(scene, u_time, &mut pose);
+                    light_subpath(scene, &at, &mut sampler, &mut light, &mut stats);
+                    splat_light_path(scene, &at, &light, &mut film, &mut stats);
                 }
             }
         }
@@ -753,8 +876,14 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
 /// Connects each vertex of a light subpath (from the second on) to the camera (t = 1) and adds
 /// the weighted contributions to the film; a thin lens's point comes from the numbers the vertex
 /// drew for it (`u_light`).
-fn splat_light_path(scene: &PreparedScene, light: &[Vertex], film: &mut [Vec3], stats: &mut Stats) {
-    let camera = &scene.camera;
+fn splat_light_path(
+    scene: &PreparedScene,
+    at: &At<'_>,
+    light: &[Vertex],
+    film: &mut [Vec3],
+    stats: &mut Stats,
+) {
+    let camera = &at.camera;
     let max_depth = scene.max_depth as usize;
     for s in 2..=light.len() {
         if s - 1 > max_depth {
@@ -772,18 +901,18 @@ fn splat_light_path(scene: &PreparedScene, light: &[Vertex], film: &mut [Vec3], 
         }
         let wi = d / d2.sqrt();
         let Some(imp) = camera.importance(lens, -wi) else { continue };
-        let cos_cam = (camera.to_world.transpose() * -wi).z.abs();
-        let pdf = d2 / (cos_cam * camera.lens_area());
+        let cos_cam = (camera.camera.to_world.transpose() * -wi).z.abs();
+        let pdf = d2 / (cos_cam * camera.camera.lens_area());
         let mut v = Vertex::new(Kind::Camera, lens, Vec3::splat(imp.we / pdf));
         v.pdf_fwd = 0.0;
         let l = qs.beta * qs.f(wi, qs.wo) * v.beta * qs.ns().dot(wi).abs();
-        if l == Vec3::ZERO || !l.is_finite() || !visible(scene, qs, &v, stats) {
+        if l == Vec3::ZERO || !l.is_finite() || !visible(scene, at, qs, &v, stats) {
             continue;
         }
-        let w = mis_weight(scene, &[], light, Some(&v), s, 1);
+        let w = mis_weight(scene, camera, &[], light, Some(&v), s, 1);
+        let (width, height) = (camera.camera.width as u32, camera.camera.height as u32);
         let px = imp.film.as_uvec2();
-        let i = (px.y.min(camera.height as u32 - 1) * camera.width as u32
-            + px.x.min(camera.width as u32 - 1)) as usize;
+        let i = (px.y.min(height - 1) * width + px.x.min(width - 1)) as usize;
         film[i] += l * w;
     }
 }

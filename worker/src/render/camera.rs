@@ -149,6 +149,47 @@ impl Camera {
     }
 }
 
+/// A camera where it is at one sample's time: `camera` turned as it is then, and its lens
+/// centre's position (camera-relative world) when it has moved off the origin. A camera that
+/// does not move is the scene's camera with no offset, whose rays are `Camera`'s own bits.
+#[derive(Clone, Copy, Debug)]
+pub struct PlacedCamera {
+    /// The camera, turned as it is at this time.
+    pub camera: Camera,
+    /// Where its lens centre is, for a camera that moves.
+    pub origin: Option<Vec3>,
+}
+
+impl PlacedCamera {
+    /// A camera that stays at the origin.
+    pub fn still(camera: Camera) -> Self {
+        PlacedCamera { camera, origin: None }
+    }
+
+    /// `Camera::generate_ray`, from where the camera is.
+    #[inline]
+    pub fn generate_ray(&self, film: Vec2, lens_u: Vec2) -> Ray {
+        let r = self.camera.generate_ray(film, lens_u);
+        match self.origin {
+            Some(o) => Ray { origin: r.origin + o, ..r },
+            None => r,
+        }
+    }
+
+    /// `Camera::lens_point`, where the camera is.
+    #[inline]
+    pub fn lens_point(&self, u: Vec2) -> Vec3 {
+        let p = self.camera.lens_point(u);
+        self.origin.map_or(p, |o| p + o)
+    }
+
+    /// `Camera::importance` of a ray leaving the lens where the camera is.
+    #[inline]
+    pub fn importance(&self, origin: Vec3, dir: Vec3) -> Option<Importance> {
+        self.camera.importance(self.origin.map_or(origin, |o| origin - o), dir)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,7 +11,7 @@ use glam::{DMat4, DVec3, Mat3, Mat4, Vec3};
 
 use super::{
     accel::{Accel, Hit},
-    camera::Camera,
+    camera::{Camera, PlacedCamera},
     geometry::Ray,
 };
 
@@ -113,6 +113,18 @@ impl Motion {
         }
         let pad = 0.5 * step + 1e-6 * (hi - lo).max_element().max(1e-6);
         ((lo - pad).as_vec3(), (hi + pad).as_vec3())
+    }
+
+    /// The camera as it is at time `t`: `still` when the camera does not move.
+    pub fn camera_at(&self, still: &Camera, t: f64) -> PlacedCamera {
+        let Some((node, local)) = &self.camera else { return PlacedCamera::still(*still) };
+        let m = common::gltf::rigid(self.anim.world(*node, t)).unwrap_or(DMat4::IDENTITY);
+        let rel = DMat4::from_translation(-self.origin) * m;
+        let turn = Mat3::from_mat4(rel.as_mat4());
+        PlacedCamera {
+            camera: Camera { to_world: turn * local.to_world, ..*local },
+            origin: Some(rel.w_axis.truncate().as_vec3()),
+        }
     }
 
     /// A camera ray generated in camera space, placed where the camera is at time `t`.

@@ -100,8 +100,9 @@ pub struct PreparedScene {
     pub bdpt: bool,
     /// Photon mapping (`"integrator": "sppm"`) instead of the path tracer, with its parameters.
     pub sppm: Option<SppmParams>,
-    /// Photon mapping's choice of the light a photon leaves, blind to any point (the power
-    /// mixture), whatever `lights` chooses by.
+    /// The choice of the light a photon or a light subpath leaves, blind to any point (the power
+    /// mixture), for photon mapping, and for bidirectional path tracing where `lights` chooses
+    /// by the tree (`None` otherwise: `lights` is that mixture).
     pub emission: Option<PowerMixture>,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
@@ -518,16 +519,15 @@ fn prepare_inner(
         AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
         AlphaMode::Opaque => false,
     });
-    // Bidirectional path tracing chooses lights blind to the point (the mixture), for its light
-    // subpaths and its light samples alike.
     let bdpt = settings.integrator == "bdpt";
     let sppm = (settings.integrator == "sppm")
         .then(|| SppmParams::new(settings, &camera, &accel, scene_radius));
-    // Photon mapping chooses the light a photon leaves by the power mixture too, and its light
-    // samples as the path tracer does (by the tree, from the shaded point, in scenes of many).
-    let emission = sppm.is_some().then(|| PowerMixture::new(&lights, &emitters, scene_radius));
-    let choice = if bdpt { LightChoice::Mixture } else { choice };
     let lights = LightSampler::with_choice(lights, &emitters, scene_radius, choice);
+    // Light subpaths and photons leave a light chosen blind to any point (the power mixture);
+    // light samples from a shaded point choose as the path tracer does (by the tree, in scenes
+    // of many emitters). Bidirectional path tracing needs the mixture only where the two differ.
+    let emission = (sppm.is_some() || (bdpt && lights.uses_tree()))
+        .then(|| PowerMixture::new(&lights.lights, &emitters, scene_radius));
     let wavefront = super::wavefront_tables::Tables::new(
         &scene.materials,
         &scene.textures,

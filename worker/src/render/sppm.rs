@@ -25,8 +25,13 @@
 //! `i` of pseudo-pixel (j, u32::MAX), from `LIGHT_DIMENSION` on; photons are traced in chunks of
 //! `CHUNK` whose gathered sums are added in chunk order, whatever the number of threads.
 //!
+//! Motion blur: each pass is one instant of the shutter (`pass_time`), the same for its camera
+//! paths and its photons, so a pass is a photon map of a still scene and the mean over passes
+//! the mean over the shutter.
+//!
 //! What it does not take yet (`Scene::check_integrator` refuses them before any work): volumes,
-//! motion blur, the environment and directional lights.
+//! the environment, directional lights, and emitters that move within the shutter (photons
+//! leave only the lights in the light list, which holds the emitters that stay put).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -34,7 +39,7 @@ use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
-    bdpt::{light_subpath, roulette, sample_light, surface_vertex, Vertex},
+    bdpt::{light_subpath, roulette, sample_light, surface_vertex, At, Vertex},
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext},
@@ -73,8 +78,11 @@ pub fn render_task(
     let threads = threads.max(1);
     let radii = params.radii(task.samples.start);
     for (pass, radius) in (task.samples.start..task.samples.end).zip(radii) {
-        let (seen, points) = camera_pass(scene, seed, task, pass, radius, threads, &mut stats);
-        let gathered = photon_pass(scene, params, seed, task, pass, radius, &points, threads);
+        let u_time = pass_time(scene, seed, task.frame, pass);
+        let (seen, points) =
+            camera_pass(scene, seed, task, pass, u_time, radius, threads, &mut stats);
+        let gathered =
+            photon_pass(scene, params, seed, task, pass, u_time, radius, &points, threads);
         stats.rays += gathered.1;
         let scale = 1.0 / (std::f64::consts::PI * (radius as f64).powi(2) * params.photons as f64);
         let mut image = seen;
@@ -96,13 +104,27 @@ pub fn render_task(
     (tile, stats)
 }
 
+/// Where pass `pass` falls in the shutter (a number in [0, 1) for `At::time`), when something
+/// moves within it: the same time for every camera path and photon of the pass, so that each
+/// pass is a photon map of one instant and the mean over passes is the mean over the shutter.
+/// It is the first number of sample `pass` of a pseudo-pixel no photon uses, so the passes
+/// stratify the shutter as a pixel's samples do.
+fn pass_time(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> Option<f32> {
+    scene.motion.as_ref()?;
+    let mut sampler = Sampler::new(seed, frame);
+    sampler.start_pixel_sample(UVec2::new(u32::MAX, u32::MAX), pass);
+    Some(sampler.next_1d())
+}
+
 /// The camera paths of one pass: each pixel's light seen before and at its visible point, and
 /// the visible points (in pixel order).
+#[allow(clippy::too_many_arguments)]
 fn camera_pass(
     scene: &PreparedScene,
     seed: u64,
     task: &TaskSpec,
     pass: u32,
+    u_time: Option<f32>,
     radius: f32,
     threads: usize,
     stats: &mut Stats,
@@ -115,11 +137,14 @@ fn camera_pass(
                     let mut sampler = Sampler::new(seed, task.frame);
                     let mut stats = Stats::default();
                     let mut out = Vec::new();
+                    let mut pose = None;
+                    let at = At::time(scene, u_time, &mut pose);
                     let mut row = t;
                     while row < rect.height {
                         for col in 0..rect.width {
                             let pixel = UVec2::new(rect.x0 + col, rect.y0 + row);
-                            out.push(camera_path(scene, &mut sampler, pixel, pass, &mut stats));
+                            let sampler = &mut sampler;
+                            out.push(camera_path(scene, &at, sampler, pixel, pass, &mut stats));
                         }
                         row += threads as u32;
                     }
@@ -170,6 +195,7 @@ fn camera_pass(
 /// sample's 3, the lobe, the direction and the roulette.
 fn camera_path(
     scene: &PreparedScene,
+    at: &At<'_>,
     sampler: &mut Sampler,
     pixel: UVec2,
     pass: u32,
@@ -178,7 +204,7 @@ fn camera_path(
     sampler.start_pixel_sample(pixel, pass);
     let film = pixel.as_vec2() + sampler.next_2d();
     let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-    let mut ray = scene.camera.generate_ray(film, lens);
+    let mut ray = at.camera.generate_ray(film, lens);
     let mut beta = Vec3::ONE;
     let mut seen = Vec3::ZERO;
     // The density of the BSDF sample that made `ray` (0: a camera ray, whose emitter counts
@@ -186,7 +212,7 @@ fn camera_path(
     let mut prev_pdf = 0.0f32;
     let mut prev_ctx = ShadingContext::default();
     for depth in 0..=scene.max_depth {
-        let Some((mut v, unlit)) = surface_vertex(scene, &ray, beta, stats) else { break };
+        let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats) else { break };
         if let Some(base) = unlit {
             seen += beta * base;
             break;
@@ -202,7 +228,7 @@ fn camera_path(
         let bsdf = v.bsdf.expect("a lit surface vertex has a BSDF");
         let wo_local = v.frame.to_local(v.wo);
         let ctx = ShadingContext { p: v.p, n: v.frame.z };
-        if let Some((direct, light, light_pdf)) = sample_light(scene, &v, &ctx, stats) {
+        if let Some((direct, light, light_pdf)) = sample_light(scene, at, &v, &ctx, stats) {
             let bsdf_pdf = v.pdf_dir(v.wo, (light.p - v.p).normalize());
             seen += direct * power_heuristic(light_pdf, bsdf_pdf);
         }
@@ -218,7 +244,7 @@ fn camera_path(
             if let Some((bs, wi)) = next {
                 let weight = beta * bs.f * (bs.wi.z.abs() / bs.pdf);
                 let ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
-                if let Some((hit, None)) = surface_vertex(scene, &ray, weight, stats) {
+                if let Some((hit, None)) = surface_vertex(scene, at, &ray, weight, stats) {
                     if hit.light != NONE {
                         let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
                         seen +=
@@ -334,6 +360,7 @@ fn photon_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
+    u_time: Option<f32>,
     radius: f32,
     points: &[VisiblePoint],
     threads: usize,
@@ -360,6 +387,8 @@ fn photon_pass(
                         let mut stats = Stats::default();
                         let mut path = Vec::new();
                         let mut out = Vec::new();
+                        let mut pose = None;
+                        let at = At::time(scene, u_time, &mut pose);
                         loop {
                             let c = next.fetch_add(1, Ordering::Relaxed);
                             if c >= last {
@@ -369,7 +398,7 @@ fn photon_pass(
                             let start = c as u32 * CHUNK;
                             for j in start..(start + CHUNK).min(params.photons) {
                                 sampler.start_pixel_sample(UVec2::new(j, u32::MAX), pass);
-                                light_subpath(scene, &mut sampler, &mut path, &mut stats);
+                                light_subpath(scene, &at, &mut sampler, &mut path, &mut stats);
                                 deposit(scene, &grid, points, &path, radius, &mut gathered);
                             }
                             out.push((c, gathered));

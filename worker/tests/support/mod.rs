@@ -13,7 +13,7 @@ use common::{
 };
 use worker::render::{
     render_task,
-    scene::{prepare, PreparedScene},
+    scene::{prepare, prepare_frame, PreparedScene},
 };
 
 /// The `shared/` folder beside the repository.
@@ -36,6 +36,12 @@ pub fn settings(name: &str) -> RenderSettings {
 /// Renders every pixel of frame 0 for samples [0, spp), tiles spread over two threads.
 pub fn render(scene: &Scene, settings: &RenderSettings) -> Film {
     render_prepared(&prepare(scene, settings).expect("prepare"), settings)
+}
+
+/// `render` for frame 0 of an animated scene (posed at its time, what moves within the
+/// shutter blurred); the same as `render` for a still one.
+pub fn render_frame0(scene: &Scene, settings: &RenderSettings) -> Film {
+    render_prepared(&prepare_frame(scene, settings, None, 0).expect("prepare"), settings)
 }
 
 /// `render` for an already prepared scene.
@@ -287,4 +293,95 @@ pub fn caustic_expected(caustic: &worker::test_scenes::MirrorCaustic, res: u32) 
 pub fn cornell_dof_settings() -> RenderSettings {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-dof.settings.json");
     RenderSettings::from_json(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// The Cornell box whose blocks move within the shutter (`scenes/cornell-motion`: the short
+/// block slides 6 cm, the tall one turns) with its settings; with `moving_camera`, the camera
+/// rides a node that slides as the short block does (written to a temporary file).
+pub fn cornell_motion(moving_camera: bool) -> (Scene, RenderSettings) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let settings = RenderSettings::from_json(
+        &std::fs::read_to_string(dir.join("cornell-motion.settings.json")).unwrap(),
+    )
+    .unwrap();
+    let src = dir.join("cornell-motion.gltf");
+    if !moving_camera {
+        return (common::gltf::load_path(&src).unwrap(), settings);
+    }
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&src).unwrap()).unwrap();
+    let camera = json["nodes"].as_array().unwrap().iter().position(|n| n.get("camera").is_some());
+    let camera = camera.expect("a camera node");
+    let nodes = json["nodes"].as_array_mut().unwrap();
+    nodes.push(serde_json::json!({"name": "camera-rig", "children": [camera]}));
+    let rig = nodes.len() - 1;
+    let roots = json["scenes"][0]["nodes"].as_array_mut().unwrap();
+    roots.retain(|n| n.as_u64() != Some(camera as u64));
+    roots.push(serde_json::json!(rig));
+    // The short block's translation sampler (0 to 6 cm along x over the shutter) moves the rig.
+    json["animations"][0]["channels"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({"sampler": 0, "target": {"node": rig, "path": "translation"}}));
+    let out = std::env::temp_dir().join(format!("renderfarm-motion-{}", std::process::id()));
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::copy(dir.join("cornell-box.bin"), out.join("cornell-box.bin")).unwrap();
+    let path = out.join("cornell-motion-camera.gltf");
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    (common::gltf::load_path(&path).unwrap(), settings)
+}
+
+/// Per pixel of a film: the mean and the variance of the mean of each channel.
+pub fn pixel_stats(film: &Film) -> Vec<([f64; 3], [f64; 3])> {
+    film.pixels.iter().map(|p| (p.mean(), p.variance_of_mean())).collect()
+}
+
+/// Compares two images block by block (`block` x `block` pixels, channels summed): the largest,
+/// over the blocks, of |difference| / (Sidak bound (1% over all blocks) x the standard error of
+/// the difference + `bias` x the reference's sum). Below 1 where the images agree within the
+/// noise; `what` names the worst block in the returned text.
+pub fn worst_block(
+    ours: &[([f64; 3], [f64; 3])],
+    reference: &[([f64; 3], [f64; 3])],
+    width: u32,
+    block: u32,
+    bias: f64,
+) -> (f64, String) {
+    let height = ours.len() as u32 / width;
+    let z_bound = sidak_z(0.01, ((width / block) * (height / block)) as usize);
+    let mut worst = (0.0f64, String::new());
+    for by in 0..height / block {
+        for bx in 0..width / block {
+            let (mut a, mut b, mut var) = (0.0, 0.0, 0.0);
+            for y in by * block..(by + 1) * block {
+                for x in bx * block..(bx + 1) * block {
+                    let (p, q) =
+                        (&ours[(y * width + x) as usize], &reference[(y * width + x) as usize]);
+                    a += p.0.iter().sum::<f64>();
+                    b += q.0.iter().sum::<f64>();
+                    var += p.1.iter().sum::<f64>() + q.1.iter().sum::<f64>();
+                }
+            }
+            let score = (a - b).abs() / (z_bound * var.sqrt() + bias * b.abs());
+            if score > worst.0 {
+                let z = (a - b) / var.sqrt();
+                worst = (score, format!("block ({bx}, {by}): ratio {:.4}, z {z:.2}", a / b));
+            }
+        }
+    }
+    worst
+}
+
+/// `cornell_motion`'s scene with its light moved by the short block's node (it slides 6 cm with
+/// it: the scene's nodes carry no transform of their own).
+pub fn with_moving_light(scene: &Scene) -> Scene {
+    let mut moved = scene.clone();
+    let anim = moved.animation.as_ref().expect("an animated scene");
+    let emits = |i: &common::scene::Instance| {
+        moved.materials[moved.meshes[i.mesh].material].emissive.max_element() > 0.0
+    };
+    let light = moved.instances.iter().position(emits).expect("an emissive mesh");
+    let block = moved.instances.iter().position(|i| anim.moves(i.node)).expect("a moving mesh");
+    moved.instances[light].node = moved.instances[block].node;
+    moved
 }
