@@ -518,9 +518,8 @@ impl Scene {
     }
 
     /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
-    /// and photon mapping do not take yet (volumes, an environment, directional lights; for
-    /// photon mapping an emitter that moves within the shutter) and the light they must start
-    /// paths from. `Ok` for the path tracer.
+    /// and photon mapping do not take yet (volumes; for photon mapping an emitter that moves
+    /// within the shutter) and the light they must start paths from. `Ok` for the path tracer.
     pub fn check_integrator(
         &self,
         settings: &crate::settings::RenderSettings,
@@ -534,12 +533,6 @@ impl Scene {
         };
         if self.materials.iter().any(|m| m.volume.is_some()) {
             return refuse("volumes (KHR_materials_volume)");
-        }
-        if settings.environment.is_some() {
-            return refuse("an environment");
-        }
-        if self.lights.iter().any(|l| l.kind == PunctualKind::Directional) {
-            return refuse("directional lights");
         }
         if name == "sppm" && settings.shutter.open < settings.shutter.close {
             if let Some(anim) = &self.animation {
@@ -559,7 +552,8 @@ impl Scene {
             let m = &self.materials[self.meshes[inst.mesh].material];
             m.emissive.max_element() > 0.0 && !m.unlit
         });
-        if !emissive && !self.lights.iter().any(|l| l.intensity.max_element() > 0.0) {
+        let punctual = self.lights.iter().any(|l| l.intensity.max_element() > 0.0);
+        if !emissive && !punctual && settings.environment.is_none() {
             return Err(format!(
                 "integrator: {name} traces paths from the lights, and the scene has none (no \
                  emissive material, no KHR_lights_punctual light)"

@@ -14,8 +14,17 @@ use worker::render::{render_task, scene::prepare_frame};
 
 /// The camera tasks' film and the light task's film of frame 0 (the image is their sum).
 fn render_bdpt(scene: &common::scene::Scene, settings: &RenderSettings) -> (Film, Film) {
+    render_bdpt_env(scene, settings, None)
+}
+
+/// `render_bdpt` with the settings' environment map decoded.
+fn render_bdpt_env(
+    scene: &common::scene::Scene,
+    settings: &RenderSettings,
+    map: Option<&common::envmap::EnvMap>,
+) -> (Film, Film) {
     let settings = RenderSettings { integrator: "bdpt".into(), ..settings.clone() };
-    let prepared = prepare_frame(scene, &settings, None, 0).expect("prepare");
+    let prepared = prepare_frame(scene, &settings, map, 0).expect("prepare");
     let camera = render_prepared(&prepared, &settings);
     let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     let mut light = Film::new(settings.width, settings.height);
@@ -244,4 +253,38 @@ fn bdpt_with_the_light_tree_matches_the_path_tracer() {
     let (mean, theirs) = (mean_and_se(&camera, &light), image_mean(&reference));
     println!("64 lights: worst block {score:.2} ({at}); red mean bdpt {mean:?} path {theirs:?}");
     assert!(score < 1.0, "{at}");
+}
+
+/// Lights at infinity. The furnace (a convex sphere of albedo 0.8 in a uniform environment of
+/// radiance 1): every 4 x 4 block within the noise of its exact image, light tracing (light
+/// subpaths entering through the disk across the scene) carrying a share of it. The Cornell box
+/// lit through its open front by a sun (a directional light) and an environment map besides its
+/// ceiling light: every 8 x 8 block within the noise of the path tracer's image.
+#[test]
+fn bdpt_lights_at_infinity_match_the_closed_form_and_the_path_tracer() {
+    let scene = load("furnace.gltf");
+    let furnace = RenderSettings { width: 32, height: 32, spp: 32, ..settings("furnace") };
+    let (camera, light) = render_bdpt(&scene, &furnace);
+    let exact: Vec<_> =
+        furnace_expected(32).iter().map(|e| (e.map(|v| v as f64), [0.0; 3])).collect();
+    let (score, at) = worst_block(&sum(&camera, &light), &exact, 32, 4, 0.0);
+    let n = light.pixels.len() as f64;
+    let light_share = light.pixels.iter().map(|p| p.mean()[0]).sum::<f64>()
+        / n
+        / mean_and_se(&camera, &light)[0].0;
+    println!("furnace: worst block {score:.2} ({at}); light tracing carries {light_share:.3}");
+    assert!(score < 1.0, "furnace: {at}");
+    assert!(light_share > 0.02, "light tracing carries {light_share}");
+
+    let (scene, outdoors, map) = cornell_sun_and_sky();
+    let base = RenderSettings { spp: 64, ..outdoors };
+    let (camera, light) = render_bdpt_env(&scene, &base, Some(&map));
+    let settings = RenderSettings { spp: 256, seed: 3, ..base.clone() };
+    let prepared =
+        worker::render::scene::prepare_with_environment(&scene, &settings, Some(&map)).unwrap();
+    let path = render_prepared(&prepared, &settings);
+    let (score, at) = worst_block(&sum(&camera, &light), &pixel_stats(&path), 32, 8, 0.0);
+    let (ours, theirs) = (mean_and_se(&camera, &light), image_mean(&path));
+    println!("sun and sky: worst block {score:.2} ({at}); means {ours:?} vs {theirs:?}");
+    assert!(score < 1.0, "sun and sky: {at}");
 }

@@ -28,8 +28,13 @@
 //! is not in the light list (as in the path tracer), so only the camera subpath hitting it
 //! (s = 0) finds it, with weight 1.
 //!
+//! Lights at infinity (the environment, directional lights) follow pbrt: a light subpath leaves
+//! one through a disk of the scene's radius across its direction (density per unit area of the
+//! disk), a camera subpath that leaves the scene ends on a vertex of the environment (density
+//! per solid angle), and the light's density as a subpath's origin is its direction's.
+//!
 //! What this version does not take (`Scene::check_integrator` refuses them before any work):
-//! volumes, the environment and directional lights (lights at infinity).
+//! volumes.
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
@@ -43,7 +48,7 @@ use super::{
     material,
     motion::Pose,
     sampler::Sampler,
-    sampling::{sample_uniform_sphere, uniform_sphere_pdf},
+    sampling::{sample_uniform_disk_concentric, sample_uniform_sphere, uniform_sphere_pdf},
     scene::{PreparedScene, NONE, UNSAMPLED},
 };
 
@@ -81,8 +86,12 @@ pub(super) struct Vertex {
     pub(super) delta: bool,
     /// The light it lies on (light vertices, surfaces of emitters), else `NONE`.
     pub(super) light: u32,
-    /// A point or spot light's vertex.
+    /// A point, spot or directional light's vertex.
     pub(super) delta_light: bool,
+    /// A vertex on a light at infinity (the environment, a directional light): `wo` is the
+    /// direction its light travels, `p` a point on the disk it enters the scene through (light
+    /// subpaths) or far along the ray (camera subpaths), `ng` zero.
+    pub(super) infinite: bool,
     /// Triangle and barycentrics (surfaces and area lights), for emission.
     pub(super) prim: u32,
     pub(super) b: [f32; 3],
@@ -109,6 +118,7 @@ impl Vertex {
             delta: false,
             light: NONE,
             delta_light: false,
+            infinite: false,
             prim: NONE,
             b: [0.0; 3],
             u_light: [0.0; 3],
@@ -118,6 +128,18 @@ impl Vertex {
 
     fn on_surface(&self) -> bool {
         self.ng != Vec3::ZERO
+    }
+
+    /// Unit direction from this vertex toward `other` (toward where a light at infinity shines
+    /// from, or along its light from such a vertex).
+    pub(super) fn dir_to(&self, other: &Vertex) -> Option<Vec3> {
+        if other.infinite {
+            Some(-other.wo)
+        } else if self.infinite {
+            Some(self.wo)
+        } else {
+            (other.p - self.p).try_normalize()
+        }
     }
 
     /// The shading normal (the geometric one off surfaces).
@@ -152,8 +174,16 @@ impl Vertex {
         bsdf.pdf(a, b)
     }
 
-    /// A solid-angle density at this vertex toward `next` to a density per unit area there.
+    /// A solid-angle density at this vertex toward `next` to a density per unit area there (a
+    /// vertex at infinity keeps the solid-angle density; from a light at infinity, `pdf` is the
+    /// density per unit area of its disk, projected onto `next`).
     fn convert_density(&self, pdf: f32, next: &Vertex) -> f32 {
+        if next.infinite {
+            return pdf;
+        }
+        if self.infinite {
+            return if next.on_surface() { pdf * next.ng.dot(self.wo).abs() } else { pdf };
+        }
         let w = next.p - self.p;
         let d2 = w.length_squared();
         if !(d2 > 0.0) {
@@ -178,12 +208,12 @@ impl Vertex {
         if self.kind == Kind::Light {
             return self.pdf_light(scene, next);
         }
-        let Some(wn) = (next.p - self.p).try_normalize() else { return 0.0 };
+        let Some(wn) = self.dir_to(next) else { return 0.0 };
         let pdf = match self.kind {
             Kind::Camera => camera.importance(self.p, wn).map_or(0.0, |i| i.pdf_dir),
             _ => {
                 let Some(prev) = prev else { return 0.0 };
-                let Some(wp) = (prev.p - self.p).try_normalize() else { return 0.0 };
+                let Some(wp) = self.dir_to(prev) else { return 0.0 };
                 self.pdf_dir(wp, wn)
             }
         };
@@ -193,9 +223,17 @@ impl Vertex {
     /// Density per unit area at `next` of a light subpath leaving this light (or emitter's)
     /// vertex toward it.
     fn pdf_light(&self, scene: &PreparedScene, next: &Vertex) -> f32 {
+        if self.light == NONE {
+            return 0.0;
+        }
+        if self.infinite {
+            // The density per unit area of the disk the light enters through, projected.
+            let r = scene.sphere.1;
+            return self.convert_density(1.0 / (std::f32::consts::PI * r * r), next);
+        }
         let w = next.p - self.p;
         let d2 = w.length_squared();
-        if !(d2 > 0.0) || self.light == NONE {
+        if !(d2 > 0.0) {
             return 0.0;
         }
         let w = w / d2.sqrt();
@@ -211,7 +249,9 @@ impl Vertex {
     }
 
     /// Density of a light subpath starting at this point of its light: the light's choice
-    /// (blind to any point) times the point's density per unit area (1 for a point light).
+    /// (blind to any point) times the point's density per unit area (1 for a point light; for
+    /// the environment, the density per solid angle of its direction, pbrt's convention for
+    /// lights at infinity, whose disk point no other strategy chooses).
     pub(super) fn pdf_light_origin(&self, scene: &PreparedScene) -> f32 {
         if self.light == NONE {
             return 0.0;
@@ -223,6 +263,7 @@ impl Vertex {
         };
         match &scene.lights.lights[self.light as usize] {
             Light::Triangle(l) => pmf / l.area,
+            Light::Environment(env) => pmf * env.pdf(-self.wo),
             _ => pmf,
         }
     }
@@ -233,6 +274,7 @@ impl Vertex {
             return Vec3::ZERO;
         }
         match &scene.lights.lights[self.light as usize] {
+            Light::Environment(env) if self.infinite => env.radiance(-self.wo),
             Light::Triangle(l) if l.emits_toward(w) => {
                 let m = &scene.materials[scene.shading[self.prim as usize].material as usize];
                 let sp = scene.surface_point(self.prim, self.b);
@@ -320,6 +362,18 @@ fn walk(
     let mut bounces = 0u32;
     while bounces < max_vertices {
         let Some((mut v, unlit_base)) = surface_vertex(scene, at, &ray, beta, stats) else {
+            if let (Mode::Radiance, Some(env)) = (mode, scene.lights.environment) {
+                // The camera subpath leaves the scene: a vertex on the environment.
+                let d = ray.dir.normalize();
+                let far = 2.0 * (scene.sphere.1 + (ray.origin - scene.sphere.0).length());
+                let mut v = Vertex::new(Kind::Light, ray.origin + d * far, beta);
+                v.infinite = true;
+                v.wo = -d;
+                v.light = env;
+                let prev = path.last().expect("a subpath starts with its camera vertex");
+                v.pdf_fwd = prev.convert_density(pdf, &v);
+                path.push(v);
+            }
             break;
         };
         let prev = path.last().expect("a subpath starts with its camera or light vertex");
@@ -550,10 +604,23 @@ pub(super) fn light_subpath(
             let v = Vertex::new(Kind::Light, l.position, le);
             (v, le / (pmf * uniform_sphere_pdf()), Ray::new(l.position, dir), uniform_sphere_pdf())
         }
-        _ => return,
+        // Lights at infinity: a direction, then a point on the disk of the scene's radius
+        // across it, outside the scene; the walk's first density is the disk's per unit area.
+        Light::Environment(env) => {
+            let Some((wi, le, pdf_dir)) = env.sample(u_dir) else { return };
+            let (v, ray, pdf_pos) = enter_from_infinity(scene, -wi, le, u_pos);
+            (v, le / (pmf * pdf_pos * pdf_dir), ray, pdf_pos)
+        }
+        Light::Directional(l) => {
+            let (v, ray, pdf_pos) = enter_from_infinity(scene, -l.to_light, l.irradiance, u_pos);
+            (v, l.irradiance / (pmf * pdf_pos), ray, pdf_pos)
+        }
     };
     v.light = idx;
-    v.delta_light = !matches!(scene.lights.lights[idx as usize], Light::Triangle(_));
+    v.delta_light = matches!(
+        scene.lights.lights[idx as usize],
+        Light::Point(_) | Light::Spot(_) | Light::Directional(_)
+    );
     v.pdf_fwd = v.pdf_light_origin(scene);
     path.push(v);
     if beta == Vec3::ZERO || !beta.is_finite() {
@@ -573,6 +640,19 @@ pub(super) fn light_subpath(
         stats,
         &mut unlit,
     );
+}
+
+/// A light subpath's first vertex on a light at infinity whose light travels along unit `d`:
+/// a point of the disk of the scene's radius across `d` (numbers `u`), moved back out of the
+/// scene; with the ray into the scene and the disk's density per unit area.
+fn enter_from_infinity(scene: &PreparedScene, d: Vec3, le: Vec3, u: Vec2) -> (Vertex, Ray, f32) {
+    let (centre, r) = scene.sphere;
+    let disk = sample_uniform_disk_concentric(u) * r;
+    let origin = centre + Frame::from_z(d).to_world(Vec3::new(disk.x, disk.y, 0.0)) - d * r;
+    let mut v = Vertex::new(Kind::Light, origin, le);
+    v.infinite = true;
+    v.wo = d;
+    (v, Ray::new(origin, d), 1.0 / (std::f32::consts::PI * r * r))
 }
 
 /// The balance-heuristic weight of the strategy with `s` light and `t` camera vertices, where
@@ -685,6 +765,12 @@ fn mis_weight(
 
 /// Whether the segment between two vertices is clear.
 fn visible(scene: &PreparedScene, at: &At<'_>, a: &Vertex, b: &Vertex, stats: &mut Stats) -> bool {
+    if b.infinite {
+        let w = -b.wo;
+        let from = if a.on_surface() { offset_ray_origin(a.p, a.p_error, a.ng, w) } else { a.p };
+        stats.rays += 1;
+        return !scene.occluded(&Ray::new(from, w), f32::INFINITY, at.pose);
+    }
     let w = b.p - a.p;
     let from = if a.on_surface() { offset_ray_origin(a.p, a.p_error, a.ng, w) } else { a.p };
     let to = if b.on_surface() { offset_ray_origin(b.p, b.p_error, b.ng, -w) } else { b.p };
@@ -699,6 +785,17 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
     let mut total = Vec3::ZERO;
     for t in 2..=camera.len() {
         let pt = &camera[t - 1];
+        if pt.infinite {
+            // The camera subpath left the scene: the environment it sees (s = 0), straight from
+            // the camera only where the settings show it.
+            if t > 2 || scene.environment_visible {
+                let l = pt.beta * pt.le(scene, pt.wo);
+                if l != Vec3::ZERO && l.is_finite() {
+                    total += l * mis_weight(scene, &at.camera, camera, light, None, 0, t);
+                }
+            }
+            continue;
+        }
         if pt.kind != Kind::Surface {
             continue;
         }
@@ -770,7 +867,6 @@ pub(super) fn sample_light(
     let (idx, pmf, _) = scene.lights.choose(ctx, u_choice)?;
     let light = &scene.lights.lights[idx as usize];
     let ls = light.sample_li(pt.p, Vec2::new(ux, uy))?;
-    let point = ls.point?;
     let mut li = match light {
         Light::Triangle(l) if l.textured => {
             let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
@@ -784,7 +880,16 @@ pub(super) fn sample_light(
             li *= scene.coverage(l.prim, ls.barycentrics);
         }
     }
-    let mut v = Vertex::new(Kind::Light, point, Vec3::ZERO);
+    let mut v = match ls.point {
+        Some(point) => Vertex::new(Kind::Light, point, Vec3::ZERO),
+        None => {
+            let far = 2.0 * (scene.sphere.1 + (pt.p - scene.sphere.0).length());
+            let mut v = Vertex::new(Kind::Light, pt.p + ls.wi * far, Vec3::ZERO);
+            v.infinite = true;
+            v.wo = -ls.wi;
+            v
+        }
+    };
     v.light = idx;
     v.delta_light = ls.is_delta;
     if let Light::Triangle(l) = light {
@@ -797,6 +902,7 @@ pub(super) fn sample_light(
     v.pdf_fwd = match light {
         _ if !scene.lights.uses_tree() => v.pdf_light_origin(scene),
         Light::Triangle(l) => pmf / l.area,
+        Light::Environment(_) => pmf * ls.pdf,
         _ => pmf,
     };
     let l = pt.beta * pt.f(pt.wo, ls.wi) * v.beta * pt.ns().dot(ls.wi).abs();

@@ -104,6 +104,9 @@ pub struct PreparedScene {
     /// mixture), for photon mapping, and for bidirectional path tracing where `lights` chooses
     /// by the tree (`None` otherwise: `lights` is that mixture).
     pub emission: Option<PowerMixture>,
+    /// The sphere holding the scene (centre, radius; what moves included): a light at infinity
+    /// sends light subpaths and photons in through a disk of its radius.
+    pub sphere: (Vec3, f32),
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
     pub wavefront: Option<super::wavefront_tables::Tables>,
@@ -506,13 +509,27 @@ fn prepare_inner(
         }
         _ => None,
     };
-    let mut scene_radius = scene_radius(&accel).max(1e-6);
+    let bounds = scene_bounds(&accel);
+    let mut scene_radius = bounds.map_or(1.0, |(lo, hi)| 0.5 * (hi - lo).length()).max(1e-6);
     if let Some(m) = &motion {
         for inst in &m.instances {
             let (lo, hi) = inst.bounds;
             scene_radius = scene_radius.max(lo.abs().max(hi.abs()).length());
         }
     }
+    // The sphere holding the scene, what moves over the whole shutter included.
+    let sphere = {
+        let moving = motion.iter().flat_map(|m| m.instances.iter().map(|i| i.bounds));
+        let (lo, hi) = bounds.into_iter().chain(moving).fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), (a, b)| (lo.min(a), hi.max(b)),
+        );
+        if lo.x <= hi.x {
+            (0.5 * (lo + hi), (0.5 * (hi - lo).length()).max(1e-6))
+        } else {
+            (Vec3::ZERO, 1.0)
+        }
+    };
     let varies = |m: &Material| m.base_color_texture.is_some() || has_colors;
     let alpha_tested = scene.materials.iter().any(|m| match m.alpha_mode {
         AlphaMode::Mask { .. } => varies(m),
@@ -561,6 +578,7 @@ fn prepare_inner(
         bdpt,
         sppm,
         emission,
+        sphere,
         wavefront,
     })
 }
@@ -722,10 +740,6 @@ fn coverage_number(ray: &Ray, prim: u32) -> f32 {
     h = mix64(h ^ (((o[2] as u64) << 32) | d[0] as u64));
     h = mix64(h ^ (((d[1] as u64) << 32) | d[2] as u64));
     to_unit((mix64(h ^ prim as u64) >> 32) as u32)
-}
-
-fn scene_radius(accel: &Accel) -> f32 {
-    scene_bounds(accel).map_or(1.0, |(lo, hi)| 0.5 * (hi - lo).length())
 }
 
 /// The scene's bounding box (`None` without triangles).

@@ -29,9 +29,13 @@
 //! paths and its photons, so a pass is a photon map of a still scene and the mean over passes
 //! the mean over the shutter.
 //!
-//! What it does not take yet (`Scene::check_integrator` refuses them before any work): volumes,
-//! the environment, directional lights, and emitters that move within the shutter (photons
-//! leave only the lights in the light list, which holds the emitters that stay put).
+//! Lights at infinity: photons leave them as bidirectional light subpaths do (through a disk of
+//! the scene's radius); a camera path that leaves the scene sees the environment, weighted
+//! against its light samples.
+//!
+//! What it does not take yet (`Scene::check_integrator` refuses them before any work): volumes
+//! and emitters that move within the shutter (photons leave only the lights in the light list,
+//! which holds the emitters that stay put).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -212,7 +216,13 @@ fn camera_path(
     let mut prev_pdf = 0.0f32;
     let mut prev_ctx = ShadingContext::default();
     for depth in 0..=scene.max_depth {
-        let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats) else { break };
+        let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats) else {
+            // The environment, straight from the camera only where the settings show it.
+            if depth > 0 || scene.environment_visible {
+                seen += beta * environment_seen(scene, ray.dir, &prev_ctx, prev_pdf);
+            }
+            break;
+        };
         if let Some(base) = unlit {
             seen += beta * base;
             break;
@@ -229,7 +239,7 @@ fn camera_path(
         let wo_local = v.frame.to_local(v.wo);
         let ctx = ShadingContext { p: v.p, n: v.frame.z };
         if let Some((direct, light, light_pdf)) = sample_light(scene, at, &v, &ctx, stats) {
-            let bsdf_pdf = v.pdf_dir(v.wo, (light.p - v.p).normalize());
+            let bsdf_pdf = v.dir_to(&light).map_or(0.0, |wi| v.pdf_dir(v.wo, wi));
             seen += direct * power_heuristic(light_pdf, bsdf_pdf);
         }
         let u_lobe = sampler.next_1d();
@@ -244,12 +254,14 @@ fn camera_path(
             if let Some((bs, wi)) = next {
                 let weight = beta * bs.f * (bs.wi.z.abs() / bs.pdf);
                 let ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
-                if let Some((hit, None)) = surface_vertex(scene, at, &ray, weight, stats) {
-                    if hit.light != NONE {
-                        let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
+                let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
+                match surface_vertex(scene, at, &ray, weight, stats) {
+                    Some((hit, None)) if hit.light != NONE => {
                         seen +=
                             weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, &ctx, pdf);
                     }
+                    None => seen += weight * environment_seen(scene, wi, &ctx, pdf),
+                    _ => {}
                 }
             }
             return (seen, Some((v, depth)));
@@ -281,6 +293,21 @@ fn emitter_weight(scene: &PreparedScene, hit: &Vertex, from: &ShadingContext, pd
     let pmf = scene.lights.pmf(from, hit.light);
     let light_pdf = pmf / l.area * hit.p.distance_squared(from.p) / cos;
     power_heuristic(pdf, light_pdf)
+}
+
+/// Radiance of the environment along direction `dir` found by a BSDF sample of density `pdf`
+/// (per solid angle; 0 for a camera ray or a delta lobe, which count whole) from `from`,
+/// weighted against sampling the environment there; zero without one.
+fn environment_seen(scene: &PreparedScene, dir: Vec3, from: &ShadingContext, pdf: f32) -> Vec3 {
+    let (Some(env), Some(index)) = (&scene.environment, scene.lights.environment) else {
+        return Vec3::ZERO;
+    };
+    let weight = if pdf == 0.0 {
+        1.0
+    } else {
+        power_heuristic(pdf, scene.lights.pmf(from, index) * env.pdf(dir.normalize()))
+    };
+    env.radiance(dir.normalize()) * weight
 }
 
 /// The grid cell of edge `radius` that holds `p`.

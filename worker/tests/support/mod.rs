@@ -385,3 +385,63 @@ pub fn with_moving_light(scene: &Scene) -> Scene {
     moved.instances[light].node = moved.instances[block].node;
     moved
 }
+
+/// The Cornell box lit from outside as well: a sun (a directional light of irradiance 3 shining
+/// in through the open front, down and to the side) and the studio environment map
+/// (`shared/scenes/real/environments`, seen through the front) besides its ceiling light. Returns
+/// the scene, settings with the map (`max_depth` 5, 32 x 32) and the decoded map.
+pub fn cornell_sun_and_sky() -> (Scene, RenderSettings, common::envmap::EnvMap) {
+    let path = edited_scene("cornell-box", "sun", |j| {
+        let used = j["extensionsUsed"].as_array_mut().unwrap();
+        used.push(serde_json::json!("KHR_lights_punctual"));
+        j["extensions"] = serde_json::json!({"KHR_lights_punctual": {"lights": [
+            {"type": "directional", "intensity": 3.0, "color": [1.0, 0.9, 0.8]}
+        ]}});
+        // Rotates -z (where the light shines) onto (0.3, -0.5, 1) normalised.
+        j["nodes"].as_array_mut().unwrap().push(serde_json::json!({
+            "name": "sun",
+            "rotation": [-0.827795714351693, -0.49667742861101577, 0.0, 0.26089420692939874],
+            "extensions": {"KHR_lights_punctual": {"light": 0}}
+        }));
+        let sun = j["nodes"].as_array().unwrap().len() - 1;
+        j["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(sun));
+    });
+    let scene = common::gltf::load_path(&path).unwrap();
+    let map_path = shared().join("scenes/real/environments/studio_small_05_1k.hdr");
+    let map = common::envmap::EnvMap::load(&map_path).unwrap();
+    let settings = RenderSettings {
+        width: 32,
+        height: 32,
+        max_depth: 5,
+        environment: Some(common::settings::Environment::Map {
+            map: map_path.display().to_string(),
+            intensity: 1.0,
+            rotation_deg: 0.0,
+            visible: true,
+        }),
+        ..settings("cornell-box")
+    };
+    (scene, settings, map)
+}
+
+/// The exact image of `shared/scenes/furnace` (`ref/furnace.exr`, 256 x 256) box-filtered down
+/// to `res` x `res` pixels (256 a multiple of `res`): covered pixels 0.8, the background 1.
+pub fn furnace_expected(res: u32) -> Vec<[f32; 3]> {
+    let (w, _, reference) = read_rgb(&shared().join("scenes/ref/furnace.exr"));
+    let k = w as u32 / res;
+    (0..res * res)
+        .map(|i| {
+            let (x, y) = (i % res, i / res);
+            let mut sum = [0.0f64; 3];
+            for yy in y * k..(y + 1) * k {
+                for xx in x * k..(x + 1) * k {
+                    let p = reference[(yy * w as u32 + xx) as usize];
+                    for c in 0..3 {
+                        sum[c] += p[c] as f64;
+                    }
+                }
+            }
+            sum.map(|v| (v / (k * k) as f64) as f32)
+        })
+        .collect()
+}
