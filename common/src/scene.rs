@@ -518,8 +518,9 @@ impl Scene {
     }
 
     /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
-    /// and photon mapping do not take yet (volumes; for photon mapping an emitter that moves
-    /// within the shutter) and the light they must start paths from. `Ok` for the path tracer.
+    /// and photon mapping do not take yet (scattering media, dispersion; for photon mapping an
+    /// emitter that moves within the shutter) and the light they must start paths from. `Ok`
+    /// for the path tracer.
     pub fn check_integrator(
         &self,
         settings: &crate::settings::RenderSettings,
@@ -531,8 +532,11 @@ impl Scene {
         let refuse = |what: &str| {
             Err(format!("integrator: {name} does not render {what} yet (\"path\" does)"))
         };
-        if self.materials.iter().any(|m| m.volume.is_some()) {
-            return refuse("volumes (KHR_materials_volume)");
+        if self.materials.iter().any(|m| m.volume.is_some_and(|v| v.scatters())) {
+            return refuse("scattering media (KHR_materials_volume_scatter)");
+        }
+        if self.materials.iter().any(|m| m.volume.is_some() && m.dispersion > 0.0) {
+            return refuse("dispersion (KHR_materials_dispersion)");
         }
         if name == "sppm" && settings.shutter.open < settings.shutter.close {
             if let Some(anim) = &self.animation {

@@ -82,27 +82,24 @@ fn what_bdpt_and_sppm_do_not_take_is_refused_naming_the_setting() {
     let adaptive = job(json!({"integrator": "bdpt", "target_rel_error": 0.05}));
     assert_eq!(adaptive.status, 422, "{}", adaptive.error());
     assert!(adaptive.error().contains("target_rel_error"), "{}", adaptive.error());
-    // Volumes (the Cornell box's glass sphere) are the path tracer's alone.
-    let dir_scenes = repo().join("scenes");
-    let glass = common::bundle::Bundle::pack(&[
-        (
-            "cornell-glass.gltf".into(),
-            std::fs::read(dir_scenes.join("cornell-glass.gltf")).unwrap(),
-        ),
-        ("cornell-box.bin".into(), std::fs::read(dir_scenes.join("cornell-box.bin")).unwrap()),
+    // Scattering media (a subsurface sphere) are the path tracer's alone.
+    let dir_scenes = repo().join("scenes/materials");
+    let skin = common::bundle::Bundle::pack(&[
+        ("subsurface.gltf".into(), std::fs::read(dir_scenes.join("subsurface.gltf")).unwrap()),
+        ("materials.bin".into(), std::fs::read(dir_scenes.join("materials.bin")).unwrap()),
     ])
     .unwrap();
-    let glass = upload(url, &glass);
+    let skin = upload(url, &skin);
     for integrator in ["bdpt", "sppm"] {
-        let volume = post_json(
+        let medium = post_json(
             &format!("{url}/api/v1/jobs"),
-            &json!({"scene": glass, "settings": {"integrator": integrator}}),
+            &json!({"scene": skin, "settings": {"integrator": integrator}}),
         );
-        assert_eq!(volume.status, 422, "{}", volume.error());
+        assert_eq!(medium.status, 422, "{}", medium.error());
         assert!(
-            volume.error().contains(integrator) && volume.error().contains("volumes"),
+            medium.error().contains(integrator) && medium.error().contains("scattering media"),
             "{}",
-            volume.error()
+            medium.error()
         );
     }
     let unknown = job(json!({"integrator": "sppm-typo"}));

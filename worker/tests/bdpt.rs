@@ -4,52 +4,13 @@
 
 mod support;
 
-use common::{
-    film::{Film, Rect},
-    protocol::{SampleRange, TaskKind, TaskSpec},
-    settings::RenderSettings,
-};
+use common::{film::Film, settings::RenderSettings};
 use support::*;
-use worker::render::{render_task, scene::prepare_frame};
+use worker::render::scene::prepare_frame;
 
 /// The camera tasks' film and the light task's film of frame 0 (the image is their sum).
 fn render_bdpt(scene: &common::scene::Scene, settings: &RenderSettings) -> (Film, Film) {
-    render_bdpt_env(scene, settings, None)
-}
-
-/// `render_bdpt` with the settings' environment map decoded.
-fn render_bdpt_env(
-    scene: &common::scene::Scene,
-    settings: &RenderSettings,
-    map: Option<&common::envmap::EnvMap>,
-) -> (Film, Film) {
-    let settings = RenderSettings { integrator: "bdpt".into(), ..settings.clone() };
-    let prepared = prepare_frame(scene, &settings, map, 0).expect("prepare");
-    let camera = render_prepared(&prepared, &settings);
-    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
-    let mut light = Film::new(settings.width, settings.height);
-    // Two light tasks, as the farm splits them.
-    let half = settings.spp / 2;
-    for samples in
-        [SampleRange { start: 0, end: half }, SampleRange { start: half, end: settings.spp }]
-    {
-        let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Light };
-        light.merge_tile(&render_task(&prepared, settings.seed, &task).tile);
-    }
-    (camera, light)
-}
-
-/// Per pixel and channel: the sum of the two films' means and of their variances of the mean.
-fn sum(camera: &Film, light: &Film) -> Vec<([f64; 3], [f64; 3])> {
-    camera
-        .pixels
-        .iter()
-        .zip(&light.pixels)
-        .map(|(c, l)| {
-            let (mc, ml, vc, vl) = (c.mean(), l.mean(), c.variance_of_mean(), l.variance_of_mean());
-            ([0, 1, 2].map(|i| mc[i] + ml[i]), [0, 1, 2].map(|i| vc[i] + vl[i]))
-        })
-        .collect()
+    render_bdpt_with(scene, settings, None)
 }
 
 /// The Cornell box at `max_depth` 5: the sum of the camera tasks' and the light task's films
@@ -67,7 +28,7 @@ fn bdpt_cornell_box_matches_the_path_tracer() {
     let t = std::time::Instant::now();
     let path = render(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
     let tp = t.elapsed().as_secs_f64();
-    let ours = sum(&camera, &light);
+    let ours = bdpt_sum(&camera, &light);
     let (mut d, mut v) = ([0.0f64; 3], [0.0f64; 3]);
     let (mut lsum, mut csum) = (0.0, 0.0);
     for (o, p) in ours.iter().zip(&path.pixels) {
@@ -122,7 +83,7 @@ fn bdpt_mirror_caustic_matches_the_closed_form() {
     let t = std::time::Instant::now();
     let (camera, light) = render_bdpt(&scene, &RenderSettings { spp: 64, ..base.clone() });
     let tb = t.elapsed().as_secs_f64();
-    let ours = sum(&camera, &light);
+    let ours = bdpt_sum(&camera, &light);
     let (mut d, mut v) = (0.0, 0.0);
     for (o, e) in ours.iter().zip(&expected) {
         d += o.0[0] - e[0] as f64;
@@ -145,7 +106,7 @@ fn bdpt_mirror_caustic_matches_the_closed_form() {
 
 /// Image means per channel of the two films' sum, with their standard errors.
 fn mean_and_se(camera: &Film, light: &Film) -> [(f64, f64); 3] {
-    let ours = sum(camera, light);
+    let ours = bdpt_sum(camera, light);
     let n = ours.len() as f64;
     [0, 1, 2].map(|c| {
         let mean = ours.iter().map(|o| o.0[c]).sum::<f64>() / n;
@@ -199,7 +160,7 @@ fn bdpt_motion_blur_matches_the_path_tracer() {
         let (scene, motion) = cornell_motion(moving_camera);
         let base = RenderSettings { width: 32, height: 32, spp: 64, max_depth: 5, ..motion };
         let (camera, light) = render_bdpt(&scene, &base);
-        let ours: Vec<_> = sum(&camera, &light);
+        let ours: Vec<_> = bdpt_sum(&camera, &light);
         let path = render_frame0(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
         let (score, at) = worst_block(&ours, &pixel_stats(&path), base.width, 8, 0.0);
         println!("motion blur, moving camera {moving_camera}: worst block {score:.2} ({at})");
@@ -224,7 +185,8 @@ fn bdpt_motion_blur_matches_the_path_tracer() {
     let (camera, light) = render_bdpt(&scene, &base);
     let path = render_frame0(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
     // Blocks of 16 x 16: a light found only by the camera subpaths leaves heavy tails.
-    let (score, at) = worst_block(&sum(&camera, &light), &pixel_stats(&path), base.width, 16, 0.0);
+    let (score, at) =
+        worst_block(&bdpt_sum(&camera, &light), &pixel_stats(&path), base.width, 16, 0.0);
     println!("motion blur, the light moving: worst block {score:.2} ({at})");
     assert!(score < 1.0, "the light moving: {at}");
     assert!(camera.mean_rgb().iter().flatten().any(|&v| v > 0.0), "the light moving: black");
@@ -248,7 +210,7 @@ fn bdpt_with_the_light_tree_matches_the_path_tracer() {
     assert!(prepared.lights.uses_tree() && prepared.emission.is_some());
     let (camera, light) = render_bdpt(&scene, &base);
     let reference = render(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
-    let ours = sum(&camera, &light);
+    let ours = bdpt_sum(&camera, &light);
     let (score, at) = worst_block(&ours, &pixel_stats(&reference), base.width, 8, 0.0);
     let (mean, theirs) = (mean_and_se(&camera, &light), image_mean(&reference));
     println!("64 lights: worst block {score:.2} ({at}); red mean bdpt {mean:?} path {theirs:?}");
@@ -267,7 +229,7 @@ fn bdpt_lights_at_infinity_match_the_closed_form_and_the_path_tracer() {
     let (camera, light) = render_bdpt(&scene, &furnace);
     let exact: Vec<_> =
         furnace_expected(32).iter().map(|e| (e.map(|v| v as f64), [0.0; 3])).collect();
-    let (score, at) = worst_block(&sum(&camera, &light), &exact, 32, 4, 0.0);
+    let (score, at) = worst_block(&bdpt_sum(&camera, &light), &exact, 32, 4, 0.0);
     let n = light.pixels.len() as f64;
     let light_share = light.pixels.iter().map(|p| p.mean()[0]).sum::<f64>()
         / n
@@ -278,13 +240,66 @@ fn bdpt_lights_at_infinity_match_the_closed_form_and_the_path_tracer() {
 
     let (scene, outdoors, map) = cornell_sun_and_sky();
     let base = RenderSettings { spp: 64, ..outdoors };
-    let (camera, light) = render_bdpt_env(&scene, &base, Some(&map));
+    let (camera, light) = render_bdpt_with(&scene, &base, Some(&map));
     let settings = RenderSettings { spp: 256, seed: 3, ..base.clone() };
     let prepared =
         worker::render::scene::prepare_with_environment(&scene, &settings, Some(&map)).unwrap();
     let path = render_prepared(&prepared, &settings);
-    let (score, at) = worst_block(&sum(&camera, &light), &pixel_stats(&path), 32, 8, 0.0);
+    let (score, at) = worst_block(&bdpt_sum(&camera, &light), &pixel_stats(&path), 32, 8, 0.0);
     let (ours, theirs) = (mean_and_se(&camera, &light), image_mean(&path));
     println!("sun and sky: worst block {score:.2} ({at}); means {ours:?} vs {theirs:?}");
     assert!(score < 1.0, "sun and sky: {at}");
 }
+
+/// Refractive volumes. A clear glass box in the white furnace (a smooth boundary neither makes
+/// nor loses light, and the 1 / eta² of radiance entering the glass comes back leaving it): every
+/// pixel within 1e-5 of 1, as the path tracer's (only camera subpaths find these paths: every
+/// vertex is on a smooth boundary). The Cornell box's tinted glass sphere (`scenes/cornell-glass`:
+/// refraction, total internal reflection, absorption, and a caustic on the floor that light
+/// tracing finds, whose flux, unlike radiance, is not scaled by 1 / eta² entering the glass):
+/// every 8 x 8 block within the noise of the path tracer's image.
+#[test]
+fn bdpt_glass_matches_the_furnace_and_the_path_tracer() {
+    let path = furnace_box("bdpt-furnace", dielectric_material(1.5, 1.0, None));
+    // Seen through a perspective camera (2 atan(1 / 3): the box's view), as light tracing needs.
+    with_perspective_camera(&path, 2.0 * (1.0f64 / 3.0).atan());
+    let scene = common::gltf::load_path(&path).unwrap();
+    let furnace = RenderSettings { max_depth: 64, ..white_furnace(16, 64) };
+    let (camera, light) = render_bdpt(&scene, &furnace);
+    let worst = bdpt_sum(&camera, &light)
+        .iter()
+        .flat_map(|p| p.0)
+        .map(|v| (v - 1.0).abs())
+        .fold(0.0, f64::max);
+    println!("glass furnace: worst pixel {worst:.1e} from 1");
+    assert!(worst < 1e-5, "a pixel is {worst} away from 1");
+
+    let glass =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-glass.gltf");
+    let scene = common::gltf::load_path(&glass).unwrap();
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 64, max_depth: 8, ..settings("cornell-box") };
+    let (camera, light) = render_bdpt(&scene, &base);
+    let path = render(&scene, &RenderSettings { spp: 256, seed: 3, ..base.clone() });
+    let (score, at) = worst_block(&bdpt_sum(&camera, &light), &pixel_stats(&path), 32, 8, 0.0);
+    let (ours, theirs) = (mean_and_se(&camera, &light), image_mean(&path));
+    println!("cornell glass: worst block {score:.2} ({at}); means {ours:?} vs {theirs:?}");
+    assert!(score < 1.0, "cornell glass: {at}");
+}
+
+/// Diffuse surfaces inside an absorbing volume (`cornell_under_water`: the floor, the short block
+/// and the red wall under tinted water, lit only through its surface, a caustic for both
+/// renderers): subpaths inside it lose light to it, and connections between their vertices
+/// carry its transmittance. Every 16 x 16 block within the noise of the path tracer's image.
+#[test]
+fn bdpt_inside_an_absorbing_volume_matches_the_path_tracer() {
+    let scene = cornell_under_water();
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 256, max_depth: 8, ..settings("cornell-box") };
+    let (camera, light) = render_bdpt(&scene, &base);
+    let path = render(&scene, &RenderSettings { spp: 1024, seed: 3, ..base.clone() });
+    let (score, at) = worst_block(&bdpt_sum(&camera, &light), &pixel_stats(&path), 32, 16, 0.0);
+    println!("under water: worst block {score:.2} ({at})");
+    assert!(score < 1.0, "under water: {at}");
+}
+

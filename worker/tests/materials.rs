@@ -80,3 +80,36 @@ fn subsurface_scattering_matches_mitsuba() {
 fn index_matched_subsurface_scattering_matches_mitsuba() {
     matches_reference("subsurface-matched", 256);
 }
+
+/// Bidirectional path tracing and photon mapping through refractive volumes against the same
+/// Mitsuba 3 references (smooth and rough absorbing glass on a floor, 48x48): every 8 x 8 block
+/// within the Sidak bound of both images' noise (photon mapping: plus 4%, its radius's bias).
+#[test]
+fn bdpt_and_sppm_glass_match_mitsuba() {
+    let dir = materials();
+    for name in ["glass-smooth", "glass-rough"] {
+        let scene = common::gltf::load_path(&dir.join(format!("{name}.gltf"))).unwrap();
+        let text = std::fs::read_to_string(dir.join(format!("{name}.settings.json"))).unwrap();
+        let settings = RenderSettings {
+            width: 48,
+            height: 48,
+            spp: 256,
+            ..RenderSettings::from_json(&text).unwrap()
+        };
+        let (_, _, reference) = read_rgb(&dir.join(format!("ref/{name}-48.exr")));
+        let meta: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join(format!("ref/{name}-48.ref.json"))).unwrap(),
+        )
+        .unwrap();
+        let var = meta["noise_rmse_est"].as_f64().unwrap().powi(2);
+        let reference: Vec<_> = reference.iter().map(|p| (p.map(f64::from), [var; 3])).collect();
+        let (camera, light) = render_bdpt_with(&scene, &settings, None);
+        let (score, at) = worst_block(&bdpt_sum(&camera, &light), &reference, 48, 8, 0.0);
+        eprintln!("{name}, bdpt: worst block {score:.2} ({at})");
+        assert!(score < 1.0, "{name}, bdpt: {at}");
+        let film = render_sppm_with(&scene, &settings, 128, 2, None);
+        let (score, at) = worst_block(&pixel_stats(&film), &reference, 48, 8, 0.04);
+        eprintln!("{name}, sppm: worst block {score:.2} ({at})");
+        assert!(score < 1.0, "{name}, sppm: {at}");
+    }
+}

@@ -33,19 +33,29 @@
 //! disk), a camera subpath that leaves the scene ends on a vertex of the environment (density
 //! per solid angle), and the light's density as a subpath's origin is its direction's.
 //!
+//! Volumes: subpaths cross boundaries and lose light to absorption as the path tracer's paths
+//! do (`surface_vertex`), connections carry the transmittance of the medium they run through
+//! (`segment_transmittance`), and a light subpath refracting through a smooth boundary carries
+//! flux, not radiance (pbrt-v4's importance transport: no 1 / eta²). Cameras and lights are
+//! taken to be in air.
+//!
 //! What this version does not take (`Scene::check_integrator` refuses them before any work):
-//! volumes.
+//! scattering media and dispersion.
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
 
 use super::{
-    bsdf::Bsdf,
+    bsdf::{Bsdf, Dielectric},
     camera::PlacedCamera,
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
-    integrator::{same_side, shading_frame, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
+    integrator::{
+        same_side, shading_frame, Stats, MAX_FALSE_INTERFACES, RR_MIN_DEPTH, RR_SURVIVAL_SCALE,
+        SHADOW_T_MAX,
+    },
     light::{spot_falloff, ChooseLight, Light, ShadingContext},
     material,
+    media::{self, transmittance, Crossing, MediumStack},
     motion::Pose,
     sampler::Sampler,
     sampling::{sample_uniform_disk_concentric, sample_uniform_sphere, uniform_sphere_pdf},
@@ -100,6 +110,14 @@ pub(super) struct Vertex {
     /// Radiance toward `wo` of an emitter that moves within the shutter (no light subpath or
     /// light sample starts on one, so only a camera subpath that hits it counts it, in full).
     pub(super) moving_le: Vec3,
+    /// The medium on `wo`'s side (`None`: air) and on the other (a different one only on a
+    /// volume's boundary): where a connection leaving the vertex travels.
+    pub(super) medium: Option<u32>,
+    pub(super) beyond: Option<u32>,
+    /// The volume boundary the vertex lies on (its material, and whether it was reached through
+    /// the front face), and whether it refracts.
+    pub(super) boundary: Option<(u32, bool)>,
+    pub(super) refracting: bool,
 }
 
 impl Vertex {
@@ -123,6 +141,10 @@ impl Vertex {
             b: [0.0; 3],
             u_light: [0.0; 3],
             moving_le: Vec3::ZERO,
+            medium: None,
+            beyond: None,
+            boundary: None,
+            refracting: false,
         }
     }
 
@@ -162,16 +184,19 @@ impl Vertex {
         {
             return Vec3::ZERO;
         }
+        let below = a.z < 0.0;
         let (a, b) = flip_below(a, b);
-        bsdf.eval(a, b)
+        oriented(bsdf, below).eval(a, b)
     }
 
     /// Density per solid angle of the BSDF sampling unit direction `to` given the path came
     /// from `from` (the BSDF samples "wi" for a "wo"; the frame is turned when `from` lies below).
     pub(super) fn pdf_dir(&self, from: Vec3, to: Vec3) -> f32 {
         let Some(bsdf) = &self.bsdf else { return 0.0 };
-        let (a, b) = flip_below(self.frame.to_local(from), self.frame.to_local(to));
-        bsdf.pdf(a, b)
+        let (a, b) = (self.frame.to_local(from), self.frame.to_local(to));
+        let below = a.z < 0.0;
+        let (a, b) = flip_below(a, b);
+        oriented(bsdf, below).pdf(a, b)
     }
 
     /// A solid-angle density at this vertex toward `next` to a density per unit area there (a
@@ -296,6 +321,17 @@ fn flip_below(a: Vec3, b: Vec3) -> (Vec3, Vec3) {
     }
 }
 
+/// The BSDF seen from the side of its first direction: a dielectric boundary seen from its far
+/// side (`below`) has the reciprocal relative index (BSDFs are written for a first direction
+/// above, `flip_below` turns the pair).
+#[inline]
+fn oriented(bsdf: &Bsdf, below: bool) -> Bsdf {
+    match bsdf {
+        Bsdf::Dielectric(d) if below => Bsdf::Dielectric(Dielectric { eta: 1.0 / d.eta, ..*d }),
+        _ => *bsdf,
+    }
+}
+
 /// Which way light travels along a subpath.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Mode {
@@ -360,8 +396,11 @@ fn walk(
     unlit: &mut Vec3,
 ) {
     let mut bounces = 0u32;
+    // The volumes the subpath is inside (cameras and lights are in air).
+    let mut media = MediumStack::default();
     while bounces < max_vertices {
-        let Some((mut v, unlit_base)) = surface_vertex(scene, at, &ray, beta, stats) else {
+        let Some((mut v, unlit_base)) = surface_vertex(scene, at, &ray, beta, stats, &mut media)
+        else {
             if let (Mode::Radiance, Some(env)) = (mode, scene.lights.environment) {
                 // The camera subpath leaves the scene: a vertex on the environment.
                 let d = ray.dir.normalize();
@@ -379,6 +418,8 @@ fn walk(
         let prev = path.last().expect("a subpath starts with its camera or light vertex");
         v.pdf_fwd = prev.convert_density(pdf, &v);
         bounces += 1;
+        // What the medium on the way let through.
+        beta = v.beta;
         if let Some(base) = unlit_base {
             // Seen as its base colour by the camera, and by nothing else.
             if mode == Mode::Radiance {
@@ -412,7 +453,8 @@ fn walk(
         let u = sampler.next_2d();
         let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else { break };
         let wi = frame.to_world(bs.wi);
-        if !same_side(bs.wi.z, wi.dot(ng), bsdf.transmits()) {
+        let refracting = path[path.len() - 1].refracting;
+        if !refracting && !same_side(bs.wi.z, wi.dot(ng), bsdf.transmits()) {
             break;
         }
         let n = path.len();
@@ -420,6 +462,9 @@ fn walk(
         let f = match mode {
             // Light flows from `wo` toward `wi` on a light subpath.
             Mode::Importance if !delta => path[n - 1].f(wi, wo),
+            // A smooth refraction's radiance carries 1 / eta² of the side it enters; the flux a
+            // light subpath carries does not (pbrt-v4's TransportMode::Importance).
+            Mode::Importance if bs.lobe.enters_far_side() => bs.f * (bs.eta * bs.eta),
             _ => bs.f,
         };
         beta *= f * (bs.wi.z.abs() / bs.pdf);
@@ -445,6 +490,7 @@ fn walk(
             break;
         }
         pdf = pdf_fwd;
+        cross_after(&path[n - 1], wi, bs.wi, &mut media);
         ray = Ray::new(offset_ray_origin(p, path[n - 1].p_error, ng, wi), wi);
     }
 }
@@ -473,43 +519,116 @@ pub(super) fn surface_vertex(
     scene: &PreparedScene,
     at: &At<'_>,
     ray: &Ray,
-    beta: Vec3,
+    mut beta: Vec3,
     stats: &mut Stats,
+    media: &mut MediumStack,
 ) -> Option<(Vertex, Option<Vec3>)> {
-    stats.rays += 1;
-    let hit = scene.intersect(ray, f32::INFINITY, at.pose)?;
-    let tri = scene.shading[hit.prim as usize];
-    let ([p0, p1, p2], moved) = scene.triangle(hit.prim, at.pose);
-    let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
-    let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
-    let winding = (p1 - p0).cross(p2 - p0).try_normalize()?;
-    let wo = -ray.dir.normalize();
-    let front = winding.dot(wo) > 0.0;
-    let ng = if front { winding } else { -winding };
-    let material = &scene.materials[tri.material as usize];
-    let sp = scene.surface_point(hit.prim, b);
-    let mut v = Vertex::new(Kind::Surface, p, beta);
-    v.p_error = interpolation_error([p0, p1, p2], b);
-    if moved {
-        // The vertices went through a transform: a few more roundings of their size.
-        v.p_error += (p0.abs().max(p1.abs()).max(p2.abs())) * (8.0 * f32::EPSILON);
+    let mut ray = *ray;
+    // False interfaces passed (bounded, as in the path tracer).
+    let mut passed = 0u32;
+    loop {
+        stats.rays += 1;
+        let hit = scene.intersect(&ray, f32::INFINITY, at.pose)?;
+        if let Some(volume) = media.current().and_then(|m| scene.materials[m as usize].volume) {
+            // Beer-Lambert along the segment inside the volume.
+            beta *= transmittance(&volume, hit.t * ray.dir.length());
+        }
+        let tri = scene.shading[hit.prim as usize];
+        let ([p0, p1, p2], moved) = scene.triangle(hit.prim, at.pose);
+        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+        let winding = (p1 - p0).cross(p2 - p0).try_normalize()?;
+        let wo = -ray.dir.normalize();
+        let front = winding.dot(wo) > 0.0;
+        let ng = if front { winding } else { -winding };
+        let material = &scene.materials[tri.material as usize];
+        let mut p_error = interpolation_error([p0, p1, p2], b);
+        if moved {
+            // The vertices went through a transform: a few more roundings of their size.
+            p_error += (p0.abs().max(p1.abs()).max(p2.abs())) * (8.0 * f32::EPSILON);
+        }
+        // A volume's boundary (as the path tracer crosses it, `media`): a false interface is
+        // passed unchanged, a real one is between the current medium and the one beyond.
+        let boundary = tri.extended && material.volume.is_some() && material.bounds_medium();
+        let mut beyond = media.current();
+        if boundary {
+            match media.crossing(tri.material, front) {
+                Crossing::Real { beyond: m } => beyond = m,
+                Crossing::False => {
+                    media.cross(tri.material, front);
+                    passed += 1;
+                    if passed > MAX_FALSE_INTERFACES {
+                        return None;
+                    }
+                    ray = Ray::new(offset_ray_origin(p, p_error, winding, ray.dir), ray.dir);
+                    continue;
+                }
+            }
+        }
+        let sp = scene.surface_point(hit.prim, b);
+        let mut v = Vertex::new(Kind::Surface, p, beta);
+        v.p_error = p_error;
+        v.ng = ng;
+        v.wo = wo;
+        v.prim = hit.prim;
+        v.b = b;
+        v.medium = media.current();
+        v.beyond = beyond;
+        v.boundary = boundary.then_some((tri.material, front));
+        v.light = if tri.light == NONE || tri.light == UNSAMPLED { NONE } else { tri.light };
+        if tri.light == UNSAMPLED && (material.double_sided || front) {
+            v.moving_le = material::emission_toward(&scene.textures, material, &sp, winding, wo);
+        }
+        if tri.extended && material.unlit {
+            let base = material::base_color(&scene.textures, material, &sp).truncate();
+            return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
+        }
+        let (mut frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, at.pose);
+        v.refracting = boundary && material.refracts();
+        if v.refracting && frame.to_local(wo).z <= 0.0 {
+            // As in the path tracer: a refractive boundary shades with the facet's normal where
+            // the interpolated one turns away from wo.
+            frame = Frame::from_z(ng);
+        }
+        v.frame = frame;
+        // A refractive boundary's relative index: the volume's against the medium on its other
+        // side (the current one entering it, the one beyond leaving it).
+        let iors = if boundary {
+            let other = if front { media.current() } else { beyond };
+            [
+                media::ior(&scene.materials, Some(tri.material), None),
+                media::ior(&scene.materials, other, None),
+            ]
+        } else {
+            [1.0; 2]
+        };
+        v.bsdf = Some(material::bsdf(&scene.textures, material, &sp, front, iors, tri.extended));
+        return Some((v, None));
     }
-    v.ng = ng;
-    v.wo = wo;
-    v.prim = hit.prim;
-    v.b = b;
-    v.light = if tri.light == NONE || tri.light == UNSAMPLED { NONE } else { tri.light };
-    if tri.light == UNSAMPLED && (material.double_sided || front) {
-        v.moving_le = material::emission_toward(&scene.textures, material, &sp, winding, wo);
+}
+
+/// After a vertex's BSDF sampled the unit direction `wi` (`wi_local` in its frame), crosses the
+/// volume boundary the vertex lies on if `wi` leaves through it.
+pub(super) fn cross_after(v: &Vertex, wi: Vec3, wi_local: Vec3, media: &mut MediumStack) {
+    let Some((material, front)) = v.boundary else { return };
+    // Which side the ray leaves by: the shading frame's, except at a refractive boundary, where
+    // the facet's decides.
+    let crosses = if v.refracting { wi.dot(v.ng) < 0.0 } else { wi_local.z < 0.0 };
+    if crosses {
+        media.cross(material, front);
     }
-    if tri.extended && material.unlit {
-        let base = material::base_color(&scene.textures, material, &sp).truncate();
-        return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
-    }
-    let (frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, at.pose);
-    v.frame = frame;
-    v.bsdf = Some(material::bsdf(&scene.textures, material, &sp, front, [1.0; 2], tri.extended));
-    Some((v, None))
+}
+
+/// The transmittance of the straight segment from vertex `a` to vertex `b` (a connection): the
+/// medium `a` leaves into along it, over their distance; 1 in air.
+pub(super) fn segment_transmittance(scene: &PreparedScene, a: &Vertex, b: &Vertex) -> Vec3 {
+    let Some(w) = a.dir_to(b) else { return Vec3::ONE };
+    let medium = if a.kind == Kind::Surface && w.dot(a.ng) < 0.0 { a.beyond } else { a.medium };
+    let Some(volume) = medium.and_then(|m| scene.materials[m as usize].volume) else {
+        return Vec3::ONE;
+    };
+    let d = if b.infinite { f32::INFINITY } else { a.p.distance(b.p) };
+    transmittance(&volume, d)
 }
 
 /// The camera subpath of a sample whose film position and lens numbers are drawn: up to
@@ -839,7 +958,7 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
                     if l == Vec3::ZERO || !visible(scene, at, pt, qs, stats) {
                         continue;
                     }
-                    (l, None)
+                    (l * segment_transmittance(scene, pt, qs), None)
                 }
             };
             if l == Vec3::ZERO || !l.is_finite() {
@@ -909,6 +1028,7 @@ pub(super) fn sample_light(
     if l == Vec3::ZERO || !visible(scene, at, pt, &v, stats) {
         return None;
     }
+    let l = l * segment_transmittance(scene, pt, &v);
     Some((l, v, if ls.is_delta { f32::INFINITY } else { ls.pdf * pmf }))
 }
 
@@ -1015,6 +1135,7 @@ fn splat_light_path(
         if l == Vec3::ZERO || !l.is_finite() || !visible(scene, at, qs, &v, stats) {
             continue;
         }
+        let l = l * segment_transmittance(scene, qs, &v);
         let w = mis_weight(scene, camera, &[], light, Some(&v), s, 1);
         let (width, height) = (camera.camera.width as u32, camera.camera.height as u32);
         let px = imp.film.as_uvec2();

@@ -55,7 +55,7 @@ pub(crate) const RR_SURVIVAL_SCALE: f32 = 3.0;
 /// How many false interfaces (volume boundaries with the same medium on both sides) a path
 /// passes before it is ended: far more than any sensible nesting, few enough that a pathological
 /// mesh cannot hold a path.
-const MAX_FALSE_INTERFACES: u32 = 256;
+pub(crate) const MAX_FALSE_INTERFACES: u32 = 256;
 
 /// 1 - ShadowEpsilon: shadow rays toward a point stop just short of it.
 pub(crate) const SHADOW_T_MAX: f32 = 1.0 - 1e-4;

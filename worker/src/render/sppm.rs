@@ -33,9 +33,12 @@
 //! the scene's radius); a camera path that leaves the scene sees the environment, weighted
 //! against its light samples.
 //!
-//! What it does not take yet (`Scene::check_integrator` refuses them before any work): volumes
-//! and emitters that move within the shutter (photons leave only the lights in the light list,
-//! which holds the emitters that stay put).
+//! Volumes: camera paths and photons cross boundaries and lose light to absorption as
+//! bidirectional subpaths do (`bdpt::surface_vertex`); photons refract carrying flux.
+//!
+//! What it does not take yet (`Scene::check_integrator` refuses them before any work):
+//! scattering media, dispersion and emitters that move within the shutter (photons leave only
+//! the lights in the light list, which holds the emitters that stay put).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -43,10 +46,11 @@ use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
-    bdpt::{light_subpath, roulette, sample_light, surface_vertex, At, Vertex},
+    bdpt::{cross_after, light_subpath, roulette, sample_light, surface_vertex, At, Vertex},
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext},
+    media::MediumStack,
     sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
@@ -215,14 +219,18 @@ fn camera_path(
     // whole) and the point it left.
     let mut prev_pdf = 0.0f32;
     let mut prev_ctx = ShadingContext::default();
+    // The volumes the path is inside (the camera is in air).
+    let mut media = MediumStack::default();
     for depth in 0..=scene.max_depth {
-        let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats) else {
+        let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats, &mut media) else {
             // The environment, straight from the camera only where the settings show it.
             if depth > 0 || scene.environment_visible {
                 seen += beta * environment_seen(scene, ray.dir, &prev_ctx, prev_pdf);
             }
             break;
         };
+        // What the medium on the way let through.
+        beta = v.beta;
         if let Some(base) = unlit {
             seen += beta * base;
             break;
@@ -247,7 +255,7 @@ fn camera_path(
         let sampled = if wo_local.z > 0.0 { bsdf.sample(wo_local, u_lobe, u) } else { None };
         let next = sampled.and_then(|bs| {
             let wi = v.frame.to_world(bs.wi);
-            same_side(bs.wi.z, wi.dot(v.ng), bsdf.transmits()).then_some((bs, wi))
+            (v.refracting || same_side(bs.wi.z, wi.dot(v.ng), bsdf.transmits())).then_some((bs, wi))
         });
         if bsdf.gathers_photons() {
             // The BSDF's half of the direct light, then the path ends here.
@@ -255,7 +263,9 @@ fn camera_path(
                 let weight = beta * bs.f * (bs.wi.z.abs() / bs.pdf);
                 let ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
                 let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
-                match surface_vertex(scene, at, &ray, weight, stats) {
+                let mut media = media;
+                cross_after(&v, wi, bs.wi, &mut media);
+                match surface_vertex(scene, at, &ray, weight, stats, &mut media) {
                     Some((hit, None)) if hit.light != NONE => {
                         seen +=
                             weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, &ctx, pdf);
@@ -276,6 +286,7 @@ fn camera_path(
         }
         prev_pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
         prev_ctx = ctx;
+        cross_after(&v, wi, bs.wi, &mut media);
         ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
     }
     (seen, None)

@@ -12,7 +12,7 @@ use common::{
     settings::RenderSettings,
 };
 use worker::render::{
-    render_task,
+    render_task, render_task_threads,
     scene::{prepare, prepare_frame, PreparedScene},
 };
 
@@ -444,4 +444,211 @@ pub fn furnace_expected(res: u32) -> Vec<[f32; 3]> {
             sum.map(|v| (v / (k * k) as f64) as f32)
         })
         .collect()
+}
+
+/// A box of half sizes `half` centred at `center` and turned by `tilt` radians about the z axis,
+/// faces wound counter-clockwise seen from outside, with `material`; an orthographic camera at
+/// height `camera_y` looking down on a square of half size `view`; and, when `edge`, an emitting
+/// half-plane (radiance 1, facing up) at y = -1 under it, lit for x > 0 only. Returns the file's
+/// path.
+#[allow(clippy::too_many_arguments)]
+pub fn box_scene(
+    tag: &str,
+    half: [f32; 3],
+    center: [f32; 3],
+    material: serde_json::Value,
+    camera_y: f32,
+    view: f32,
+    tilt: f64,
+    edge: bool,
+) -> std::path::PathBuf {
+    let [hx, hy, hz] = half;
+    let [cx, cy, cz] = center;
+    let corner = |i: usize| {
+        [
+            cx + if i & 1 == 1 { hx } else { -hx },
+            cy + if i & 2 == 2 { hy } else { -hy },
+            cz + if i & 4 == 4 { hz } else { -hz },
+        ]
+    };
+    let positions: Vec<[f32; 3]> = (0..8).map(corner).collect();
+    // Each face as a quad counter-clockwise seen from outside.
+    let faces: [[u16; 4]; 6] = [
+        [0, 4, 6, 2], // -x
+        [1, 3, 7, 5], // +x
+        [0, 1, 5, 4], // -y
+        [2, 6, 7, 3], // +y
+        [0, 2, 3, 1], // -z
+        [4, 5, 7, 6], // +z
+    ];
+    let indices: Vec<u16> =
+        faces.iter().flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]]).collect();
+    let mut bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    let index_start = bytes.len();
+    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+    let (min, max) = (corner(0), corner(7));
+    // The half-plane: 4 corners and 2 triangles, counter-clockwise seen from above.
+    let plane_start = bytes.len();
+    let plane: [[f32; 3]; 4] =
+        [[0.0, -1.0, -20.0], [20.0, -1.0, -20.0], [20.0, -1.0, 20.0], [0.0, -1.0, 20.0]];
+    bytes.extend(plane.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    bytes.extend([0u16, 2, 1, 0, 3, 2].iter().flat_map(|v| v.to_le_bytes()));
+    let half_turn = (tilt / 2.0).sin_cos();
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": if edge { vec![0, 1, 2] } else { vec![0, 1] }}],
+        "nodes": [
+            {"mesh": 0, "rotation": [0.0, 0.0, half_turn.0, half_turn.1]},
+            {"camera": 0, "translation": [0.0, camera_y, 0.0],
+             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]},
+            {"mesh": 1}
+        ],
+        "cameras": [{"type": "orthographic", "orthographic": {"xmag": view, "ymag": view, "znear": 0.01, "zfar": 100.0}}],
+        "meshes": [
+            {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]},
+            {"primitives": [{"attributes": {"POSITION": 2}, "indices": 3, "material": 1}]}
+        ],
+        "materials": [material, {
+            "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0},
+            "emissiveFactor": [1.0, 1.0, 1.0],
+            "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
+        }],
+        "extensionsUsed": ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior", "KHR_materials_specular"],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 8, "type": "VEC3", "min": min, "max": max},
+            {"bufferView": 1, "componentType": 5123, "count": 36, "type": "SCALAR"},
+            {"bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.0, -1.0, -20.0], "max": [20.0, -1.0, 20.0]},
+            {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": index_start},
+            {"buffer": 0, "byteOffset": index_start, "byteLength": 72},
+            {"buffer": 0, "byteOffset": plane_start, "byteLength": 48},
+            {"buffer": 0, "byteOffset": plane_start + 48, "byteLength": 12}
+        ],
+        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+    });
+    let dir = std::env::temp_dir().join(format!("renderfarm-glass-{}-{tag}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("box.gltf");
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    path
+}
+
+/// The furnace box: `box_scene` of half sizes (0.6, 0.4, 0.5) off-centre in the view, at an
+/// angle that sends light through its sides.
+pub fn furnace_box(tag: &str, material: serde_json::Value) -> std::path::PathBuf {
+    box_scene(tag, [0.6, 0.4, 0.5], [0.1, 0.0, -0.2], material, 3.0, 1.0, 0.0, false)
+}
+
+/// Rewrites the glTF at `path` (a `box_scene`) to see through a perspective camera of vertical
+/// field of view `yfov` radians from the same place, so that light paths can reach it.
+pub fn with_perspective_camera(path: &Path, yfov: f64) {
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    json["cameras"][0] = serde_json::json!({
+        "type": "perspective",
+        "perspective": {"yfov": yfov, "aspectRatio": 1.0, "znear": 0.01}
+    });
+    std::fs::write(path, serde_json::to_string(&json).unwrap()).unwrap();
+}
+
+/// Bidirectional path tracing of frame 0 (the settings' integrator set to `bdpt`, their
+/// environment map decoded as `map`): the camera tasks' film and the light tasks' film (two, as
+/// the farm splits them); the image is their sum (`bdpt_sum`).
+pub fn render_bdpt_with(
+    scene: &common::scene::Scene,
+    settings: &RenderSettings,
+    map: Option<&common::envmap::EnvMap>,
+) -> (Film, Film) {
+    let settings = RenderSettings { integrator: "bdpt".into(), ..settings.clone() };
+    let prepared = prepare_frame(scene, &settings, map, 0).expect("prepare");
+    let camera = render_prepared(&prepared, &settings);
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    let mut light = Film::new(settings.width, settings.height);
+    // Two light tasks, as the farm splits them.
+    let half = settings.spp / 2;
+    for samples in
+        [SampleRange { start: 0, end: half }, SampleRange { start: half, end: settings.spp }]
+    {
+        let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Light };
+        light.merge_tile(&render_task(&prepared, settings.seed, &task).tile);
+    }
+    (camera, light)
+}
+
+/// Per pixel and channel: the sum of the two films' means and of their variances of the mean.
+pub fn bdpt_sum(camera: &Film, light: &Film) -> Vec<([f64; 3], [f64; 3])> {
+    camera
+        .pixels
+        .iter()
+        .zip(&light.pixels)
+        .map(|(c, l)| {
+            let (mc, ml, vc, vl) = (c.mean(), l.mean(), c.variance_of_mean(), l.variance_of_mean());
+            ([0, 1, 2].map(|i| mc[i] + ml[i]), [0, 1, 2].map(|i| vc[i] + vl[i]))
+        })
+        .collect()
+}
+
+/// Photon mapping of frame 0 (the settings' integrator set to `sppm`, their environment map
+/// decoded as `map`) in tasks of `per_task` passes on `threads` threads, as the farm splits it
+/// (the frame is one tile).
+pub fn render_sppm_with(
+    scene: &Scene,
+    settings: &RenderSettings,
+    per_task: u32,
+    threads: usize,
+    map: Option<&common::envmap::EnvMap>,
+) -> Film {
+    let settings = RenderSettings { integrator: "sppm".into(), ..settings.clone() };
+    let prepared = prepare_frame(scene, &settings, map, 0).expect("prepare");
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    let mut film = Film::new(settings.width, settings.height);
+    let mut start = 0;
+    while start < settings.spp {
+        let samples = SampleRange { start, end: (start + per_task).min(settings.spp) };
+        let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
+        film.merge_tile(&render_task_threads(&prepared, settings.seed, &task, threads).tile);
+        start = samples.end;
+    }
+    film
+}
+
+/// The Cornell box with the short block and the floor around it under "water": a box of an
+/// absorbing, tinted medium of index 1 (its surface bends nothing, but no shadow ray crosses it)
+/// 1.8 times the short block's size around it, reaching below the floor, so that paths inside
+/// meet diffuse surfaces (the floor, the block, the red wall) and connections between them run
+/// through the medium.
+pub fn cornell_under_water() -> Scene {
+    let path = edited_scene("cornell-box", "water", |j| {
+        let water = dielectric_material(1.0, 1.0, Some(([0.5, 0.7, 0.9], 0.3)));
+        let materials = j["materials"].as_array_mut().unwrap();
+        materials.push(water);
+        let material = materials.len() - 1;
+        let block = j["meshes"][3]["primitives"][0].clone();
+        let (lo, hi) = {
+            let a = &j["accessors"][block["attributes"]["POSITION"].as_u64().unwrap() as usize];
+            let v = |k: &str| -> [f64; 3] { std::array::from_fn(|i| a[k][i].as_f64().unwrap()) };
+            (v("min"), v("max"))
+        };
+        let mut primitive = block;
+        primitive["material"] = serde_json::json!(material);
+        let meshes = j["meshes"].as_array_mut().unwrap();
+        meshes.push(serde_json::json!({"name": "water", "primitives": [primitive]}));
+        let mesh = meshes.len() - 1;
+        let s = 1.8;
+        let t: Vec<f64> = (0..3).map(|i| 0.5 * (lo[i] + hi[i]) * (1.0 - s)).collect();
+        let nodes = j["nodes"].as_array_mut().unwrap();
+        nodes.push(serde_json::json!({"name": "water", "mesh": mesh, "translation": t, "scale": [s, s, s]}));
+        let node = nodes.len() - 1;
+        j["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(node));
+        let used = j["extensionsUsed"].as_array_mut().unwrap();
+        for e in ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"] {
+            if !used.iter().any(|u| u == e) {
+                used.push(serde_json::json!(e));
+            }
+        }
+    });
+    common::gltf::load_path(&path).unwrap()
 }
