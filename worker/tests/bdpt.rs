@@ -302,4 +302,3 @@ fn bdpt_inside_an_absorbing_volume_matches_the_path_tracer() {
     println!("under water: worst block {score:.2} ({at})");
     assert!(score < 1.0, "under water: {at}");
 }
-

@@ -148,12 +148,14 @@ impl Vertex {
         }
     }
 
+    #[inline]
     fn on_surface(&self) -> bool {
         self.ng != Vec3::ZERO
     }
 
     /// Unit direction from this vertex toward `other` (toward where a light at infinity shines
     /// from, or along its light from such a vertex).
+    #[inline]
     pub(super) fn dir_to(&self, other: &Vertex) -> Option<Vec3> {
         if other.infinite {
             Some(-other.wo)
@@ -186,7 +188,10 @@ impl Vertex {
         }
         let below = a.z < 0.0;
         let (a, b) = flip_below(a, b);
-        oriented(bsdf, below).eval(a, b)
+        match bsdf {
+            Bsdf::Dielectric(d) if below => far_side(d).eval(a, b),
+            _ => bsdf.eval(a, b),
+        }
     }
 
     /// Density per solid angle of the BSDF sampling unit direction `to` given the path came
@@ -196,12 +201,16 @@ impl Vertex {
         let (a, b) = (self.frame.to_local(from), self.frame.to_local(to));
         let below = a.z < 0.0;
         let (a, b) = flip_below(a, b);
-        oriented(bsdf, below).pdf(a, b)
+        match bsdf {
+            Bsdf::Dielectric(d) if below => far_side(d).pdf(a, b),
+            _ => bsdf.pdf(a, b),
+        }
     }
 
     /// A solid-angle density at this vertex toward `next` to a density per unit area there (a
     /// vertex at infinity keeps the solid-angle density; from a light at infinity, `pdf` is the
     /// density per unit area of its disk, projected onto `next`).
+    #[inline]
     fn convert_density(&self, pdf: f32, next: &Vertex) -> f32 {
         if next.infinite {
             return pdf;
@@ -321,15 +330,11 @@ fn flip_below(a: Vec3, b: Vec3) -> (Vec3, Vec3) {
     }
 }
 
-/// The BSDF seen from the side of its first direction: a dielectric boundary seen from its far
-/// side (`below`) has the reciprocal relative index (BSDFs are written for a first direction
-/// above, `flip_below` turns the pair).
+/// A dielectric boundary seen from its far side: the reciprocal relative index (BSDFs are
+/// written for a first direction above; `flip_below` turns a pair whose first lies below).
 #[inline]
-fn oriented(bsdf: &Bsdf, below: bool) -> Bsdf {
-    match bsdf {
-        Bsdf::Dielectric(d) if below => Bsdf::Dielectric(Dielectric { eta: 1.0 / d.eta, ..*d }),
-        _ => *bsdf,
-    }
+fn far_side(d: &Dielectric) -> Dielectric {
+    Dielectric { eta: 1.0 / d.eta, ..*d }
 }
 
 /// Which way light travels along a subpath.
@@ -621,7 +626,11 @@ pub(super) fn cross_after(v: &Vertex, wi: Vec3, wi_local: Vec3, media: &mut Medi
 
 /// The transmittance of the straight segment from vertex `a` to vertex `b` (a connection): the
 /// medium `a` leaves into along it, over their distance; 1 in air.
+#[inline]
 pub(super) fn segment_transmittance(scene: &PreparedScene, a: &Vertex, b: &Vertex) -> Vec3 {
+    if a.medium.is_none() && a.beyond.is_none() {
+        return Vec3::ONE;
+    }
     let Some(w) = a.dir_to(b) else { return Vec3::ONE };
     let medium = if a.kind == Kind::Surface && w.dot(a.ng) < 0.0 { a.beyond } else { a.medium };
     let Some(volume) = medium.and_then(|m| scene.materials[m as usize].volume) else {
@@ -796,11 +805,12 @@ fn mis_weight(
     if s + t == 2 {
         return 1.0;
     }
-    let pt = if t == 1 { *sampled.expect("t = 1 samples the camera") } else { camera[t - 1] };
-    let qs = match s {
+    let pt: &Vertex =
+        if t == 1 { sampled.expect("t = 1 samples the camera") } else { &camera[t - 1] };
+    let qs: Option<&Vertex> = match s {
         0 => None,
-        1 => Some(*sampled.expect("s = 1 samples the light")),
-        _ => Some(light[s - 1]),
+        1 => Some(sampled.expect("s = 1 samples the light")),
+        _ => Some(&light[s - 1]),
     };
     let pt_minus = (t > 1).then(|| &camera[t - 2]);
     let qs_minus = (s > 1).then(|| &light[s - 2]);
@@ -825,8 +835,8 @@ fn mis_weight(
     // s = 1 strategy's light density over the others' (1 where both choose by the mixture).
     let tree = scene.emission.as_ref().map_or(1.0, |mixture| {
         let (on_light, next) = match s {
-            0 => (&pt, &camera[t - 2]),
-            1 => (qs.as_ref().expect("s = 1 samples the light"), &pt),
+            0 => (pt, &camera[t - 2]),
+            1 => (qs.expect("s = 1 samples the light"), pt),
             _ => (&light[0], &light[1]),
         };
         let ctx = ShadingContext { p: next.p, n: next.ns() };
