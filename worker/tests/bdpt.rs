@@ -198,11 +198,7 @@ fn bdpt_motion_blur_matches_the_path_tracer() {
 /// the path tracer's, every 8 x 8 block within the noise (no allowance for bias).
 #[test]
 fn bdpt_with_the_light_tree_matches_the_path_tracer() {
-    let dir = std::env::temp_dir().join(format!("renderfarm-bdpt-many-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("many-64.gltf");
-    std::fs::write(&path, worker::test_scenes::many_lights_gltf(64)).unwrap();
-    let scene = common::gltf::load_path(&path).unwrap();
+    let scene = load_many_lights(64, "bdpt");
     let base =
         RenderSettings { width: 32, height: 32, spp: 64, max_depth: 4, ..Default::default() };
     let bdpt = RenderSettings { integrator: "bdpt".into(), ..base.clone() };

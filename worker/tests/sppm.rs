@@ -238,11 +238,7 @@ fn sppm_with_a_radius_larger_than_the_scene_stays_bounded_and_the_same() {
 /// the image means agree with the path tracer's within the noise plus 1%.
 #[test]
 fn sppm_with_the_light_tree_matches_the_path_tracer() {
-    let dir = std::env::temp_dir().join(format!("renderfarm-sppm-many-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("many-64.gltf");
-    std::fs::write(&path, worker::test_scenes::many_lights_gltf(64)).unwrap();
-    let scene = common::gltf::load_path(&path).unwrap();
+    let scene = load_many_lights(64, "sppm");
     let base =
         RenderSettings { width: 32, height: 32, spp: 128, max_depth: 4, ..Default::default() };
     let prepared =

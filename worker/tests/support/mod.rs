@@ -652,3 +652,13 @@ pub fn cornell_under_water() -> Scene {
     });
     common::gltf::load_path(&path).unwrap()
 }
+
+/// The many-lights scene of `n` small emitters over a floor
+/// (`worker::test_scenes::many_lights_gltf`), written to a temporary file and loaded.
+pub fn load_many_lights(n: usize, tag: &str) -> Scene {
+    let dir = std::env::temp_dir().join(format!("renderfarm-{tag}-many-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("many-{n}.gltf"));
+    std::fs::write(&path, worker::test_scenes::many_lights_gltf(n)).unwrap();
+    common::gltf::load_path(&path).unwrap()
+}
