@@ -270,9 +270,7 @@ fn bdpt_glass_matches_the_furnace_and_the_path_tracer() {
     println!("glass furnace: worst pixel {worst:.1e} from 1");
     assert!(worst < 1e-5, "a pixel is {worst} away from 1");
 
-    let glass =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-glass.gltf");
-    let scene = common::gltf::load_path(&glass).unwrap();
+    let scene = repo_scene("cornell-glass.gltf");
     let base =
         RenderSettings { width: 32, height: 32, spp: 64, max_depth: 8, ..settings("cornell-box") };
     let (camera, light) = render_bdpt(&scene, &base);

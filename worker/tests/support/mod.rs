@@ -662,3 +662,9 @@ pub fn load_many_lights(n: usize, tag: &str) -> Scene {
     std::fs::write(&path, worker::test_scenes::many_lights_gltf(n)).unwrap();
     common::gltf::load_path(&path).unwrap()
 }
+
+/// Loads a scene of the repository's `scenes/` folder (`name` with its extension).
+pub fn repo_scene(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name);
+    common::gltf::load_path(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
