@@ -16,11 +16,12 @@
 //! tasks trace the same one.
 //!
 //! Path vertices follow pbrt: `beta` is the throughput arriving at the vertex, `pdf_fwd` the
-//! density (per unit area, or per solid angle for nothing here) of the vertex being sampled by
-//! its own subpath, `pdf_rev` of it being sampled from the other end. The BSDF is evaluated for
-//! light flowing along the path (radiance order), whichever subpath the vertex is on, so that
-//! BSDFs that are not symmetric need no adjoint; a light subpath's throughput takes the
-//! shading-normal correction of Veach's thesis (5.3.2).
+//! density (per unit area, or per solid angle for a vertex at infinity) of the vertex being
+//! sampled by its own subpath, `pdf_rev` of it being sampled from the other end. The BSDF is
+//! evaluated for light flowing along the path (radiance order), whichever subpath the vertex is
+//! on, so that BSDFs that are not symmetric need no adjoint (only a sampled smooth refraction,
+//! whose value comes from the sample, is corrected, see Volumes); a light subpath's throughput
+//! takes the shading-normal correction of Veach's thesis (5.3.2).
 //!
 //! Motion blur: a sample's time is drawn as the path tracer draws it (after the film and lens
 //! numbers) and both its subpaths and every connection see the scene and the camera at that
