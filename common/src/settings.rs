@@ -15,6 +15,8 @@ pub const MAX_SPP: u32 = 1 << 20;
 pub const INTEGRATORS: &[&str] = &["path", "bdpt", "sppm"];
 /// Upper bound on `sppm.photons_per_pass` accepted by `validate`.
 pub const MAX_PHOTONS_PER_PASS: u32 = 1 << 24;
+/// Upper bound on `bdpt.light_paths` accepted by `validate`.
+pub const MAX_LIGHT_PATHS: u32 = 256;
 
 /// Everything that decides what a job renders. Part of the determinism key: the same settings,
 /// scene and seed give the same image.
@@ -38,6 +40,10 @@ pub struct RenderSettings {
     /// progressive photon mapping (each sample index a photon pass over the whole frame; see
     /// [`Sppm`]).
     pub integrator: String,
+    /// Bidirectional path tracing's parameters (only with `"integrator": "bdpt"`; default: see
+    /// [`Bdpt`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bdpt: Option<Bdpt>,
     /// Photon mapping's parameters (only with `"integrator": "sppm"`; default: see [`Sppm`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sppm: Option<Sppm>,
@@ -73,6 +79,7 @@ impl Default for RenderSettings {
             target_rel_error: None,
             time_limit_s: None,
             integrator: "path".into(),
+            bdpt: None,
             sppm: None,
             max_depth: 64,
             seed: 0,
@@ -85,6 +92,25 @@ impl Default for RenderSettings {
             tile_size: 32,
             samples_per_task: 64,
         }
+    }
+}
+
+/// Bidirectional path tracing (`"integrator": "bdpt"`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Bdpt {
+    /// Light subpaths light-traced (connected to the camera, t = 1) per pixel sample, each
+    /// pixel's sample connecting one of them to its camera subpath as well; default 1. More
+    /// spend more of the time on light tracing, the strategy that finds caustics (light reflected
+    /// or refracted by specular surfaces onto diffuse ones, seen by the camera); the MIS weights
+    /// count them (Veach's balance heuristic with sample counts), so any value converges to the
+    /// same image. The light tile of a frame has this many times the samples of a camera tile.
+    pub light_paths: u32,
+}
+
+impl Default for Bdpt {
+    fn default() -> Self {
+        Bdpt { light_paths: 1 }
     }
 }
 
@@ -266,6 +292,12 @@ fn err(key: &'static str, reason: impl Into<String>) -> SettingsError {
 }
 
 impl RenderSettings {
+    /// Light subpaths light-traced per pixel sample (`bdpt.light_paths`, 1 when not given): the
+    /// samples of a frame's light tile per sample of its camera tiles.
+    pub fn light_paths(&self) -> u32 {
+        self.bdpt.map_or(1, |b| b.light_paths)
+    }
+
     /// Parses settings from JSON, refusing unknown keys.
     pub fn from_json(text: &str) -> Result<Self, String> {
         let settings: RenderSettings =
@@ -300,6 +332,20 @@ impl RenderSettings {
                     self.integrator
                 ),
             ));
+        }
+        if let Some(b) = &self.bdpt {
+            if self.integrator != "bdpt" {
+                return Err(err(
+                    "bdpt",
+                    format!("applies to \"integrator\": \"bdpt\", not {:?}", self.integrator),
+                ));
+            }
+            if b.light_paths == 0 || b.light_paths > MAX_LIGHT_PATHS {
+                return Err(err(
+                    "bdpt.light_paths",
+                    format!("{} is not in 1..={MAX_LIGHT_PATHS}", b.light_paths),
+                ));
+            }
         }
         if let Some(p) = &self.sppm {
             if self.integrator != "sppm" {
@@ -472,6 +518,34 @@ mod tests {
             RenderSettings::from_json(r#"{"integrator": "sppm", "sppm": {"radius": 1, "r": 2}}"#)
                 .unwrap_err();
         assert!(e.contains("unknown field `r`"), "{e}");
+    }
+
+    #[test]
+    fn bdpt_light_paths_are_validated_by_key() {
+        let s = RenderSettings::from_json(r#"{"integrator": "bdpt", "bdpt": {"light_paths": 8}}"#)
+            .unwrap();
+        assert_eq!(s.light_paths(), 8);
+        assert_eq!(
+            RenderSettings::from_json(r#"{"integrator": "bdpt"}"#).unwrap().light_paths(),
+            1
+        );
+        for (json, key) in [
+            (r#"{"integrator": "bdpt", "bdpt": {"light_paths": 0}}"#, "bdpt.light_paths"),
+            (r#"{"integrator": "bdpt", "bdpt": {"light_paths": 257}}"#, "bdpt.light_paths"),
+            (r#"{"integrator": "path", "bdpt": {"light_paths": 2}}"#, "bdpt"),
+            (r#"{"integrator": "sppm", "bdpt": {}}"#, "bdpt"),
+        ] {
+            let e = RenderSettings::from_json(json).unwrap_err();
+            assert!(e.contains(&format!("`{key}`")), "{json}: {e}");
+        }
+        let e = RenderSettings::from_json(r#"{"integrator": "bdpt", "bdpt": {"paths": 2}}"#)
+            .unwrap_err();
+        assert!(e.contains("unknown field `paths`"), "{e}");
+        // Absent, it leaves the settings JSON (EXR headers, job statuses) as before.
+        let json =
+            serde_json::to_string(&RenderSettings::from_json(r#"{"integrator": "bdpt"}"#).unwrap())
+                .unwrap();
+        assert!(!json.contains("light_paths"), "{json}");
     }
 
     #[test]

@@ -79,8 +79,10 @@ impl SettingsArgs {
             Some(path) => {
                 let text = std::fs::read_to_string(path)
                     .with_context(|| format!("reading {}", path.display()))?;
-                let mut s = RenderSettings::from_json(&text)
-                    .map_err(anyhow::Error::msg)
+                // Parsed here, validated with the flags applied (`--integrator bdpt` with a
+                // file's `"bdpt"` keys).
+                let mut s: RenderSettings = serde_json::from_str(&text)
+                    .map_err(|e| anyhow::anyhow!("settings: {e}"))
                     .with_context(|| format!("{}", path.display()))?;
                 // A map named in a settings file is relative to that file.
                 if let Some(Environment::Map { map, .. }) = &mut s.environment {
@@ -139,7 +141,10 @@ impl SettingsArgs {
             s.frames.start = start;
             s.frames.end = end;
         }
-        s.validate()?;
+        s.validate().with_context(|| match &self.settings {
+            Some(path) => format!("{} with the flags", path.display()),
+            None => "the flags".into(),
+        })?;
         Ok(s)
     }
 }

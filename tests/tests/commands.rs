@@ -109,7 +109,7 @@ fn submit_warns_about_an_unlit_scene_and_takes_env_and_zip() {
 }
 
 /// `render --integrator NAME` and `--time-limit SECONDS` reach the job's settings, which the
-/// EXR header carries; an integrator the renderer does not have is refused naming the setting
+/// EXR header carries, with a settings file's keys for that integrator; an integrator the renderer does not have is refused naming the setting
 /// and the ones it has, before anything renders.
 #[test]
 fn render_takes_the_integrator_and_a_time_limit() {
@@ -138,6 +138,21 @@ fn render_takes_the_integrator_and_a_time_limit() {
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let header = String::from_utf8_lossy(&std::fs::read(&out).unwrap()).into_owned();
     assert!(header.contains(r#""integrator":"bdpt""#), "the header names the integrator");
+
+    // A settings file's `bdpt` keys take the flag's integrator (flags and file are validated
+    // together); without it they are refused, naming the key.
+    let file = dir.join("light-paths.json");
+    std::fs::write(&file, r#"{"bdpt": {"light_paths": 4}}"#).unwrap();
+    let out = dir.join("bdpt-4.exr");
+    let output = run(&out, &["--integrator", "bdpt", "--settings", file.to_str().unwrap()]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let header = String::from_utf8_lossy(&std::fs::read(&out).unwrap()).into_owned();
+    assert!(header.contains(r#""bdpt":{"light_paths":4}"#), "the header carries the setting");
+    let out = dir.join("path-4.exr");
+    let output = run(&out, &["--settings", file.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("`bdpt`"), "{stderr}");
+    assert!(!out.exists(), "no image for refused settings");
 
     let out = dir.join("sppm.exr");
     let output = run(&out, &["--integrator", "sppm"]);

@@ -13,10 +13,16 @@ use tests::*;
 const TIMEOUT: Duration = Duration::from_secs(240);
 
 fn settings(integrator: &str, spp: u32, spt: u32) -> Value {
-    json!({
+    let mut s = json!({
         "width": 48, "height": 48, "spp": spp, "samples_per_task": spt, "tile_size": 16,
         "max_depth": 6, "seed": 11, "integrator": integrator
-    })
+    });
+    if integrator == "bdpt" {
+        // Two light-traced paths per pixel sample: the light tile has twice the samples, in
+        // twice the tasks.
+        s["bdpt"] = json!({"light_paths": 2});
+    }
+    s
 }
 
 /// `integrator`'s image of the Cornell box on 1 and 3 workers of one process, on serve + 3
@@ -57,9 +63,9 @@ fn same_image_on_any_workers_and_after_a_kill(integrator: &str, tasks: f64) {
 
 #[test]
 fn bdpt_images_are_the_same_on_one_or_three_workers_and_after_a_kill() {
-    // 9 tiles and the light tile, 4 tasks each; the kill job's light tasks are 48 x 48 x 128
-    // light paths.
-    same_image_on_any_workers_and_after_a_kill("bdpt", 40.0);
+    // 9 tiles of 4 tasks and the light tile of 8 (2 light paths per pixel sample); the kill
+    // job's light tasks are 48 x 48 x 128 light paths.
+    same_image_on_any_workers_and_after_a_kill("bdpt", 44.0);
 }
 
 #[test]
@@ -116,6 +122,15 @@ fn what_bdpt_and_sppm_do_not_take_is_refused_naming_the_setting() {
         (json!({"alpha": 1.0}), "sppm.alpha"),
     ] {
         let bad = job(json!({"integrator": "sppm", "sppm": sppm}));
+        assert_eq!(bad.status, 422, "{}", bad.error());
+        assert!(bad.error().contains(key), "{key}: {}", bad.error());
+    }
+    // Bidirectional path tracing: no light-traced paths, or its keys on another integrator.
+    for (settings, key) in [
+        (json!({"integrator": "bdpt", "bdpt": {"light_paths": 0}}), "bdpt.light_paths"),
+        (json!({"integrator": "path", "bdpt": {"light_paths": 4}}), "`bdpt`"),
+    ] {
+        let bad = job(settings);
         assert_eq!(bad.status, 422, "{}", bad.error());
         assert!(bad.error().contains(key), "{key}: {}", bad.error());
     }

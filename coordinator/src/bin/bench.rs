@@ -22,7 +22,8 @@
 //! (`bench-glass-smooth.svg`, `bench-subsurface.svg`; `docs/perf/materials.md`).
 //!
 //! With `--caustic` it renders the mirror caustic (`worker::test_scenes::MirrorCaustic`, the floor
-//! lit only through a mirror by a small light) with each integrator, scored against the closed
+//! lit only through a mirror by a small light) with each integrator (bidirectional path tracing
+//! also with 16 light-traced paths per pixel sample, `bdpt:lp16`), scored against the closed
 //! form, and prints each integrator's error at the path tracer's times (`docs/perf/integrators.md`).
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
@@ -507,7 +508,7 @@ fn many_lights(threads: usize) -> Result<()> {
 }
 
 /// The mirror caustic (light half side 0.125, 64x64, `max_depth` 2) rendered by each integrator
-/// (path, bdpt, sppm)
+/// (path, bdpt with 1 and 16 light-traced paths per pixel sample, sppm)
 /// through `coordinator render`'s code path at increasing sample counts: seconds (loading and
 /// rendering) and the relative MSE against the closed form, then each integrator's error at the
 /// path tracer's times (interpolated log-log) over the path tracer's.
@@ -532,6 +533,7 @@ fn caustic(threads: usize) -> Result<()> {
         &[
             ("path", &[64, 256, 1024, 4096]),
             ("bdpt", &[4, 16, 64, 256]),
+            ("bdpt:lp16", &[1, 4, 16, 64, 256]),
             ("sppm", &[16, 64, 256, 1024, 4096]),
         ],
         "",
@@ -555,7 +557,14 @@ fn integrator_curves(
     let dir = scene.parent().unwrap_or(Path::new("."));
     println!("{prefix}integrator,spp,seconds,relmse,est_relmse");
     let mut curves = Vec::new();
-    for &(integrator, spps) in runs {
+    for &(name, spps) in runs {
+        // `bdpt:lpK`: bidirectional path tracing with K light-traced paths per pixel sample.
+        let (integrator, bdpt) = match name.split_once(":lp") {
+            Some((integrator, k)) => {
+                (integrator, Some(common::settings::Bdpt { light_paths: k.parse()? }))
+            }
+            None => (name, None),
+        };
         let mut points = Vec::new();
         for &spp in spps {
             // A photon-mapping task is a range of passes over the whole frame: ranges small
@@ -569,20 +578,18 @@ fn integrator_curves(
                 spp,
                 samples_per_task,
                 integrator: integrator.into(),
+                bdpt,
                 ..base.clone()
             };
-            let out = dir.join(format!("{integrator}-{spp}.exr"));
+            let out = dir.join(format!("{}-{spp}.exr", name.replace(':', "-")));
             let wall = Instant::now();
             let report = render_file(scene, &settings, threads, &out, &|_| {})?;
             let seconds = wall.elapsed().as_secs_f64() - report.write_seconds;
             let (_, rel_mse) = metrics(&report.mean_rgb, expected);
-            println!(
-                "{prefix}{integrator},{spp},{seconds:.4},{rel_mse:.6e},{:.6e}",
-                report.est_rel_mse
-            );
+            println!("{prefix}{name},{spp},{seconds:.4},{rel_mse:.6e},{:.6e}", report.est_rel_mse);
             points.push((seconds, rel_mse, spp));
         }
-        curves.push(Series { name: integrator.into(), points });
+        curves.push(Series { name: name.into(), points });
     }
     Ok(curves)
 }

@@ -218,7 +218,13 @@ impl Job {
         let n_rects = rects.len();
         let n_frames =
             (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(0) as u128;
-        let total = n_frames * rects.len() as u128 * tasks_per_tile as u128;
+        // A light tile's tasks are ranges of its own samples: `bdpt.light_paths` per pixel
+        // sample (`TaskKind::Light`).
+        let light_tasks =
+            (settings.spp * settings.light_paths()).div_ceil(settings.samples_per_task);
+        let per_frame = (n_rects as u128 - light as u128) * tasks_per_tile as u128
+            + light as u128 * light_tasks as u128;
+        let total = n_frames * per_frame;
         if total > MAX_TASKS_PER_JOB as u128 {
             return Err(format!(
                 "{total} tasks ({n_frames} frames x {} tiles x {tasks_per_tile} sample ranges) is over the limit of {MAX_TASKS_PER_JOB}: raise tile_size or samples_per_task",
@@ -235,7 +241,11 @@ impl Job {
                         // Pixels are allocated by the first result: a long animation holds
                         // only the frames in progress.
                         sums: TileAccum { rect, pixels: Vec::new(), rejected: 0 },
-                        tasks: vec![TaskState::Open; tasks_per_tile as usize],
+                        tasks: vec![
+                            TaskState::Open;
+                            if light && i + 1 == n_rects { light_tasks } else { tasks_per_tile }
+                                as usize
+                        ],
                         merged: 0,
                         prefix: 0,
                         pending: BTreeMap::new(),
@@ -276,15 +286,18 @@ impl Job {
     pub fn spec(&self, key: TaskKey) -> TaskSpec {
         let spt = self.settings.samples_per_task;
         let start = key.k * spt;
+        let tile = &self.frames[key.frame as usize].tiles[key.tile as usize];
+        // A light tile has `bdpt.light_paths` samples per pixel sample.
+        let (samples, kind) = if tile.light {
+            (self.settings.spp * self.settings.light_paths(), TaskKind::Light)
+        } else {
+            (self.settings.spp, TaskKind::Camera)
+        };
         TaskSpec {
             frame: self.frames[key.frame as usize].number,
-            rect: self.frames[key.frame as usize].tiles[key.tile as usize].sums.rect,
-            samples: SampleRange { start, end: (start + spt).min(self.settings.spp) },
-            kind: if self.frames[key.frame as usize].tiles[key.tile as usize].light {
-                TaskKind::Light
-            } else {
-                TaskKind::Camera
-            },
+            rect: tile.sums.rect,
+            samples: SampleRange { start, end: (start + spt).min(samples) },
+            kind,
         }
     }
 

@@ -675,12 +675,14 @@ fn camera_subpath(
     unlit
 }
 
-/// The light subpath of the current pixel sample: up to `max_depth + 1` vertices, the light's
-/// first. Draws from `LIGHT_DIMENSION` on.
+/// The light subpath of the current pixel sample: the light's vertex and up to `max_vertices`
+/// surface vertices (`max_depth` for light tracing). Draws from `LIGHT_DIMENSION` on; a shorter
+/// limit gives the same first vertices.
 pub(super) fn light_subpath(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
+    max_vertices: u32,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
 ) {
@@ -764,7 +766,7 @@ pub(super) fn light_subpath(
         beta,
         pdf_dir,
         Mode::Importance,
-        scene.max_depth,
+        max_vertices,
         path,
         stats,
         &mut unlit,
@@ -794,6 +796,10 @@ fn enter_from_infinity(scene: &PreparedScene, d: Vec3, le: Vec3, u: Vec2) -> (Ve
 /// whose light subpath starts on it (s >= 2) with the point-blind mixture's: the ratios between
 /// the two kinds carry the quotient of those probabilities (pbrt-v4's BDPT sidesteps this by
 /// choosing blind for both).
+///
+/// Light tracing (t = 1) takes `bdpt.light_paths` samples per pixel sample (the light tile has
+/// that many times the samples), every other strategy one: its ratios carry that count (Veach's
+/// balance heuristic with sample counts, n_i p_i over the sum of n_j p_j).
 fn mis_weight(
     scene: &PreparedScene,
     view: &PlacedCamera,
@@ -849,6 +855,7 @@ fn mis_weight(
             0.0
         }
     });
+    let light_paths = scene.light_paths as f32;
     let mut sum = 0.0f32;
     let mut ri = 1.0f32;
     for i in (1..t).rev() {
@@ -862,11 +869,13 @@ fn mis_weight(
         ri *= remap(rev) / remap(fwd);
         if !delta && !camera[i - 1].delta && (i > 1 || light_tracing) {
             // The strategy with s + t - i light vertices, against this one.
-            sum += match s {
+            let r = match s {
                 0 if i == t - 1 => ri * tree,
                 1 => ri / tree,
                 _ => ri,
             };
+            // Light tracing (i = 1) has `light_paths` samples to this strategy's one.
+            sum += if i == 1 { r * light_paths } else { r };
         }
     }
     ri = 1.0;
@@ -887,7 +896,9 @@ fn mis_weight(
         let before_delta = if i > 0 { light[i - 1].delta } else { light0_delta };
         if !delta && !before_delta {
             // The strategy with i light vertices, against this one.
-            sum += if i == 1 { ri * tree } else { ri };
+            let r = if i == 1 { ri * tree } else { ri };
+            // This strategy is light tracing: `light_paths` samples to the other's one.
+            sum += if t == 1 { r / light_paths } else { r };
         }
     }
     1.0 / (1.0 + sum)
@@ -1064,7 +1075,17 @@ pub fn render_rows(
         let at = At::time(scene, u_time, &mut pose);
         let (camera, light) = (&mut paths.camera, &mut paths.light);
         let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
-        light_subpath(scene, &at, &mut sampler, light, &mut stats);
+        // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
+        // `max_depth - 1` surface vertices (the next one only light tracing connects). The
+        // subpath's numbers and the vertices it keeps are the same as the whole subpath's.
+        light_subpath(
+            scene,
+            &at,
+            &mut sampler,
+            scene.max_depth.saturating_sub(1),
+            light,
+            &mut stats,
+        );
         unlit + camera_strategies(scene, &at, &paths, &mut stats)
     });
     (tile, stats)
@@ -1073,7 +1094,9 @@ pub fn render_rows(
 /// Renders a light task: for each of its sample indices, the light subpath of every pixel of
 /// the frame connected to the camera, each contribution added to the pixel it lands on; the
 /// frame's sums of one sample index are that sample of every pixel. `task.rect` is the whole
-/// frame. One thread, so that the sums' order is fixed.
+/// frame. The light tile's sample indices run over `bdpt.light_paths` times the pixel samples
+/// (index `i` draws as pixel sample `i`: the first `spp` are the camera subpaths' partners).
+/// One thread, so that the sums' order is fixed.
 pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (TileAccum, Stats) {
     let rect = task.rect;
     let (width, height) = (scene.camera.width as u32, scene.camera.height as u32);
@@ -1095,7 +1118,14 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
                         sampler.next_1d()
                     });
                     let at = At::time(scene, u_time, &mut pose);
-                    light_subpath(scene, &at, &mut sampler, &mut light, &mut stats);
+                    light_subpath(
+                        scene,
+                        &at,
+                        &mut sampler,
+                        scene.max_depth,
+                        &mut light,
+                        &mut stats,
+                    );
                     splat_light_path(scene, &at, &light, &mut film, &mut stats);
                 }
             }

@@ -98,6 +98,9 @@ pub struct PreparedScene {
     pub build_seconds: f64,
     /// Bidirectional path tracing (`"integrator": "bdpt"`) instead of the path tracer.
     pub bdpt: bool,
+    /// Light subpaths light-traced per pixel sample (`bdpt.light_paths`): the light-tracing
+    /// strategy's sample count in bidirectional path tracing's MIS weights.
+    pub light_paths: u32,
     /// Photon mapping (`"integrator": "sppm"`) instead of the path tracer, with its parameters.
     pub sppm: Option<SppmParams>,
     /// The choice of the light a photon or a light subpath leaves, blind to any point (the power
@@ -576,6 +579,7 @@ fn prepare_inner(
         build_seconds,
         motion,
         bdpt,
+        light_paths: settings.light_paths(),
         sppm,
         emission,
         sphere,

@@ -436,7 +436,14 @@ fn photon_pass(
                             let start = c as u32 * CHUNK;
                             for j in start..(start + CHUNK).min(params.photons) {
                                 sampler.start_pixel_sample(UVec2::new(j, u32::MAX), pass);
-                                light_subpath(scene, &at, &mut sampler, &mut path, &mut stats);
+                                light_subpath(
+                                    scene,
+                                    &at,
+                                    &mut sampler,
+                                    scene.max_depth,
+                                    &mut path,
+                                    &mut stats,
+                                );
                                 deposit(scene, &grid, points, &path, radius, &mut gathered);
                             }
                             out.push((c, gathered));

@@ -567,11 +567,11 @@ pub fn render_bdpt_with(
     let camera = render_prepared(&prepared, &settings);
     let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     let mut light = Film::new(settings.width, settings.height);
-    // Two light tasks, as the farm splits them.
-    let half = settings.spp / 2;
-    for samples in
-        [SampleRange { start: 0, end: half }, SampleRange { start: half, end: settings.spp }]
-    {
+    // Two light tasks, as the farm splits them: the light tile has `bdpt.light_paths` samples
+    // per pixel sample.
+    let n = settings.spp * settings.light_paths();
+    let half = n / 2;
+    for samples in [SampleRange { start: 0, end: half }, SampleRange { start: half, end: n }] {
         let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Light };
         light.merge_tile(&render_task(&prepared, settings.seed, &task).tile);
     }

@@ -51,6 +51,49 @@ fn tasks_are_issued_progressively_and_complete_the_job() {
     assert!(j.film(0).pixels.iter().all(|p| p.n == 100));
 }
 
+/// A bidirectional job's light tile has `bdpt.light_paths` samples per pixel sample, in as many
+/// more tasks: every one is issued, the camera samples alone count, and the frame's image adds
+/// the light tile's mean (over its own samples) to each camera tile's.
+#[test]
+fn a_light_tile_takes_its_light_paths_in_more_tasks() {
+    let settings = RenderSettings {
+        width: 64,
+        height: 32,
+        tile_size: 32,
+        spp: 100,
+        samples_per_task: 32,
+        integrator: "bdpt".into(),
+        bdpt: Some(common::settings::Bdpt { light_paths: 3 }),
+        ..Default::default()
+    };
+    let mut j = Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap();
+    let light = j.light_tile().expect("a light tile");
+    let mut keys = Vec::new();
+    while let Some(key) = j.next_task() {
+        j.lease(key, NOW);
+        keys.push(key);
+    }
+    // 2 camera tiles of 4 tasks, the light tile of ceil(300 / 32) = 10.
+    assert_eq!(keys.len(), 2 * 4 + 10, "{keys:?}");
+    let light_ranges: Vec<_> =
+        keys.iter().filter(|k| k.tile as usize == light).map(|&k| j.spec(k).samples).collect();
+    assert_eq!(light_ranges.len(), 10);
+    assert_eq!(light_ranges[9], SampleRange { start: 288, end: 300 });
+    assert!(keys
+        .iter()
+        .all(|&k| (k.tile as usize == light) == (j.spec(k).kind == TaskKind::Light)));
+    for key in keys {
+        let value = if key.tile as usize == light { 0.25 } else { 0.5 };
+        let r = fake_result(&j, key, value);
+        let n = r.pixels.iter().map(|p| p.n as u64).sum();
+        j.merge(key, r, n, NOW);
+    }
+    assert_eq!(j.state, JobState::Done);
+    assert_eq!(j.samples_done, 64 * 32 * 100, "camera samples only");
+    let film = j.film(0);
+    assert!(film.pixels.iter().all(|p| p.n == 100 && (p.mean()[0] - 0.75).abs() < 1e-12));
+}
+
 #[test]
 fn released_tasks_are_leased_again() {
     let mut j = job(64, 32, None);
