@@ -24,11 +24,13 @@
 //! With `--caustic` it renders the mirror caustic (`worker::test_scenes::MirrorCaustic`, the floor
 //! lit only through a mirror by a small light) with each integrator (bidirectional path tracing
 //! also with 16 light-traced paths per pixel sample, `bdpt:lp16`), scored against the closed
-//! form, and prints each integrator's error at the path tracer's times (`docs/perf/integrators.md`).
+//! form, and prints each integrator's error at the path tracer's times (`docs/perf/integrators.md`),
+//! and those of the `--peer-csv` runs of scene `mirror-caustic` (`scenes/caustic/luxcore_peer.py`,
+//! scored against the closed form that `--caustic-reference` writes).
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights]
-//! [--materials] [--caustic] [--no-warmup]`; the figures in `docs/perf/` come from this command.
+//! [--materials] [--caustic [--caustic-reference OUT.exr]] [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
 use std::{
     fmt::Write as _,
@@ -76,6 +78,10 @@ struct Args {
     /// mapping (no Cornell box).
     #[arg(long)]
     caustic: bool,
+    /// With `--caustic`: also write the mirror caustic's closed form (64x64, an RGB EXR) here,
+    /// for a peer's runs to be scored against (`scenes/caustic/luxcore_peer.py`).
+    #[arg(long, value_name = "OUT.exr")]
+    caustic_reference: Option<PathBuf>,
     /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
     #[arg(long = "peer-csv")]
     peer_csv: Vec<PathBuf>,
@@ -190,7 +196,7 @@ fn main() -> Result<()> {
         return many_lights(args.threads);
     }
     if args.caustic {
-        return caustic(args.threads);
+        return caustic(&args);
     }
     if args.materials {
         return materials(&args);
@@ -512,8 +518,18 @@ fn many_lights(threads: usize) -> Result<()> {
 /// through `coordinator render`'s code path at increasing sample counts: seconds (loading and
 /// rendering) and the relative MSE against the closed form, then each integrator's error at the
 /// path tracer's times (interpolated log-log) over the path tracer's.
-fn caustic(threads: usize) -> Result<()> {
+fn caustic(args: &Args) -> Result<()> {
     use worker::test_scenes::MirrorCaustic;
+    let threads = args.threads;
+    // Read the peers first: a bad file fails before minutes of rendering.
+    let mut peers = Vec::new();
+    for path in &args.peer_csv {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        peers.extend(
+            peer_curves(&text, "mirror-caustic").with_context(|| path.display().to_string())?,
+        );
+    }
     let dir = std::env::temp_dir().join(format!("renderfarm-bench-caustic-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
@@ -523,6 +539,14 @@ fn caustic(threads: usize) -> Result<()> {
     let expected: Vec<[f32; 3]> = (0..res * res)
         .map(|i| [caustic.pixel_radiance(i % res, i / res, res, res) as f32; 3])
         .collect();
+    if let Some(out) = &args.caustic_reference {
+        let n = res as usize;
+        exr::prelude::write_rgb_file(out, n, n, |x, y| {
+            let [r, g, b] = expected[y * n + x];
+            (r, g, b)
+        })
+        .with_context(|| format!("writing {}", out.display()))?;
+    }
     let base =
         RenderSettings { width: res, height: res, max_depth: 2, seed: 5, ..Default::default() };
     let curves = integrator_curves(
@@ -538,6 +562,8 @@ fn caustic(threads: usize) -> Result<()> {
         ],
         "",
     )?;
+    let mut curves = curves;
+    curves.extend(peers);
     print_against_path(&curves, "");
     Ok(())
 }
