@@ -240,6 +240,22 @@ fn worst_quadrant(
     worst
 }
 
+/// A light inside an absorbing volume (`cornell_light_in_water`): light subpaths start in the
+/// medium the light lies in, lose light to it and leave it at its boundary. Every 16 x 16 block
+/// within the noise of the path tracer's image (with the light taken to be in air, the light
+/// traced share of the room is too bright and the test fails).
+#[test]
+fn bdpt_light_inside_an_absorbing_volume_matches_the_path_tracer() {
+    let scene = cornell_light_in_water();
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 128, max_depth: 8, ..settings("cornell-box") };
+    let (camera, light) = render_bdpt(&scene, &base);
+    let path = render(&scene, &RenderSettings { spp: 1024, seed: 3, ..base.clone() });
+    let (score, at) = worst_block(&bdpt_sum(&camera, &light), &pixel_stats(&path), 32, 16, 0.0);
+    println!("light in water: worst block {score:.2} ({at})");
+    assert!(score < 1.0, "light in water: {at}");
+}
+
 /// Image means per channel of the two films' sum, with their standard errors.
 fn mean_and_se(camera: &Film, light: &Film) -> [(f64, f64); 3] {
     let ours = bdpt_sum(camera, light);

@@ -322,7 +322,8 @@ fn sppm_lights_at_infinity_match_the_closed_form_and_the_path_tracer() {
 /// Refractive volumes. A clear glass box in the white furnace: every pixel within 1e-5 of 1
 /// (camera paths follow the smooth boundary; nothing there gathers photons). The Cornell box's tinted
 /// glass sphere (`scenes/cornell-glass`), whose caustic on the floor is photons' work, and the
-/// Cornell box partly under an absorbing medium (`cornell_under_water`): every 8 x 8 block
+/// Cornell box partly under an absorbing medium (`cornell_under_water`) and the one whose light
+/// is inside such a medium (`cornell_light_in_water`: photons start in it): every 8 x 8 block
 /// within the noise plus 4% of the path tracer's image (the glass's means within the noise plus
 /// 1%).
 #[test]
@@ -352,4 +353,12 @@ fn sppm_glass_matches_the_furnace_and_the_path_tracer() {
     let (score, at) = worst_block(&pixel_stats(&film), &pixel_stats(&path), 32, 8, 0.04);
     println!("under water: worst block {score:.2} ({at})");
     assert!(score < 1.0, "under water: {at}");
+
+    // Photons that leave a light inside the medium, and lose light to it on their way out.
+    let scene = cornell_light_in_water();
+    let film = render_sppm(&scene, &base, 128, 2);
+    let path = render(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
+    let (score, at) = worst_block(&pixel_stats(&film), &pixel_stats(&path), 32, 8, 0.04);
+    println!("light in water: worst block {score:.2} ({at})");
+    assert!(score < 1.0, "light in water: {at}");
 }

@@ -37,8 +37,10 @@
 //! Volumes: subpaths cross boundaries and lose light to absorption as the path tracer's paths
 //! do (`surface_vertex`), connections carry the transmittance of the medium they run through
 //! (`segment_transmittance`), and a light subpath refracting through a smooth boundary carries
-//! flux, not radiance (pbrt-v4's importance transport: no 1 / eta²). Cameras and lights are
-//! taken to be in air.
+//! flux, not radiance (pbrt-v4's importance transport: no 1 / eta²). Cameras are taken to be
+//! in air; a light subpath (and a photon) starts in the volumes its light lies inside
+//! (`light_media`, found once per scene by the boundaries a ray from the light crosses on its way
+//! out).
 //!
 //! What this version does not take (`Scene::check_integrator` refuses them before any work):
 //! scattering media and dispersion.
@@ -397,13 +399,12 @@ fn walk(
     mut pdf: f32,
     mode: Mode,
     max_vertices: u32,
+    mut media: MediumStack,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
     unlit: &mut Vec3,
 ) {
     let mut bounces = 0u32;
-    // The volumes the subpath is inside (cameras and lights are in air).
-    let mut media = MediumStack::default();
     while bounces < max_vertices {
         let Some((mut v, unlit_base)) = surface_vertex(scene, at, &ray, beta, stats, &mut media)
         else {
@@ -668,6 +669,8 @@ fn camera_subpath(
         pdf_dir,
         Mode::Radiance,
         scene.max_depth + 1,
+        // Cameras are taken to be in air.
+        MediumStack::default(),
         path,
         stats,
         &mut unlit,
@@ -753,6 +756,9 @@ pub(super) fn light_subpath(
         Light::Point(_) | Light::Spot(_) | Light::Directional(_)
     );
     v.pdf_fwd = v.pdf_light_origin(scene);
+    // The volumes the light lies inside (air for most).
+    let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
+    v.medium = media.current();
     path.push(v);
     if beta == Vec3::ZERO || !beta.is_finite() {
         return;
@@ -767,10 +773,66 @@ pub(super) fn light_subpath(
         pdf_dir,
         Mode::Importance,
         max_vertices,
+        media,
         path,
         stats,
         &mut unlit,
     );
+}
+
+/// Most boundary crossings `media_at` follows from a point to infinity.
+const MAX_BOUNDARY_HITS: usize = 64;
+
+/// The volumes each light of the scene lies inside (by index in `scene.lights`; `media_at` from
+/// a triangle's centroid along its normal, from a point or spot light's position; lights at
+/// infinity are in air), empty where every light is in air. Taken at the scene's rest pose:
+/// a light that moves within the shutter is taken to stay in the volumes it starts in.
+pub(super) fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
+    let media: Vec<MediumStack> = scene
+        .lights
+        .lights
+        .iter()
+        .map(|light| match light {
+            Light::Triangle(l) => {
+                media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim)
+            }
+            Light::Point(l) => media_at(scene, l.position, Vec3::Y, NONE),
+            Light::Spot(l) => media_at(scene, l.position, l.direction, NONE),
+            Light::Environment(_) | Light::Directional(_) => MediumStack::default(),
+        })
+        .collect();
+    if media.iter().all(|m| m.current().is_none()) {
+        return Vec::new();
+    }
+    media
+}
+
+/// The volumes point `p` lies inside: the boundaries a ray from it along `dir` crosses on its way
+/// out of the scene (triangle `skip`, the light's own, left out), crossed backwards from air, as
+/// a subpath that came in from outside would have crossed them (the outermost entered first).
+fn media_at(scene: &PreparedScene, p: Vec3, dir: Vec3, skip: u32) -> MediumStack {
+    let mut crossed = Vec::new();
+    let mut ray = Ray::new(p, dir);
+    for _ in 0..MAX_BOUNDARY_HITS {
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else { break };
+        let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let q = p0 * b[0] + p1 * b[1] + p2 * b[2];
+        let Some(winding) = (p1 - p0).cross(p2 - p0).try_normalize() else { break };
+        let tri = scene.shading[hit.prim as usize];
+        let material = &scene.materials[tri.material as usize];
+        if hit.prim != skip && tri.extended && material.volume.is_some() && material.bounds_medium()
+        {
+            crossed.push((tri.material, winding.dot(dir) < 0.0));
+        }
+        let side = if winding.dot(dir) > 0.0 { winding } else { -winding };
+        ray = Ray::new(offset_ray_origin(q, interpolation_error([p0, p1, p2], b), side, dir), dir);
+    }
+    let mut media = MediumStack::default();
+    for &(m, front) in crossed.iter().rev() {
+        media.cross(m, !front);
+    }
+    media
 }
 
 /// A light subpath's first vertex on a light at infinity whose light travels along unit `d`:

@@ -110,6 +110,10 @@ pub struct PreparedScene {
     /// The sphere holding the scene (centre, radius; what moves included): a light at infinity
     /// sends light subpaths and photons in through a disk of its radius.
     pub sphere: (Vec3, f32),
+    /// The volumes each light (by index in `lights`) lies inside, for the light subpaths and
+    /// photons that leave it (`bdpt::light_media`; empty where no light is inside one, or for
+    /// the path tracer).
+    pub light_media: Vec<super::media::MediumStack>,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
     pub wavefront: Option<super::wavefront_tables::Tables>,
@@ -555,7 +559,7 @@ fn prepare_inner(
         motion.is_some() || alpha_tested || !colors.is_empty(),
     )
     .filter(|_| !bdpt && sppm.is_none());
-    Ok(PreparedScene {
+    let mut prepared = PreparedScene {
         origin,
         camera,
         accel,
@@ -583,8 +587,13 @@ fn prepare_inner(
         sppm,
         emission,
         sphere,
+        light_media: Vec::new(),
         wavefront,
-    })
+    };
+    if (bdpt || prepared.sppm.is_some()) && prepared.materials.iter().any(|m| m.bounds_medium()) {
+        prepared.light_media = super::bdpt::light_media(&prepared);
+    }
+    Ok(prepared)
 }
 
 /// Prepares frame `frame` of a scene: a static scene once for all frames; an animated one posed at

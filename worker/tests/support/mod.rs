@@ -653,6 +653,86 @@ pub fn cornell_under_water() -> Scene {
     common::gltf::load_path(&path).unwrap()
 }
 
+/// Appends to a glTF document an axis-aligned box from `lo` to `hi` of material `material`, a
+/// closed mesh wound outward (its buffer in a `data:` URI), placed at the default scene's root.
+pub fn push_box(j: &mut serde_json::Value, lo: [f32; 3], hi: [f32; 3], material: usize) {
+    use base64::Engine;
+    let corner = |i: usize| -> [f32; 3] {
+        std::array::from_fn(|k| if i >> k & 1 == 0 { lo[k] } else { hi[k] })
+    };
+    let mut indices: Vec<u16> = Vec::new();
+    for axis in 0..3 {
+        let (a, b) = (1 << ((axis + 1) % 3), 1 << ((axis + 2) % 3));
+        for high in [false, true] {
+            let base = if high { 1 << axis } else { 0 };
+            // (c1 - c0) x (c3 - c0) is +axis: outward on the high face, reversed on the low one.
+            let q = [base, base | a, base | a | b, base | b];
+            let q = if high { q } else { [q[0], q[3], q[2], q[1]] };
+            indices.extend([q[0], q[1], q[2], q[0], q[2], q[3]].map(|i| i as u16));
+        }
+    }
+    let mut bytes: Vec<u8> = (0..8).flat_map(corner).flat_map(f32::to_le_bytes).collect();
+    bytes.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
+    let uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bytes)
+    );
+    let push = |j: &mut serde_json::Value, key: &str, v: serde_json::Value| -> usize {
+        let a = j[key].as_array_mut().unwrap();
+        a.push(v);
+        a.len() - 1
+    };
+    let buffer = push(j, "buffers", serde_json::json!({"byteLength": bytes.len(), "uri": uri}));
+    let positions = push(
+        j,
+        "bufferViews",
+        serde_json::json!({"buffer": buffer, "byteOffset": 0, "byteLength": 96}),
+    );
+    let index_view = push(
+        j,
+        "bufferViews",
+        serde_json::json!({"buffer": buffer, "byteOffset": 96, "byteLength": 72}),
+    );
+    let position = push(
+        j,
+        "accessors",
+        serde_json::json!({"bufferView": positions, "componentType": 5126, "count": 8, "type": "VEC3", "min": lo, "max": hi}),
+    );
+    let index = push(
+        j,
+        "accessors",
+        serde_json::json!({"bufferView": index_view, "componentType": 5123, "count": 36, "type": "SCALAR"}),
+    );
+    let mesh = push(
+        j,
+        "meshes",
+        serde_json::json!({"name": "box", "primitives": [{"attributes": {"POSITION": position}, "indices": index, "material": material}]}),
+    );
+    let node = push(j, "nodes", serde_json::json!({"name": "box", "mesh": mesh}));
+    let scene = j["scene"].as_u64().unwrap_or(0) as usize;
+    j["scenes"][scene]["nodes"].as_array_mut().unwrap().push(serde_json::json!(node));
+}
+
+/// The Cornell box with its light inside "water": a box of an absorbing, tinted medium of index
+/// 1 around the ceiling's light, from 0.1 below it to past the ceiling, so that every light
+/// subpath and photon starts inside the medium and loses light to it on its way out.
+pub fn cornell_light_in_water() -> Scene {
+    let path = edited_scene("cornell-box", "light-water", |j| {
+        let water = dielectric_material(1.0, 1.0, Some(([0.5, 0.7, 0.9], 0.3)));
+        let materials = j["materials"].as_array_mut().unwrap();
+        materials.push(water);
+        let material = materials.len() - 1;
+        push_box(j, [0.17, 0.45, 0.18], [0.39, 0.6, 0.38], material);
+        let used = j["extensionsUsed"].as_array_mut().unwrap();
+        for e in ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"] {
+            if !used.iter().any(|u| u == e) {
+                used.push(serde_json::json!(e));
+            }
+        }
+    });
+    common::gltf::load_path(&path).unwrap()
+}
+
 /// The many-lights scene of `n` small emitters over a floor
 /// (`worker::test_scenes::many_lights_gltf`), written to a temporary file and loaded.
 pub fn load_many_lights(n: usize, tag: &str) -> Scene {
