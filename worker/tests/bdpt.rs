@@ -74,15 +74,10 @@ fn rel_mse(means: impl Iterator<Item = f64>, expected: &[[f32; 3]]) -> f64 {
 /// compare its error and time with the path tracer's (the benchmark's business, not asserted).
 #[test]
 fn bdpt_mirror_caustic_matches_the_closed_form() {
-    use worker::test_scenes::MirrorCaustic;
-    let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
     let res = 32;
-    let expected = caustic_expected(&caustic, res);
-    let scene = load_caustic(&caustic);
-    let base =
-        RenderSettings { width: res, height: res, max_depth: 2, seed: 7, ..Default::default() };
+    let (scene, expected, base) = bench_caustic(res, 64);
     let t = std::time::Instant::now();
-    let (camera, light) = render_bdpt(&scene, &RenderSettings { spp: 64, ..base.clone() });
+    let (camera, light) = render_bdpt(&scene, &base);
     let tb = t.elapsed().as_secs_f64();
     let ours = bdpt_sum(&camera, &light);
     let (mut d, mut v) = (0.0, 0.0);
@@ -141,19 +136,8 @@ fn bdpt_with_more_light_paths_matches_the_path_tracer_and_the_closed_form() {
     );
     assert!(z.iter().all(|z| z.abs() < 4.0), "{z:?}");
 
-    use worker::test_scenes::MirrorCaustic;
-    let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
     let res = 32;
-    let expected = caustic_expected(&caustic, res);
-    let scene = load_caustic(&caustic);
-    let base = RenderSettings {
-        width: res,
-        height: res,
-        spp: 16,
-        max_depth: 2,
-        seed: 7,
-        ..Default::default()
-    };
+    let (scene, expected, base) = bench_caustic(res, 16);
     let error = |light_paths: u32| {
         let settings = RenderSettings { bdpt: Some(Bdpt { light_paths }), ..base.clone() };
         let (camera, light) = render_bdpt(&scene, &settings);

@@ -7,10 +7,7 @@ mod support;
 
 use common::{film::Film, scene::Scene, settings::RenderSettings};
 use support::*;
-use worker::{
-    render::scene::{prepare, prepare_frame},
-    test_scenes::MirrorCaustic,
-};
+use worker::render::scene::{prepare, prepare_frame};
 
 /// Renders the whole frame with photon mapping in tasks of `per_task` passes, each on `threads`
 /// threads, as the farm splits it (the frame is one tile).
@@ -25,18 +22,8 @@ fn render_sppm(scene: &Scene, settings: &RenderSettings, per_task: u32, threads:
 /// error and time with the path tracer's (the benchmark's business, not asserted).
 #[test]
 fn sppm_mirror_caustic_is_within_one_percent_of_the_closed_form() {
-    let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
     let res = 32;
-    let expected = caustic_expected(&caustic, res);
-    let scene = load_caustic(&caustic);
-    let base = RenderSettings {
-        width: res,
-        height: res,
-        spp: 256,
-        max_depth: 2,
-        seed: 7,
-        ..Default::default()
-    };
+    let (scene, expected, base) = bench_caustic(res, 256);
     let t = std::time::Instant::now();
     let film = render_sppm(&scene, &base, 64, 2);
     let seconds = t.elapsed().as_secs_f64();

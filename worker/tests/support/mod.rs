@@ -289,6 +289,25 @@ pub fn caustic_expected(caustic: &worker::test_scenes::MirrorCaustic, res: u32) 
     (0..res * res).map(|i| [caustic.pixel_radiance(i % res, i / res, res, res) as f32; 3]).collect()
 }
 
+/// The benchmark's mirror caustic (`bench --caustic`: light half side 0.125, radiance
+/// 7.5 / 0.125²) at `res` x `res`: the scene, each pixel's closed form, and settings for it
+/// (`max_depth` 2, seed 7, `spp` samples).
+pub fn bench_caustic(res: u32, spp: u32) -> (Scene, Vec<[f32; 3]>, RenderSettings) {
+    let caustic = worker::test_scenes::MirrorCaustic {
+        light_half_side: 0.125,
+        radiance: 7.5 / (0.125 * 0.125),
+    };
+    let settings = RenderSettings {
+        width: res,
+        height: res,
+        spp,
+        max_depth: 2,
+        seed: 7,
+        ..Default::default()
+    };
+    (load_caustic(&caustic), caustic_expected(&caustic, res), settings)
+}
+
 /// The Cornell box's depth-of-field settings (`scenes/cornell-dof.settings.json`: its thin lens).
 pub fn cornell_dof_settings() -> RenderSettings {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-dof.settings.json");
