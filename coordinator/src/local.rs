@@ -268,10 +268,10 @@ pub fn render_file_within(
             progress(if status.samples_done == 0 && cache.scenes_prepared() == 0 {
                 Stage::Preparing
             } else {
-                Stage::Rendering {
-                    done: status.samples_done,
-                    total: status.samples_planned - status.samples_saved,
-                }
+                // The job's progress (which counts a bidirectional job's light tile too) in its
+                // pixel samples.
+                let total = status.samples_planned - status.samples_saved;
+                Stage::Rendering { done: (status.progress * total as f64).round() as u64, total }
             });
             if status.state.is_final() || handles.iter().all(|h| h.is_finished()) {
                 break status;

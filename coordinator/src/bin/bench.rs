@@ -594,8 +594,9 @@ fn integrator_curves(
         let mut points = Vec::new();
         for &spp in spps {
             // A photon-mapping task is a range of passes over the whole frame: ranges small
-            // enough to keep every worker busy.
-            let samples_per_task = if integrator == "sppm" {
+            // enough to keep every worker busy. So are the light tasks of many light paths (each
+            // a range of pixel samples over the whole frame, that many light paths a sample).
+            let samples_per_task = if integrator == "sppm" || bdpt.is_some() {
                 spp.div_ceil(4 * threads as u32).max(1)
             } else {
                 base.samples_per_task

@@ -178,6 +178,9 @@ pub struct Job {
     pub in_flight: u32,
     /// Samples merged (pixel samples).
     pub samples_done: u64,
+    /// Light tiles' samples merged (a pixel's light sample each, `bdpt.light_paths` per pixel
+    /// sample): work, not pixel samples, counted in the progress only.
+    pub light_samples_done: u64,
     tiles_open: usize,
     /// The time limit has passed: no more tasks are issued.
     pub time_up: bool,
@@ -218,13 +221,7 @@ impl Job {
         let n_rects = rects.len();
         let n_frames =
             (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(0) as u128;
-        // A light tile's tasks are ranges of its own samples: `bdpt.light_paths` per pixel
-        // sample (`TaskKind::Light`).
-        let light_tasks =
-            (settings.spp * settings.light_paths()).div_ceil(settings.samples_per_task);
-        let per_frame = (n_rects as u128 - light as u128) * tasks_per_tile as u128
-            + light as u128 * light_tasks as u128;
-        let total = n_frames * per_frame;
+        let total = n_frames * rects.len() as u128 * tasks_per_tile as u128;
         if total > MAX_TASKS_PER_JOB as u128 {
             return Err(format!(
                 "{total} tasks ({n_frames} frames x {} tiles x {tasks_per_tile} sample ranges) is over the limit of {MAX_TASKS_PER_JOB}: raise tile_size or samples_per_task",
@@ -241,11 +238,7 @@ impl Job {
                         // Pixels are allocated by the first result: a long animation holds
                         // only the frames in progress.
                         sums: TileAccum { rect, pixels: Vec::new(), rejected: 0 },
-                        tasks: vec![
-                            TaskState::Open;
-                            if light && i + 1 == n_rects { light_tasks } else { tasks_per_tile }
-                                as usize
-                        ],
+                        tasks: vec![TaskState::Open; tasks_per_tile as usize],
                         merged: 0,
                         prefix: 0,
                         pending: BTreeMap::new(),
@@ -275,6 +268,7 @@ impl Job {
             tasks_per_tile,
             in_flight: 0,
             samples_done: 0,
+            light_samples_done: 0,
             tiles_open,
             time_up: false,
             evicted: false,
@@ -284,19 +278,21 @@ impl Job {
 
     /// The specification of task `key`.
     pub fn spec(&self, key: TaskKey) -> TaskSpec {
-        let spt = self.settings.samples_per_task;
-        let start = key.k * spt;
         let tile = &self.frames[key.frame as usize].tiles[key.tile as usize];
-        // A light tile has `bdpt.light_paths` samples per pixel sample.
-        let (samples, kind) = if tile.light {
-            (self.settings.spp * self.settings.light_paths(), TaskKind::Light)
+        // A light tile has `bdpt.light_paths` samples per pixel sample: its task `k` is the light
+        // samples of pixel sample range `k` (as many tasks as a camera tile, so that the
+        // frame-sized sums they return do not multiply).
+        let (per_sample, kind) = if tile.light {
+            (self.settings.light_paths(), TaskKind::Light)
         } else {
-            (self.settings.spp, TaskKind::Camera)
+            (1, TaskKind::Camera)
         };
+        let spt = self.settings.samples_per_task * per_sample;
+        let start = key.k * spt;
         TaskSpec {
             frame: self.frames[key.frame as usize].number,
             rect: tile.sums.rect,
-            samples: SampleRange { start, end: (start + spt).min(samples) },
+            samples: SampleRange { start, end: (start + spt).min(self.settings.spp * per_sample) },
             kind,
         }
     }
@@ -387,7 +383,8 @@ impl Job {
         t.pending.insert(key.k, tile);
         Self::drain_pending(t);
         // Pixel samples count the camera's: a light task's add no pixel samples of their own.
-        let samples = if t.light { 0 } else { samples };
+        let (samples, light) = if t.light { (0, samples) } else { (samples, 0) };
+        self.light_samples_done += light;
         self.in_flight -= 1;
         self.samples_done += samples;
         self.frames[key.frame as usize].samples_done += samples;

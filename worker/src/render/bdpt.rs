@@ -780,8 +780,9 @@ pub(super) fn light_subpath(
     );
 }
 
-/// Most boundary crossings `media_at` follows from a point to infinity.
-const MAX_BOUNDARY_HITS: usize = 64;
+/// Most surfaces `media_at` passes from a point to infinity (past them, it warns and takes the
+/// volumes crossed so far).
+const MAX_MEDIA_HITS: usize = 4096;
 
 /// The volumes each light of the scene lies inside (by index in `scene.lights`; `media_at` from
 /// a triangle's centroid along its normal, from a point or spot light's position; lights at
@@ -796,7 +797,10 @@ pub(super) fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
             Light::Triangle(l) => {
                 media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim)
             }
-            Light::Point(l) => media_at(scene, l.position, Vec3::Y, NONE),
+            // A direction askew to the axes, so as not to pass along a box's edges.
+            Light::Point(l) => {
+                media_at(scene, l.position, Vec3::new(0.31, 0.87, 0.38).normalize(), NONE)
+            }
             Light::Spot(l) => media_at(scene, l.position, l.direction, NONE),
             Light::Environment(_) | Light::Directional(_) => MediumStack::default(),
         })
@@ -813,19 +817,29 @@ pub(super) fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
 fn media_at(scene: &PreparedScene, p: Vec3, dir: Vec3, skip: u32) -> MediumStack {
     let mut crossed = Vec::new();
     let mut ray = Ray::new(p, dir);
-    for _ in 0..MAX_BOUNDARY_HITS {
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else { break };
+    let mut passed = 0;
+    while let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) {
+        passed += 1;
+        if passed > MAX_MEDIA_HITS {
+            tracing::warn!(
+                "a light's volumes: more than {MAX_MEDIA_HITS} surfaces on the way out of the \
+                 scene; taking the {} volume boundaries crossed before them",
+                crossed.len()
+            );
+            break;
+        }
         let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
         let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
         let q = p0 * b[0] + p1 * b[1] + p2 * b[2];
-        let Some(winding) = (p1 - p0).cross(p2 - p0).try_normalize() else { break };
+        let normal = (p1 - p0).cross(p2 - p0).try_normalize();
         let tri = scene.shading[hit.prim as usize];
         let material = &scene.materials[tri.material as usize];
-        if hit.prim != skip && tri.extended && material.volume.is_some() && material.bounds_medium()
-        {
+        let boundary = tri.extended && material.volume.is_some() && material.bounds_medium();
+        if let (Some(winding), true) = (normal, boundary && hit.prim != skip) {
             crossed.push((tri.material, winding.dot(dir) < 0.0));
         }
-        let side = if winding.dot(dir) > 0.0 { winding } else { -winding };
+        // Past the surface, on the ray's side beyond it (along the ray for a degenerate one).
+        let side = normal.map_or(dir, |n| if n.dot(dir) > 0.0 { n } else { -n });
         ray = Ray::new(offset_ray_origin(q, interpolation_error([p0, p1, p2], b), side, dir), dir);
     }
     let mut media = MediumStack::default();

@@ -43,6 +43,11 @@ impl Job {
         }
         t.merged = prefix + t.pending.len() as u32;
         t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
+        // Pixel samples count the camera's, as `merge` counts them.
+        if t.light {
+            self.light_samples_done += restored;
+            return Ok(());
+        }
         self.samples_done += restored;
         self.frames[frame as usize].samples_done += restored;
         Ok(())

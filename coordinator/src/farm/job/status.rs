@@ -127,15 +127,21 @@ impl Job {
                 rel_sum += tile.rel_mse * area as f64;
             }
         }
-        let effective = planned - saved;
-        let progress =
-            if effective == 0 { 1.0 } else { self.samples_done as f64 / effective as f64 };
+        // The work: the pixel samples and a light tile's light samples (bidirectional path
+        // tracing; `bdpt.light_paths` per pixel sample), one unit each.
+        let light_planned = if self.light_tile().is_some() {
+            planned * self.settings.light_paths() as u64
+        } else {
+            0
+        };
+        let effective = planned - saved + light_planned;
+        let done = self.samples_done + self.light_samples_done;
+        let progress = if effective == 0 { 1.0 } else { done as f64 / effective as f64 };
         let elapsed = self.elapsed(now);
         let eta = match self.state {
-            JobState::Running if self.samples_done > 0 => Some(
-                elapsed * (effective - self.samples_done.min(effective)) as f64
-                    / self.samples_done as f64,
-            ),
+            JobState::Running if done > 0 => {
+                Some(elapsed * (effective - done.min(effective)) as f64 / done as f64)
+            }
             s if s.is_final() => Some(0.0),
             _ => None,
         };

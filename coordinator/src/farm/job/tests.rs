@@ -52,10 +52,13 @@ fn tasks_are_issued_progressively_and_complete_the_job() {
 }
 
 /// A bidirectional job's light tile has `bdpt.light_paths` samples per pixel sample, in as many
-/// more tasks: every one is issued, the camera samples alone count, and the frame's image adds
-/// the light tile's mean (over its own samples) to each camera tile's.
+/// tasks as a camera tile (each of that many times the samples, so that the frame-sized sums
+/// light tasks return do not multiply): every one is issued, the camera samples alone count as
+/// pixel samples, the progress counts the light tile's work too, a restart restores both counts
+/// as they were, and the frame's image adds the light tile's mean (over its own samples) to each
+/// camera tile's.
 #[test]
-fn a_light_tile_takes_its_light_paths_in_more_tasks() {
+fn a_light_tile_takes_its_light_paths_in_longer_tasks() {
     let settings = RenderSettings {
         width: 64,
         height: 32,
@@ -66,32 +69,52 @@ fn a_light_tile_takes_its_light_paths_in_more_tasks() {
         bdpt: Some(common::settings::Bdpt { light_paths: 3 }),
         ..Default::default()
     };
-    let mut j = Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap();
+    let mut j = Job::new("j".into(), 0, "s".into(), settings.clone(), 0, 0.0).unwrap();
     let light = j.light_tile().expect("a light tile");
     let mut keys = Vec::new();
     while let Some(key) = j.next_task() {
         j.lease(key, NOW);
         keys.push(key);
     }
-    // 2 camera tiles of 4 tasks, the light tile of ceil(300 / 32) = 10.
-    assert_eq!(keys.len(), 2 * 4 + 10, "{keys:?}");
+    // 2 camera tiles and the light tile, 4 tasks each.
+    assert_eq!(keys.len(), 3 * 4, "{keys:?}");
     let light_ranges: Vec<_> =
         keys.iter().filter(|k| k.tile as usize == light).map(|&k| j.spec(k).samples).collect();
-    assert_eq!(light_ranges.len(), 10);
-    assert_eq!(light_ranges[9], SampleRange { start: 288, end: 300 });
+    assert_eq!(
+        light_ranges,
+        [(0, 96), (96, 192), (192, 288), (288, 300)].map(|(start, end)| SampleRange { start, end })
+    );
     assert!(keys
         .iter()
         .all(|&k| (k.tile as usize == light) == (j.spec(k).kind == TaskKind::Light)));
-    for key in keys {
-        let value = if key.tile as usize == light { 0.25 } else { 0.5 };
-        let r = fake_result(&j, key, value);
+    let (camera, lights): (Vec<_>, Vec<_>) =
+        keys.into_iter().partition(|k| k.tile as usize != light);
+    for key in camera {
+        let r = fake_result(&j, key, 0.5);
         let n = r.pixels.iter().map(|p| p.n as u64).sum();
+        j.merge(key, r, n, NOW);
+    }
+    // The camera's pixel samples are a quarter of the work (one light sample a pixel sample
+    // to each of 3 light paths).
+    let progress = j.status(NOW).progress;
+    assert!((progress - 0.25).abs() < 1e-12, "{progress}");
+    let mut results = Vec::new();
+    for key in lights {
+        let r = fake_result(&j, key, 0.25);
+        let n = r.pixels.iter().map(|p| p.n as u64).sum();
+        results.push((key.k, r.clone()));
         j.merge(key, r, n, NOW);
     }
     assert_eq!(j.state, JobState::Done);
     assert_eq!(j.samples_done, 64 * 32 * 100, "camera samples only");
+    assert_eq!(j.light_samples_done, 64 * 32 * 300);
+    assert_eq!(j.status(NOW).progress, 1.0);
     let film = j.film(0);
     assert!(film.pixels.iter().all(|p| p.n == 100 && (p.mean()[0] - 0.75).abs() < 1e-12));
+    // A restart: the light tile's samples restored count as its work, not as pixel samples.
+    let mut again = Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap();
+    again.restore_tile(0, light as u32, 0, None, results).unwrap();
+    assert_eq!((again.samples_done, again.light_samples_done), (0, 64 * 32 * 300));
 }
 
 #[test]
