@@ -634,6 +634,21 @@ pub fn render_sppm_with(
     film
 }
 
+/// Appends to a glTF document the tinted, absorbing "water" of index 1 (its surface bends
+/// nothing, but no shadow ray crosses it) and the extensions it uses; returns its material index.
+pub fn push_water(j: &mut serde_json::Value) -> usize {
+    let materials = j["materials"].as_array_mut().unwrap();
+    materials.push(dielectric_material(1.0, 1.0, Some(([0.5, 0.7, 0.9], 0.3))));
+    let material = materials.len() - 1;
+    let used = j["extensionsUsed"].as_array_mut().unwrap();
+    for e in ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"] {
+        if !used.iter().any(|u| u == e) {
+            used.push(serde_json::json!(e));
+        }
+    }
+    material
+}
+
 /// The Cornell box with the short block and the floor around it under "water": a box of an
 /// absorbing, tinted medium of index 1 (its surface bends nothing, but no shadow ray crosses it)
 /// 1.8 times the short block's size around it, reaching below the floor, so that paths inside
@@ -641,10 +656,7 @@ pub fn render_sppm_with(
 /// through the medium.
 pub fn cornell_under_water() -> Scene {
     let path = edited_scene("cornell-box", "water", |j| {
-        let water = dielectric_material(1.0, 1.0, Some(([0.5, 0.7, 0.9], 0.3)));
-        let materials = j["materials"].as_array_mut().unwrap();
-        materials.push(water);
-        let material = materials.len() - 1;
+        let material = push_water(j);
         let block = j["meshes"][3]["primitives"][0].clone();
         let (lo, hi) = {
             let a = &j["accessors"][block["attributes"]["POSITION"].as_u64().unwrap() as usize];
@@ -662,12 +674,6 @@ pub fn cornell_under_water() -> Scene {
         nodes.push(serde_json::json!({"name": "water", "mesh": mesh, "translation": t, "scale": [s, s, s]}));
         let node = nodes.len() - 1;
         j["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(node));
-        let used = j["extensionsUsed"].as_array_mut().unwrap();
-        for e in ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"] {
-            if !used.iter().any(|u| u == e) {
-                used.push(serde_json::json!(e));
-            }
-        }
     });
     common::gltf::load_path(&path).unwrap()
 }
@@ -675,7 +681,6 @@ pub fn cornell_under_water() -> Scene {
 /// Appends to a glTF document an axis-aligned box from `lo` to `hi` of material `material`, a
 /// closed mesh wound outward (its buffer in a `data:` URI), placed at the default scene's root.
 pub fn push_box(j: &mut serde_json::Value, lo: [f32; 3], hi: [f32; 3], material: usize) {
-    use base64::Engine;
     let corner = |i: usize| -> [f32; 3] {
         std::array::from_fn(|k| if i >> k & 1 == 0 { lo[k] } else { hi[k] })
     };
@@ -692,10 +697,7 @@ pub fn push_box(j: &mut serde_json::Value, lo: [f32; 3], hi: [f32; 3], material:
     }
     let mut bytes: Vec<u8> = (0..8).flat_map(corner).flat_map(f32::to_le_bytes).collect();
     bytes.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
-    let uri = format!(
-        "data:application/octet-stream;base64,{}",
-        base64::engine::general_purpose::STANDARD.encode(&bytes)
-    );
+    let uri = format!("data:application/octet-stream;base64,{}", base64(&bytes));
     let push = |j: &mut serde_json::Value, key: &str, v: serde_json::Value| -> usize {
         let a = j[key].as_array_mut().unwrap();
         a.push(v);
@@ -737,17 +739,8 @@ pub fn push_box(j: &mut serde_json::Value, lo: [f32; 3], hi: [f32; 3], material:
 /// subpath and photon starts inside the medium and loses light to it on its way out.
 pub fn cornell_light_in_water() -> Scene {
     let path = edited_scene("cornell-box", "light-water", |j| {
-        let water = dielectric_material(1.0, 1.0, Some(([0.5, 0.7, 0.9], 0.3)));
-        let materials = j["materials"].as_array_mut().unwrap();
-        materials.push(water);
-        let material = materials.len() - 1;
+        let material = push_water(j);
         push_box(j, [0.17, 0.45, 0.18], [0.39, 0.6, 0.38], material);
-        let used = j["extensionsUsed"].as_array_mut().unwrap();
-        for e in ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior"] {
-            if !used.iter().any(|u| u == e) {
-                used.push(serde_json::json!(e));
-            }
-        }
     });
     common::gltf::load_path(&path).unwrap()
 }
