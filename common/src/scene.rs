@@ -518,7 +518,7 @@ impl Scene {
     }
 
     /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
-    /// and photon mapping do not take yet (scattering media, dispersion; for photon mapping an
+    /// and photon mapping do not take yet (scattering media; for photon mapping an
     /// emitter that moves within the shutter) and the light they must start paths from. `Ok`
     /// for the path tracer.
     pub fn check_integrator(
@@ -534,9 +534,6 @@ impl Scene {
         };
         if self.materials.iter().any(|m| m.volume.is_some_and(|v| v.scatters())) {
             return refuse("scattering media (KHR_materials_volume_scatter)");
-        }
-        if self.materials.iter().any(|m| m.volume.is_some() && m.dispersion > 0.0) {
-            return refuse("dispersion (KHR_materials_dispersion)");
         }
         if name == "sppm" && settings.shutter.open < settings.shutter.close {
             if let Some(anim) = &self.animation {

@@ -417,75 +417,9 @@ fn dispersive_glass_stays_white_in_the_furnace_and_splits_an_edge_by_colour() {
         assert!((mean - 1.0).abs() < 4.0 * se + 1e-5, "channel {c}: {mean}");
     }
 
-    let (ior, dispersion, thickness, tilt) = (1.5f64, 2.0f64, 0.5f64, 30f64.to_radians());
-    let width = 128u32;
-    let settings =
-        RenderSettings { width, height: width, spp: 64, max_depth: 16, ..Default::default() };
-    let half = [20.0, thickness as f32 / 2.0, 20.0];
-    let path = box_scene("dispersive-snell", half, [0.0; 3], material, 3.0, 1.0, tilt, true);
+    let (path, settings) = dispersive_slab_edge("dispersive-snell", 128);
     let scene = common::gltf::load_path(&path).unwrap();
-    let film = render(&scene, &settings);
-    // The orthographic view is 2 x 2.
-    let pixel = 2.0 / width as f64;
-    // The edge per channel, linearly in the image (a mixture of wavelengths is a mixture of
-    // edges): over a window of 20 columns around `guess`, the lit area of the mean row over the
-    // level far right, taken from the window's right end. The window leaves out the faint ghost
-    // edge of light reflected twice inside the slab, which lies farther along.
-    // Returns the edge and its standard error (from the pixels' variances).
-    let edge = |c: usize, guess: f64| {
-        let w = width as usize;
-        let column = |i: usize| {
-            let mean = (0..w).map(|row| film.pixels[row * w + i].mean()[c]).sum::<f64>();
-            let var = (0..w).map(|row| film.pixels[row * w + i].variance_of_mean()[c]).sum::<f64>();
-            (mean / w as f64, var / (w * w) as f64)
-        };
-        let columns: Vec<(f64, f64)> = (0..w).map(column).collect();
-        let far = &columns[w - 16..];
-        let level = far.iter().map(|c| c.0).sum::<f64>() / 16.0;
-        let level_var = far.iter().map(|c| c.1).sum::<f64>() / 256.0;
-        let centre = ((guess + 1.0) / pixel) as usize;
-        let window = &columns[centre - 10..centre + 10];
-        let right = -1.0 + (centre + 10) as f64 * pixel;
-        let lit = window.iter().map(|c| c.0).sum::<f64>() * pixel;
-        let lit_var = window.iter().map(|c| c.1).sum::<f64>() * pixel * pixel;
-        let se = (lit_var / (level * level) + (lit / level).powi(2) * level_var / (level * level))
-            .sqrt();
-        (right - lit / level, se)
-    };
-    // Where each channel's weighted mean offset puts it: the Snell offset at each wavelength,
-    // weighted by the channel's colour of that light and the slab's transmittance
-    // (1 - F) / (1 + F) at it.
-    let expected = |c: usize| {
-        let (mut num, mut den) = (0.0, 0.0);
-        for k in 0..4700 {
-            let lambda = 360.0 + (k as f32 + 0.5) / 10.0;
-            let n = worker::render::spectrum::dispersive_ior(ior as f32, dispersion as f32, lambda)
-                as f64;
-            let theta_t = (tilt.sin() / n).asin();
-            let shift = thickness * (tilt - theta_t).sin() / theta_t.cos();
-            let f = worker::render::bsdf::fresnel_dielectric(tilt.cos() as f32, n as f32) as f64;
-            let weight =
-                worker::render::spectrum::rgb_weights(lambda)[c] as f64 * (1.0 - f) / (1.0 + f);
-            num += weight * -shift;
-            den += weight;
-        }
-        num / den
-    };
-    let mut at = [0.0; 3];
-    for c in 0..3 {
-        let e = expected(c);
-        let (measured, se) = edge(c, e);
-        at[c] = measured;
-        eprintln!(
-            "channel {c}: the edge at {measured:.5} +- {se:.5}, the law puts it at {e:.5} (a pixel is {pixel:.5})"
-        );
-        // The ghost left in the window is worth at most about a fiftieth of a pixel.
-        assert!(
-            (measured - e).abs() < 4.0 * se + 0.02 * pixel,
-            "channel {c}: {measured} against {e}"
-        );
-    }
-    assert!(at[2] < at[0], "blue moves more than red: {at:?}");
+    assert_edge_split_by_colour(&pixel_stats(&render(&scene, &settings)), 128);
 }
 
 /// A negative or non-numeric dispersion is refused, naming the extension and the key.

@@ -42,8 +42,14 @@
 //! (`light_media`, found once per scene by the boundaries a ray from the light crosses on its way
 //! out).
 //!
+//! Dispersion: a sample draws one wavelength (after its time) that every dispersive boundary of
+//! both subpaths bends light by (`At::wavelength`), so that a connection joins two halves of
+//! one path of that light; a path through any dispersive vertex, on either subpath, takes that
+//! light's colour once (`At::tint`; the path tracer's path takes it at its first), and the MIS
+//! densities, all taken at the one wavelength, stay a partition of unity for it.
+//!
 //! What this version does not take (`Scene::check_integrator` refuses them before any work):
-//! scattering media and dispersion.
+//! scattering media.
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
@@ -63,6 +69,7 @@ use super::{
     sampler::Sampler,
     sampling::{sample_uniform_disk_concentric, sample_uniform_sphere, uniform_sphere_pdf},
     scene::{PreparedScene, NONE, UNSAMPLED},
+    spectrum,
 };
 
 /// The sampler dimension a light subpath starts at (the camera subpath's come first and never
@@ -121,6 +128,12 @@ pub(super) struct Vertex {
     /// the front face), and whether it refracts.
     pub(super) boundary: Option<(u32, bool)>,
     pub(super) refracting: bool,
+    /// A refractive boundary with a dispersive volume on either side: its BSDF is the sample's
+    /// wavelength's, and a path through it is that light's colour (`At::wavelength`).
+    pub(super) dispersive: bool,
+    /// Whether the throughput arriving here passed a dispersive vertex of its subpath (`beta`
+    /// leaves out the wavelength's colour, which a whole path takes once: `At::tint`).
+    pub(super) tinted: bool,
 }
 
 impl Vertex {
@@ -148,6 +161,8 @@ impl Vertex {
             beyond: None,
             boundary: None,
             refracting: false,
+            dispersive: false,
+            tinted: false,
         }
     }
 
@@ -167,6 +182,13 @@ impl Vertex {
         } else {
             (other.p - self.p).try_normalize()
         }
+    }
+
+    /// Whether a path using this vertex's BSDF takes its wavelength's colour: the throughput
+    /// arriving here passed a dispersive vertex, or this one is dispersive.
+    #[inline]
+    pub(super) fn tints(&self) -> bool {
+        self.tinted || self.dispersive
     }
 
     /// The shading normal (the geometric one off surfaces).
@@ -350,17 +372,37 @@ enum Mode {
 }
 
 /// What one sample's time places: the geometry that moves (`None`: nothing does) and the
-/// camera. Both subpaths of a sample, and all its connections, see the same time.
+/// camera; and in a scene with dispersion, the sample's wavelength. Both subpaths of a sample,
+/// and all its connections, see the same time and the same wavelength.
 #[derive(Clone, Copy)]
 pub(super) struct At<'p> {
     pub(super) pose: Option<&'p Pose<'p>>,
     pub(super) camera: PlacedCamera,
+    /// The wavelength (nanometres) every dispersive boundary of the sample bends light by, and
+    /// the colour of that light over its density (`spectrum::sample_wavelength`), which a path
+    /// through any dispersive vertex takes once, as the path tracer's path takes it at its first.
+    pub(super) wavelength: Option<(f32, Vec3)>,
 }
 
 impl<'p> At<'p> {
     /// A scene where nothing moves.
     pub(super) fn still(scene: &PreparedScene) -> Self {
-        At { pose: None, camera: PlacedCamera::still(scene.camera) }
+        At { pose: None, camera: PlacedCamera::still(scene.camera), wavelength: None }
+    }
+
+    /// The same sample at the wavelength number `u` picks (`None`: a scene without dispersion).
+    pub(super) fn with_wavelength(self, u: Option<f32>) -> Self {
+        At { wavelength: u.map(spectrum::sample_wavelength), ..self }
+    }
+
+    /// `l`, a path's contribution, in the colour of the sample's wavelength if the path passed a
+    /// dispersive vertex (`tinted`).
+    #[inline]
+    pub(super) fn tint(&self, l: Vec3, tinted: bool) -> Vec3 {
+        match self.wavelength {
+            Some((_, colour)) if tinted => l * colour,
+            _ => l,
+        }
     }
 
     /// The scene at the time `u` (in [0, 1)) picks within the shutter, `pose` reset to it; the
@@ -374,7 +416,7 @@ impl<'p> At<'p> {
         let time = m.time(u);
         let pose = pose.get_or_insert_with(|| Pose::new(m, time));
         pose.set_time(time);
-        At { pose: Some(pose), camera: m.camera_at(&scene.camera, time) }
+        At { pose: Some(pose), camera: m.camera_at(&scene.camera, time), wavelength: None }
     }
 }
 
@@ -418,19 +460,21 @@ fn walk(
                 v.light = env;
                 let prev = path.last().expect("a subpath starts with its camera vertex");
                 v.pdf_fwd = prev.convert_density(pdf, &v);
+                v.tinted = prev.tints();
                 path.push(v);
             }
             break;
         };
         let prev = path.last().expect("a subpath starts with its camera or light vertex");
         v.pdf_fwd = prev.convert_density(pdf, &v);
+        v.tinted = prev.tints();
         bounces += 1;
         // What the medium on the way let through.
         beta = v.beta;
         if let Some(base) = unlit_base {
             // Seen as its base colour by the camera, and by nothing else.
             if mode == Mode::Radiance {
-                *unlit += beta * base;
+                *unlit += at.tint(beta * base, v.tinted);
             }
             path.push(v);
             break;
@@ -599,12 +643,19 @@ pub(super) fn surface_vertex(
         }
         v.frame = frame;
         // A refractive boundary's relative index: the volume's against the medium on its other
-        // side (the current one entering it, the one beyond leaving it).
+        // side (the current one entering it, the one beyond leaving it), at the sample's
+        // wavelength where either is dispersive (where the path tracer's path takes one on).
         let iors = if boundary {
             let other = if front { media.current() } else { beyond };
+            let dispersive =
+                |m: Option<u32>| m.is_some_and(|m| scene.materials[m as usize].dispersion > 0.0);
+            v.dispersive = at.wavelength.is_some()
+                && material.refracts()
+                && (material.dispersion > 0.0 || dispersive(other));
+            let lambda = at.wavelength.filter(|_| v.dispersive).map(|(lambda, _)| lambda);
             [
-                media::ior(&scene.materials, Some(tri.material), None),
-                media::ior(&scene.materials, other, None),
+                media::ior(&scene.materials, Some(tri.material), lambda),
+                media::ior(&scene.materials, other, lambda),
             ]
         } else {
             [1.0; 2]
@@ -1006,7 +1057,7 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
             // The camera subpath left the scene: the environment it sees (s = 0), straight from
             // the camera only where the settings show it.
             if t > 2 || scene.environment_visible {
-                let l = pt.beta * pt.le(scene, pt.wo);
+                let l = at.tint(pt.beta * pt.le(scene, pt.wo), pt.tinted);
                 if l != Vec3::ZERO && l.is_finite() {
                     total += l * mis_weight(scene, &at.camera, camera, light, None, 0, t);
                 }
@@ -1018,7 +1069,7 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
         }
         if pt.moving_le != Vec3::ZERO {
             // An emitter that moves: only this strategy (s = 0) finds it.
-            total += pt.beta * pt.moving_le;
+            total += at.tint(pt.beta * pt.moving_le, pt.tinted);
         }
         for s in 0..=light.len() {
             if s + t - 2 > max_depth {
@@ -1028,7 +1079,7 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
                 0 => {
                     // The camera subpath found a light.
                     let wo = (camera[t - 2].p - pt.p).normalize();
-                    (pt.beta * pt.le(scene, wo), None)
+                    (at.tint(pt.beta * pt.le(scene, wo), pt.tinted), None)
                 }
                 1 => match sample_light(
                     scene,
@@ -1037,7 +1088,7 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
                     &ShadingContext { p: pt.p, n: pt.ns() },
                     stats,
                 ) {
-                    Some((l, v, _)) => (l, Some(v)),
+                    Some((l, v, _)) => (at.tint(l, pt.tints()), Some(v)),
                     None => continue,
                 },
                 _ => {
@@ -1056,7 +1107,8 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
                     if l == Vec3::ZERO || !visible(scene, at, pt, qs, stats) {
                         continue;
                     }
-                    (l * segment_transmittance(scene, pt, qs), None)
+                    let tinted = pt.tints() || qs.tints();
+                    (at.tint(l * segment_transmittance(scene, pt, qs), tinted), None)
                 }
             };
             if l == Vec3::ZERO || !l.is_finite() {
@@ -1148,7 +1200,9 @@ pub fn render_rows(
         let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
         // The time (as the path tracer draws it: only when something moves within the shutter).
         let u_time = scene.motion.is_some().then(|| sampler.next_1d());
-        let at = At::time(scene, u_time, &mut pose);
+        // The wavelength (only in a scene with dispersion), shared by both subpaths.
+        let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
+        let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
         let (camera, light) = (&mut paths.camera, &mut paths.light);
         let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
@@ -1188,12 +1242,12 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
             for y in 0..height {
                 for x in 0..width {
                     sampler.start_pixel_sample(UVec2::new(x, y), s);
-                    // The camera task's time for this sample: after its film and lens numbers.
-                    let u_time = scene.motion.is_some().then(|| {
-                        sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
-                        sampler.next_1d()
-                    });
-                    let at = At::time(scene, u_time, &mut pose);
+                    // The camera task's time and wavelength for this sample: after its film
+                    // and lens numbers.
+                    sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
+                    let u_time = scene.motion.is_some().then(|| sampler.next_1d());
+                    let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
+                    let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
                     light_subpath(
                         scene,
                         &at,
@@ -1252,7 +1306,7 @@ fn splat_light_path(
         if l == Vec3::ZERO || !l.is_finite() || !visible(scene, at, qs, &v, stats) {
             continue;
         }
-        let l = l * segment_transmittance(scene, qs, &v);
+        let l = at.tint(l * segment_transmittance(scene, qs, &v), qs.tints());
         let w = mis_weight(scene, camera, &[], light, Some(&v), s, 1);
         let (width, height) = (camera.camera.width as u32, camera.camera.height as u32);
         let px = imp.film.as_uvec2();

@@ -29,6 +29,12 @@
 //! paths and its photons, so a pass is a photon map of a still scene and the mean over passes
 //! the mean over the shutter.
 //!
+//! Dispersion: each pass is also one wavelength (`pass_numbers`), which every dispersive
+//! boundary of its camera paths and photons bends light by, so that a photon and a visible point
+//! are two halves of one path of that light; a path through a dispersive vertex on either half
+//! takes that light's colour once (`At::tint`), and the mean over passes is the mean over
+//! wavelengths, as it is over the shutter.
+//!
 //! Lights at infinity: photons leave them as bidirectional light subpaths do (through a disk of
 //! the scene's radius); a camera path that leaves the scene sees the environment, weighted
 //! against its light samples.
@@ -37,8 +43,8 @@
 //! bidirectional subpaths do (`bdpt::surface_vertex`); photons refract carrying flux.
 //!
 //! What it does not take yet (`Scene::check_integrator` refuses them before any work):
-//! scattering media, dispersion and emitters that move within the shutter (photons leave only
-//! the lights in the light list, which holds the emitters that stay put).
+//! scattering media and emitters that move within the shutter (photons leave only the lights in
+//! the light list, which holds the emitters that stay put).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -86,11 +92,9 @@ pub fn render_task(
     let threads = threads.max(1);
     let radii = params.radii(task.samples.start);
     for (pass, radius) in (task.samples.start..task.samples.end).zip(radii) {
-        let u_time = pass_time(scene, seed, task.frame, pass);
-        let (seen, points) =
-            camera_pass(scene, seed, task, pass, u_time, radius, threads, &mut stats);
-        let gathered =
-            photon_pass(scene, params, seed, task, pass, u_time, radius, &points, threads);
+        let u = pass_numbers(scene, seed, task.frame, pass);
+        let (seen, points) = camera_pass(scene, seed, task, pass, u, radius, threads, &mut stats);
+        let gathered = photon_pass(scene, params, seed, task, pass, u, radius, &points, threads);
         stats.rays += gathered.1;
         let scale = 1.0 / (std::f64::consts::PI * (radius as f64).powi(2) * params.photons as f64);
         let mut image = seen;
@@ -112,17 +116,25 @@ pub fn render_task(
     (tile, stats)
 }
 
-/// Where pass `pass` falls in the shutter (a number in [0, 1) for `At::time`), when something
-/// moves within it: the same time for every camera path and photon of the pass, so that each
-/// pass is a photon map of one instant and the mean over passes is the mean over the shutter.
-/// It is the first number of sample `pass` of a pseudo-pixel no photon uses, so the passes
-/// stratify the shutter as a pixel's samples do.
-fn pass_time(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> Option<f32> {
-    scene.motion.as_ref()?;
+/// The numbers of pass `pass` that all its camera paths and photons share: where it falls in the
+/// shutter (for `At::time`), when something moves within it, and its wavelength (for
+/// `At::with_wavelength`), in a scene with dispersion. So each pass is a photon map of one
+/// instant and one wavelength, and the mean over passes is the mean over the shutter and the
+/// wavelengths. They are the first two numbers of sample `pass` of a pseudo-pixel no photon
+/// uses, so the passes stratify each as a pixel's samples do.
+fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> PassNumbers {
+    if scene.motion.is_none() && !scene.dispersive {
+        return (None, None);
+    }
     let mut sampler = Sampler::new(seed, frame);
     sampler.start_pixel_sample(UVec2::new(u32::MAX, u32::MAX), pass);
-    Some(sampler.next_1d())
+    let u_time = sampler.next_1d();
+    let u_wavelength = sampler.next_1d();
+    (scene.motion.is_some().then_some(u_time), scene.dispersive.then_some(u_wavelength))
 }
+
+/// A pass's time and wavelength numbers (`pass_numbers`).
+type PassNumbers = (Option<f32>, Option<f32>);
 
 /// The camera paths of one pass: each pixel's light seen before and at its visible point, and
 /// the visible points (in pixel order).
@@ -132,7 +144,7 @@ fn camera_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
-    u_time: Option<f32>,
+    (u_time, u_wavelength): PassNumbers,
     radius: f32,
     threads: usize,
     stats: &mut Stats,
@@ -146,7 +158,7 @@ fn camera_pass(
                     let mut stats = Stats::default();
                     let mut out = Vec::new();
                     let mut pose = None;
-                    let at = At::time(scene, u_time, &mut pose);
+                    let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
                     let mut row = t;
                     while row < rect.height {
                         for col in 0..rect.width {
@@ -221,23 +233,31 @@ fn camera_path(
     let mut prev_ctx = ShadingContext::default();
     // The volumes the path is inside (the camera is in air).
     let mut media = MediumStack::default();
+    // Whether the path passed a dispersive vertex (its light takes the pass's wavelength's
+    // colour, `At::tint`).
+    let mut tinted = false;
     for depth in 0..=scene.max_depth {
         let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats, &mut media) else {
             // The environment, straight from the camera only where the settings show it.
             if depth > 0 || scene.environment_visible {
-                seen += beta * environment_seen(scene, ray.dir, &prev_ctx, prev_pdf);
+                let l = beta * environment_seen(scene, ray.dir, &prev_ctx, prev_pdf);
+                seen += at.tint(l, tinted);
             }
             break;
         };
         // What the medium on the way let through.
         beta = v.beta;
+        v.tinted = tinted;
         if let Some(base) = unlit {
-            seen += beta * base;
+            seen += at.tint(beta * base, tinted);
             break;
         }
         if v.light != NONE {
-            seen += beta * v.le(scene, v.wo) * emitter_weight(scene, &v, &prev_ctx, prev_pdf);
+            let l = beta * v.le(scene, v.wo) * emitter_weight(scene, &v, &prev_ctx, prev_pdf);
+            seen += at.tint(l, tinted);
         }
+        // Light this vertex's BSDF scatters takes the wavelength's colour if it is dispersive.
+        tinted = v.tints();
         if depth == scene.max_depth {
             break;
         }
@@ -248,7 +268,7 @@ fn camera_path(
         let ctx = ShadingContext { p: v.p, n: v.frame.z };
         if let Some((direct, light, light_pdf)) = sample_light(scene, at, &v, &ctx, stats) {
             let bsdf_pdf = v.dir_to(&light).map_or(0.0, |wi| v.pdf_dir(v.wo, wi));
-            seen += direct * power_heuristic(light_pdf, bsdf_pdf);
+            seen += at.tint(direct * power_heuristic(light_pdf, bsdf_pdf), tinted);
         }
         let u_lobe = sampler.next_1d();
         let u = sampler.next_2d();
@@ -267,10 +287,13 @@ fn camera_path(
                 cross_after(&v, wi, bs.wi, &mut media);
                 match surface_vertex(scene, at, &ray, weight, stats, &mut media) {
                     Some((hit, None)) if hit.light != NONE => {
-                        seen +=
+                        let l =
                             weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, &ctx, pdf);
+                        seen += at.tint(l, tinted);
                     }
-                    None => seen += weight * environment_seen(scene, wi, &ctx, pdf),
+                    None => {
+                        seen += at.tint(weight * environment_seen(scene, wi, &ctx, pdf), tinted)
+                    }
                     _ => {}
                 }
             }
@@ -398,7 +421,7 @@ fn photon_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
-    u_time: Option<f32>,
+    (u_time, u_wavelength): PassNumbers,
     radius: f32,
     points: &[VisiblePoint],
     threads: usize,
@@ -426,7 +449,7 @@ fn photon_pass(
                         let mut path = Vec::new();
                         let mut out = Vec::new();
                         let mut pose = None;
-                        let at = At::time(scene, u_time, &mut pose);
+                        let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
                         loop {
                             let c = next.fetch_add(1, Ordering::Relaxed);
                             if c >= last {
@@ -444,7 +467,7 @@ fn photon_pass(
                                     &mut path,
                                     &mut stats,
                                 );
-                                deposit(scene, &grid, points, &path, radius, &mut gathered);
+                                deposit(scene, &at, &grid, points, &path, radius, &mut gathered);
                             }
                             out.push((c, gathered));
                         }
@@ -510,6 +533,7 @@ impl Gathered {
 /// at surfaces that gather photons, where the whole path stays within `max_depth` bounces.
 fn deposit(
     scene: &PreparedScene,
+    at: &At<'_>,
     grid: &Grid,
     points: &[VisiblePoint],
     path: &[Vertex],
@@ -531,7 +555,7 @@ fn deposit(
             let v = &vp.vertex;
             // Light arrives from the photon's previous vertex and leaves toward the eye.
             let f = v.f(v.wo, photon.wo);
-            let add = f * photon.beta;
+            let add = at.tint(f * photon.beta, v.tints() || photon.tinted);
             if add != Vec3::ZERO && add.is_finite() {
                 gathered.add(index, add, points.len());
             }

@@ -3,6 +3,8 @@
 
 #![allow(dead_code, unreachable_pub)]
 
+pub mod prism;
+
 use std::path::{Path, PathBuf};
 
 use common::{
@@ -389,6 +391,139 @@ pub fn worst_block(
         }
     }
     worst
+}
+
+/// `worst_block` for each colour channel alone (a wrong colour with the right brightness shows
+/// here): the worst over the blocks and channels, with the Sidak bound over all of them.
+pub fn worst_channel_block(
+    ours: &[([f64; 3], [f64; 3])],
+    reference: &[([f64; 3], [f64; 3])],
+    width: u32,
+    block: u32,
+    bias: f64,
+) -> (f64, String) {
+    let height = ours.len() as u32 / width;
+    let z_bound = sidak_z(0.01, 3 * ((width / block) * (height / block)) as usize);
+    let mut worst = (0.0f64, String::new());
+    for c in 0..3 {
+        for by in 0..height / block {
+            for bx in 0..width / block {
+                let (mut a, mut b, mut var) = (0.0, 0.0, 0.0);
+                for y in by * block..(by + 1) * block {
+                    for x in bx * block..(bx + 1) * block {
+                        let i = (y * width + x) as usize;
+                        a += ours[i].0[c];
+                        b += reference[i].0[c];
+                        var += ours[i].1[c] + reference[i].1[c];
+                    }
+                }
+                let score = (a - b).abs() / (z_bound * var.sqrt() + bias * b.abs());
+                if score > worst.0 {
+                    let z = (a - b) / var.sqrt();
+                    worst = (
+                        score,
+                        format!("channel {c}, block ({bx}, {by}): ratio {:.4}, z {z:.2}", a / b),
+                    );
+                }
+            }
+        }
+    }
+    worst
+}
+
+/// The dispersive slab edge: a slab of thickness 0.5, index 1.5 and dispersion 2 tilted 30
+/// degrees over an emitting half-plane (`box_scene`), seen from above by an orthographic camera
+/// at `width` x `width`, and settings of 64 samples per pixel.
+pub fn dispersive_slab_edge(tag: &str, width: u32) -> (PathBuf, RenderSettings) {
+    let mut material = dielectric_material(1.5, 1.0, None);
+    material["extensions"]["KHR_materials_dispersion"] = serde_json::json!({"dispersion": 2.0});
+    let half = [20.0, 0.25, 20.0];
+    let path = box_scene(tag, half, [0.0; 3], material, 3.0, 1.0, 30f64.to_radians(), true);
+    let settings =
+        RenderSettings { width, height: width, spp: 64, max_depth: 16, ..Default::default() };
+    (path, settings)
+}
+
+/// Asserts that the image of `dispersive_slab_edge` (`stats` per pixel, `width` wide) shows the
+/// edge where each channel's colour-weighted Snell offset puts it, within four standard errors
+/// (plus a fiftieth of a pixel), and blue moved more than red.
+pub fn assert_edge_split_by_colour(stats: &[([f64; 3], [f64; 3])], width: u32) {
+    let (ior, dispersion, thickness, tilt) = (1.5f64, 2.0f64, 0.5f64, 30f64.to_radians());
+    // The orthographic view is 2 x 2.
+    let pixel = 2.0 / width as f64;
+    // The edge per channel, linearly in the image (a mixture of wavelengths is a mixture of
+    // edges): over a window of 20 columns around `guess`, the lit area of the mean row over the
+    // level far right, taken from the window's right end. The window leaves out the faint ghost
+    // edge of light reflected twice inside the slab, which lies farther along.
+    // Returns the edge and its standard error (from the pixels' variances).
+    let edge = |c: usize, guess: f64| {
+        let w = width as usize;
+        let column = |i: usize| {
+            let mean = (0..w).map(|row| stats[row * w + i].0[c]).sum::<f64>();
+            let var = (0..w).map(|row| stats[row * w + i].1[c]).sum::<f64>();
+            (mean / w as f64, var / (w * w) as f64)
+        };
+        let columns: Vec<(f64, f64)> = (0..w).map(column).collect();
+        let far = &columns[w - 16..];
+        let level = far.iter().map(|c| c.0).sum::<f64>() / 16.0;
+        let level_var = far.iter().map(|c| c.1).sum::<f64>() / 256.0;
+        let centre = ((guess + 1.0) / pixel) as usize;
+        let window = &columns[centre - 10..centre + 10];
+        let right = -1.0 + (centre + 10) as f64 * pixel;
+        let lit = window.iter().map(|c| c.0).sum::<f64>() * pixel;
+        let lit_var = window.iter().map(|c| c.1).sum::<f64>() * pixel * pixel;
+        let se = (lit_var / (level * level) + (lit / level).powi(2) * level_var / (level * level))
+            .sqrt();
+        (right - lit / level, se)
+    };
+    // Where each channel's weighted mean offset puts it: the Snell offset at each wavelength,
+    // weighted by the channel's colour of that light and the slab's transmittance
+    // (1 - F) / (1 + F) at it.
+    let expected = |c: usize| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for k in 0..4700 {
+            let lambda = 360.0 + (k as f32 + 0.5) / 10.0;
+            let n = worker::render::spectrum::dispersive_ior(ior as f32, dispersion as f32, lambda)
+                as f64;
+            let theta_t = (tilt.sin() / n).asin();
+            let shift = thickness * (tilt - theta_t).sin() / theta_t.cos();
+            let f = worker::render::bsdf::fresnel_dielectric(tilt.cos() as f32, n as f32) as f64;
+            let weight =
+                worker::render::spectrum::rgb_weights(lambda)[c] as f64 * (1.0 - f) / (1.0 + f);
+            num += weight * -shift;
+            den += weight;
+        }
+        num / den
+    };
+    let mut at = [0.0; 3];
+    for c in 0..3 {
+        let e = expected(c);
+        let (measured, se) = edge(c, e);
+        at[c] = measured;
+        eprintln!(
+            "channel {c}: the edge at {measured:.5} +- {se:.5}, the law puts it at {e:.5} (a pixel is {pixel:.5})"
+        );
+        // The ghost left in the window is worth at most about a fiftieth of a pixel.
+        assert!(
+            (measured - e).abs() < 4.0 * se + 0.02 * pixel,
+            "channel {c}: {measured} against {e}"
+        );
+    }
+    assert!(at[2] < at[0], "blue moves more than red: {at:?}");
+}
+
+/// The Cornell box with its glass sphere (`scenes/cornell-glass`) made dispersive: `dispersion`
+/// 2 (an Abbe number of 10, about three times a dense flint's spread), so that the caustic the
+/// sphere throws on the floor splits into colours.
+pub fn cornell_dispersive_glass() -> Scene {
+    let mut scene = repo_scene("cornell-glass.gltf");
+    let mut glass = 0;
+    for m in scene.materials.iter_mut().filter(|m| m.refracts()) {
+        m.dispersion = 2.0;
+        glass += 1;
+    }
+    assert_eq!(glass, 1, "cornell-glass has one refractive material");
+    scene
 }
 
 /// `cornell_motion`'s scene with its light moved by the short block's node (it slides 6 cm with
