@@ -517,10 +517,9 @@ impl Scene {
         }
     }
 
-    /// The scene-dependent checks of the settings' integrator: what bidirectional path tracing
-    /// and photon mapping do not take yet (scattering media; for photon mapping an
-    /// emitter that moves within the shutter) and the light they must start paths from. `Ok`
-    /// for the path tracer.
+    /// The scene-dependent checks of the settings' integrator: what photon mapping does not take
+    /// yet (an emitter that moves within the shutter) and the light bidirectional path tracing
+    /// and photon mapping must start paths from. `Ok` for the path tracer.
     pub fn check_integrator(
         &self,
         settings: &crate::settings::RenderSettings,
@@ -532,9 +531,6 @@ impl Scene {
         let refuse = |what: &str| {
             Err(format!("integrator: {name} does not render {what} yet (\"path\" does)"))
         };
-        if self.materials.iter().any(|m| m.volume.is_some_and(|v| v.scatters())) {
-            return refuse("scattering media (KHR_materials_volume_scatter)");
-        }
         if name == "sppm" && settings.shutter.open < settings.shutter.close {
             if let Some(anim) = &self.animation {
                 let moving_emitter = self.instances.iter().any(|inst| {

@@ -197,15 +197,6 @@ fn the_shipped_glass_scene_bounds_a_closed_volume() {
     assert_eq!(common::gltf::open_edges(block), Some(4), "the bottom's four edges are open");
 }
 
-/// `dielectric_material` filling a scattering medium: `attenuation` (colour, distance) is the extinction,
-/// `multiscatter` and `g` the `KHR_materials_volume_scatter` values.
-fn scattering(ior: f64, attenuation: ([f64; 3], f64), multiscatter: [f64; 3], g: f64) -> Value {
-    let mut m = dielectric_material(ior, 1.0, Some(attenuation));
-    m["extensions"]["KHR_materials_volume_scatter"] =
-        json!({"multiscatterColor": multiscatter, "scatterAnisotropy": g});
-    m
-}
-
 /// A box of a grey medium that scatters all it stops (albedo 1, forward-scattering), in the white
 /// furnace: behind an index-matched boundary (ior 1) and behind glass (ior 1.5, with total
 /// internal reflection and the 1 / eta² of radiance inside), every pixel is exactly 1.

@@ -86,14 +86,33 @@ fn index_matched_subsurface_scattering_matches_mitsuba() {
 /// within the Sidak bound of both images' noise (photon mapping: plus 4%, its radius's bias).
 #[test]
 fn bdpt_and_sppm_glass_match_mitsuba() {
+    bdpt_and_sppm_match_mitsuba(&["glass-smooth", "glass-rough"], 256, 8);
+}
+
+/// Subsurface scattering (a scattering sphere behind an ior-1.5 and an index-matched boundary)
+/// in bidirectional path tracing and photon mapping against the same references, at 512
+/// samples, by 16 x 16 blocks as the path tracer's test compares them (the reference's noise is
+/// given for the whole image). Bidirectional path tracing's light inside the index-matched
+/// sphere comes in rare heavy samples, whose spread the two halves' estimate of the error
+/// understates: over six seeds the worst block reached 0.44-0.83 of the bound, and 1.12 with one
+/// seed whose block 1% bright stayed at 4,096 samples against our path tracer's 8,192 (z 4.1),
+/// where another seed's is within z 2.2 and the whole image within 0.1%.
+#[test]
+fn bdpt_and_sppm_subsurface_scattering_match_mitsuba() {
+    bdpt_and_sppm_match_mitsuba(&["subsurface", "subsurface-matched"], 512, 16);
+}
+
+/// Renders each of `names` with both integrators at 48x48 and `spp` samples (passes) and checks
+/// every `block` x `block` block against its Mitsuba 3 reference.
+fn bdpt_and_sppm_match_mitsuba(names: &[&str], spp: u32, block: u32) {
     let dir = materials();
-    for name in ["glass-smooth", "glass-rough"] {
+    for &name in names {
         let scene = common::gltf::load_path(&dir.join(format!("{name}.gltf"))).unwrap();
         let text = std::fs::read_to_string(dir.join(format!("{name}.settings.json"))).unwrap();
         let settings = RenderSettings {
             width: 48,
             height: 48,
-            spp: 256,
+            spp,
             ..RenderSettings::from_json(&text).unwrap()
         };
         let (_, _, reference) = read_rgb(&dir.join(format!("ref/{name}-48.exr")));
@@ -104,11 +123,11 @@ fn bdpt_and_sppm_glass_match_mitsuba() {
         let var = meta["noise_rmse_est"].as_f64().unwrap().powi(2);
         let reference: Vec<_> = reference.iter().map(|p| (p.map(f64::from), [var; 3])).collect();
         let (camera, light) = render_bdpt_with(&scene, &settings, None);
-        let (score, at) = worst_block(&bdpt_sum(&camera, &light), &reference, 48, 8, 0.0);
+        let (score, at) = worst_block(&bdpt_sum(&camera, &light), &reference, 48, block, 0.0);
         eprintln!("{name}, bdpt: worst block {score:.2} ({at})");
         assert!(score < 1.0, "{name}, bdpt: {at}");
         let film = render_sppm_with(&scene, &settings, 128, 2, None);
-        let (score, at) = worst_block(&pixel_stats(&film), &reference, 48, 8, 0.04);
+        let (score, at) = worst_block(&pixel_stats(&film), &reference, 48, block, 0.04);
         eprintln!("{name}, sppm: worst block {score:.2} ({at})");
         assert!(score < 1.0, "{name}, sppm: {at}");
     }

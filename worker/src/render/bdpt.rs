@@ -48,8 +48,14 @@
 //! light's colour once (`At::tint`; the path tracer's path takes it at its first), and the MIS
 //! densities, all taken at the one wavelength, stay a partition of unity for it.
 //!
-//! What this version does not take (`Scene::check_integrator` refuses them before any work):
-//! scattering media.
+//! Scattering media: a subpath inside one samples free flights as the path tracer's paths do,
+//! by one channel's exponential (the sample's hero, shared by both subpaths) weighted by the
+//! three channels' densities (`media::free_flight`), and a connection of two subpaths weighs its
+//! light by the densities of the whole path (`spectral_weight`). A scattering is a vertex that
+//! samples its phase function exactly and, like a mirror, ends no connection (the path tracer
+//! samples no light from one either: the medium's boundary stops shadow rays), so the MIS weights
+//! leave out the strategies that would join there; connections between surfaces inside a medium
+//! carry its transmittance.
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
@@ -67,7 +73,10 @@ use super::{
     media::{self, transmittance, Crossing, MediumStack},
     motion::Pose,
     sampler::Sampler,
-    sampling::{sample_uniform_disk_concentric, sample_uniform_sphere, uniform_sphere_pdf},
+    sampling::{
+        sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
+        uniform_sphere_pdf,
+    },
     scene::{PreparedScene, NONE, UNSAMPLED},
     spectrum,
 };
@@ -81,6 +90,8 @@ pub(super) enum Kind {
     Camera,
     Light,
     Surface,
+    /// A scattering inside a medium (no surface, no BSDF: see Scattering media).
+    Medium,
 }
 
 /// A vertex of a subpath.
@@ -134,6 +145,10 @@ pub(super) struct Vertex {
     /// Whether the throughput arriving here passed a dispersive vertex of its subpath (`beta`
     /// leaves out the wavelength's colour, which a whole path takes once: `At::tint`).
     pub(super) tinted: bool,
+    /// Each channel's density of the subpath's free flights up to here over their mean (1, 1, 1
+    /// without any; `media::free_flight`): a connection of two subpaths weighs its light by
+    /// the channels' densities of the whole path (`spectral_weight`).
+    pub(super) ratios: Vec3,
 }
 
 impl Vertex {
@@ -163,6 +178,7 @@ impl Vertex {
             refracting: false,
             dispersive: false,
             tinted: false,
+            ratios: Vec3::ONE,
         }
     }
 
@@ -382,17 +398,27 @@ pub(super) struct At<'p> {
     /// the colour of that light over its density (`spectrum::sample_wavelength`), which a path
     /// through any dispersive vertex takes once, as the path tracer's path takes it at its first.
     pub(super) wavelength: Option<(f32, Vec3)>,
+    /// The colour channel whose exponential draws every free flight of the sample, on both
+    /// subpaths (in a scene with scattering media), so that a connection's light can be weighed
+    /// by the channels' densities of the whole path.
+    pub(super) hero: usize,
 }
 
 impl<'p> At<'p> {
     /// A scene where nothing moves.
     pub(super) fn still(scene: &PreparedScene) -> Self {
-        At { pose: None, camera: PlacedCamera::still(scene.camera), wavelength: None }
+        At { pose: None, camera: PlacedCamera::still(scene.camera), wavelength: None, hero: 0 }
     }
 
     /// The same sample at the wavelength number `u` picks (`None`: a scene without dispersion).
     pub(super) fn with_wavelength(self, u: Option<f32>) -> Self {
         At { wavelength: u.map(spectrum::sample_wavelength), ..self }
+    }
+
+    /// The same sample with the hero channel number `u` picks (`None`: a scene without
+    /// scattering media).
+    pub(super) fn with_hero(self, u: Option<f32>) -> Self {
+        At { hero: u.map_or(0, media::hero_channel), ..self }
     }
 
     /// `l`, a path's contribution, in the colour of the sample's wavelength if the path passed a
@@ -416,7 +442,7 @@ impl<'p> At<'p> {
         let time = m.time(u);
         let pose = pose.get_or_insert_with(|| Pose::new(m, time));
         pose.set_time(time);
-        At { pose: Some(pose), camera: m.camera_at(&scene.camera, time), wavelength: None }
+        At { pose: Some(pose), camera: m.camera_at(&scene.camera, time), wavelength: None, hero: 0 }
     }
 }
 
@@ -447,9 +473,13 @@ fn walk(
     unlit: &mut Vec3,
 ) {
     let mut bounces = 0u32;
+    // The subpath's free-flight densities per channel over their mean (`Vertex::ratios`).
+    let mut ratios = Vec3::ONE;
     while bounces < max_vertices {
-        let Some((mut v, unlit_base)) = surface_vertex(scene, at, &ray, beta, stats, &mut media)
-        else {
+        // In a scene with scattering media each segment takes a number for its free flight.
+        let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
+        let next = surface_vertex(scene, at, &ray, beta, u_flight, &mut ratios, stats, &mut media);
+        let Some((mut v, unlit_base)) = next else {
             if let (Mode::Radiance, Some(env)) = (mode, scene.lights.environment) {
                 // The camera subpath leaves the scene: a vertex on the environment.
                 let d = ray.dir.normalize();
@@ -478,6 +508,33 @@ fn walk(
             }
             path.push(v);
             break;
+        }
+        if v.kind == Kind::Medium {
+            // A scattering inside a medium: the phase function, sampled exactly (its value over
+            // its density is 1), picks the next direction, as in the path tracer. Like a mirror,
+            // it is no end of a connection (a light outside lies beyond the medium's boundary,
+            // which no shadow ray crosses), so its vertex is marked delta and the MIS weights
+            // leave out the strategies that would join there.
+            let (p, dir) = (v.p, -v.wo);
+            v.delta = true;
+            sampler.skip(3); // The light sample's numbers (or the lens point's), as a surface's.
+            path.push(v);
+            if bounces >= max_vertices {
+                break;
+            }
+            sampler.skip(1); // The lobe.
+            let g = media.current().and_then(|m| scene.materials[m as usize].volume);
+            let g = g.map_or(0.0, |volume| volume.anisotropy);
+            let wi = Frame::from_z(dir).to_world(sample_henyey_greenstein(g, sampler.next_2d()));
+            let n = path.len();
+            // Neither side's density enters a weight (as after a delta lobe).
+            path[n - 2].pdf_rev = 0.0;
+            if !roulette(sampler, &mut beta, bounces) {
+                break;
+            }
+            pdf = 0.0;
+            ray = Ray::interior(p, wi);
+            continue;
         }
         let (p, ng, wo, frame) = (v.p, v.ng, v.wo, v.frame);
         let bsdf = v.bsdf.expect("a lit surface vertex has a BSDF");
@@ -563,27 +620,60 @@ pub(super) fn roulette(sampler: &mut Sampler, beta: &mut Vec3, bounces: u32) -> 
     true
 }
 
-/// What `ray` hits first, as a surface vertex reached with throughput `beta` (its densities
-/// left for the caller), with its shading frame and BSDF; an unlit material's vertex has no BSDF
-/// and comes with the base colour the camera sees.
+/// What `ray` meets first, as a vertex reached with throughput `beta` (its densities left for
+/// the caller): a surface with its shading frame and BSDF (an unlit material's vertex has no
+/// BSDF and comes with the base colour the camera sees), or in a scattering medium the point
+/// where number `u_flight` puts the first scattering (`Kind::Medium`), the free flight drawn by
+/// the sample's hero channel and `ratios` (the subpath's densities so far) carried on.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn surface_vertex(
     scene: &PreparedScene,
     at: &At<'_>,
     ray: &Ray,
     mut beta: Vec3,
+    u_flight: f32,
+    ratios: &mut Vec3,
     stats: &mut Stats,
     media: &mut MediumStack,
 ) -> Option<(Vertex, Option<Vec3>)> {
     let mut ray = *ray;
     // False interfaces passed (bounded, as in the path tracer).
     let mut passed = 0u32;
+    // In a scattering medium, the distance left to the scattering the flight drew (drawn once,
+    // then carried past false interfaces).
+    let mut flight: Option<f32> = None;
     loop {
         stats.rays += 1;
-        let hit = scene.intersect(&ray, f32::INFINITY, at.pose)?;
-        if let Some(volume) = media.current().and_then(|m| scene.materials[m as usize].volume) {
+        let hit = scene.intersect(&ray, f32::INFINITY, at.pose);
+        let volume = media.current().and_then(|m| scene.materials[m as usize].volume);
+        match volume {
+            Some(v) if scene.scattering_media && v.scatters() => {
+                let len = ray.dir.length();
+                let distance = hit.map_or(f32::INFINITY, |h| h.t * len);
+                let t =
+                    *flight.get_or_insert_with(|| media::flight_distance(&v, at.hero, u_flight));
+                let (weight, scattered) = media::free_flight_at(&v, distance, t, ratios);
+                beta *= weight;
+                if let Some(t) = scattered {
+                    let dir = ray.dir / len;
+                    let mut m = Vertex::new(Kind::Medium, ray.origin + dir * t, beta);
+                    m.wo = -dir;
+                    m.medium = media.current();
+                    m.beyond = m.medium;
+                    m.ratios = *ratios;
+                    return Some((m, None));
+                }
+                flight = Some(t - distance);
+            }
             // Beer-Lambert along the segment inside the volume.
-            beta *= transmittance(&volume, hit.t * ray.dir.length());
+            Some(v) => {
+                if let Some(h) = &hit {
+                    beta *= transmittance(&v, h.t * ray.dir.length());
+                }
+            }
+            None => {}
         }
+        let hit = hit?;
         let tri = scene.shading[hit.prim as usize];
         let ([p0, p1, p2], moved) = scene.triangle(hit.prim, at.pose);
         let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
@@ -618,6 +708,7 @@ pub(super) fn surface_vertex(
         }
         let sp = scene.surface_point(hit.prim, b);
         let mut v = Vertex::new(Kind::Surface, p, beta);
+        v.ratios = *ratios;
         v.p_error = p_error;
         v.ng = ng;
         v.wo = wo;
@@ -691,6 +782,21 @@ pub(super) fn segment_transmittance(scene: &PreparedScene, a: &Vertex, b: &Verte
     };
     let d = if b.infinite { f32::INFINITY } else { a.p.distance(b.p) };
     transmittance(&volume, d)
+}
+
+/// The factor that weighs the light of a path joined from two subpaths ending at `a` and `b` by
+/// the channels' densities of all its free flights (spectral MIS over the whole path, as
+/// `media::free_flight` weighs one subpath's): each subpath's throughput is divided by the mean
+/// of its own densities, so the whole path's needs 1 / mean(ratios_a ratios_b). Exactly 1 where
+/// either subpath had no free flight.
+#[inline]
+pub(super) fn spectral_weight(a: &Vertex, b: &Vertex) -> f32 {
+    let mean = (a.ratios * b.ratios).element_sum() / 3.0;
+    if mean > 0.0 {
+        1.0 / mean
+    } else {
+        0.0
+    }
 }
 
 /// The camera subpath of a sample whose film position and lens numbers are drawn: up to
@@ -1108,7 +1214,11 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
                         continue;
                     }
                     let tinted = pt.tints() || qs.tints();
-                    (at.tint(l * segment_transmittance(scene, pt, qs), tinted), None)
+                    let mut l = at.tint(l * segment_transmittance(scene, pt, qs), tinted);
+                    if scene.scattering_media {
+                        l *= spectral_weight(pt, qs);
+                    }
+                    (l, None)
                 }
             };
             if l == Vec3::ZERO || !l.is_finite() {
@@ -1202,7 +1312,9 @@ pub fn render_rows(
         let u_time = scene.motion.is_some().then(|| sampler.next_1d());
         // The wavelength (only in a scene with dispersion), shared by both subpaths.
         let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
-        let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
+        // The hero channel of its free flights (only in a scene with scattering media).
+        let u_hero = scene.scattering_media.then(|| sampler.next_1d());
+        let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength).with_hero(u_hero);
         let (camera, light) = (&mut paths.camera, &mut paths.light);
         let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
@@ -1247,7 +1359,10 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
                     sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
                     let u_time = scene.motion.is_some().then(|| sampler.next_1d());
                     let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
-                    let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
+                    let u_hero = scene.scattering_media.then(|| sampler.next_1d());
+                    let at = At::time(scene, u_time, &mut pose)
+                        .with_wavelength(u_wavelength)
+                        .with_hero(u_hero);
                     light_subpath(
                         scene,
                         &at,
@@ -1312,5 +1427,44 @@ fn splat_light_path(
         let px = imp.film.as_uvec2();
         let i = (px.y.min(height - 1) * width + px.x.min(width - 1)) as usize;
         film[i] += l * w;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// With one hero channel for both subpaths, a joined path's light is unbiased: averaged over
+    /// the hero (drawn uniformly), the density of drawing all the path's free flights by it,
+    /// times each subpath's weight (one over the mean of its own densities) and
+    /// `spectral_weight`, is 1 whatever the subpaths' densities per channel. Without the factor
+    /// it is not where the channels' densities move together (the joined path's mean of products
+    /// against the product of means).
+    #[test]
+    fn spectral_weight_makes_a_shared_hero_unbiased() {
+        let cases = [
+            ([1.0, 2.0, 3.0], [3.0, 0.5, 0.1]),
+            ([0.01, 5.0, 1.0], [2.0, 2.0, 2.0]),
+            ([1e-3, 1.0, 1e3], [1e3, 1.0, 1e-3]),
+            ([4.0, 1.0, 0.25], [4.0, 1.0, 0.25]),
+        ];
+        for (pa, pb) in cases {
+            let (pa, pb) = (Vec3::from(pa), Vec3::from(pb));
+            let (ma, mb) = (pa.element_sum() / 3.0, pb.element_sum() / 3.0);
+            let mut a = Vertex::new(Kind::Surface, Vec3::ZERO, Vec3::ONE);
+            let mut b = a;
+            (a.ratios, b.ratios) = (pa / ma, pb / mb);
+            let unweighted: f32 = (0..3).map(|h| pa[h] * pb[h] / (ma * mb) / 3.0).sum();
+            let weighted = unweighted * spectral_weight(&a, &b);
+            assert!((weighted - 1.0).abs() < 1e-5, "{pa} {pb}: {weighted}");
+            if pa == pb {
+                assert!(unweighted > 1.5, "{pa}: {unweighted}");
+            }
+        }
+        // A subpath without free flights leaves the other's weight alone.
+        let mut a = Vertex::new(Kind::Surface, Vec3::ZERO, Vec3::ONE);
+        a.ratios = Vec3::new(0.5, 1.0, 1.5);
+        let b = Vertex::new(Kind::Surface, Vec3::ZERO, Vec3::ONE);
+        assert_eq!(spectral_weight(&a, &b), 1.0);
     }
 }

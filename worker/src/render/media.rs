@@ -166,8 +166,27 @@ pub fn free_flight(
     u: f32,
     ratios: &mut Vec3,
 ) -> (Vec3, Option<f32>) {
+    free_flight_at(v, distance, flight_distance(v, hero, u), ratios)
+}
+
+/// The distance to the first scattering that number `u` draws from the exponential of channel
+/// `hero` of medium `v` (infinite where that channel is clear).
+#[inline]
+pub fn flight_distance(v: &Volume, hero: usize, u: f32) -> f32 {
     let sigma = v.extinction[hero];
-    let t = if sigma > 0.0 { -(1.0 - u).ln() / sigma } else { f32::INFINITY };
+    if sigma > 0.0 {
+        -(1.0 - u).ln() / sigma
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// [`free_flight`] with its distance `t` drawn ([`flight_distance`]): a scattering at `t` if
+/// it lies within `distance`, else none, and the weight. A flight that passes a surface of the
+/// same medium (a false interface) goes on with `t` less the distance travelled, the
+/// exponential being memoryless.
+#[inline]
+pub fn free_flight_at(v: &Volume, distance: f32, t: f32, ratios: &mut Vec3) -> (Vec3, Option<f32>) {
     let (f, p, at) = if t < distance {
         let tr = transmittance(v, t);
         (v.extinction * v.albedo * tr, v.extinction * tr, Some(t))

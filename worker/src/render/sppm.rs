@@ -42,9 +42,15 @@
 //! Volumes: camera paths and photons cross boundaries and lose light to absorption as
 //! bidirectional subpaths do (`bdpt::surface_vertex`); photons refract carrying flux.
 //!
-//! What it does not take yet (`Scene::check_integrator` refuses them before any work):
-//! scattering media and emitters that move within the shutter (photons leave only the lights in
-//! the light list, which holds the emitters that stay put).
+//! Scattering media: camera paths and photons sample free flights as bidirectional subpaths do
+//! (the pass's hero channel for all of them), and a camera path follows a scattering by its
+//! phase function as the path tracer does, never gathering there; photons scattered in a medium
+//! are gathered where they land on surfaces, weighed with the visible point by the densities of
+//! the whole path (`bdpt::spectral_weight`).
+//!
+//! What it does not take yet (`Scene::check_integrator` refuses them before any work): emitters
+//! that move within the shutter (photons leave only the lights in the light list, which holds
+//! the emitters that stay put).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -52,12 +58,16 @@ use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
-    bdpt::{cross_after, light_subpath, roulette, sample_light, surface_vertex, At, Vertex},
-    geometry::{offset_ray_origin, Ray},
+    bdpt::{
+        cross_after, light_subpath, roulette, sample_light, spectral_weight, surface_vertex, At,
+        Kind, Vertex,
+    },
+    geometry::{offset_ray_origin, Frame, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext},
     media::MediumStack,
     sampler::{mix64, Sampler},
+    sampling::sample_henyey_greenstein,
     scene::{PreparedScene, SppmParams, NONE},
 };
 
@@ -123,18 +133,23 @@ pub fn render_task(
 /// wavelengths. They are the first two numbers of sample `pass` of a pseudo-pixel no photon
 /// uses, so the passes stratify each as a pixel's samples do.
 fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> PassNumbers {
-    if scene.motion.is_none() && !scene.dispersive {
-        return (None, None);
+    if scene.motion.is_none() && !scene.dispersive && !scene.scattering_media {
+        return (None, None, None);
     }
     let mut sampler = Sampler::new(seed, frame);
     sampler.start_pixel_sample(UVec2::new(u32::MAX, u32::MAX), pass);
     let u_time = sampler.next_1d();
     let u_wavelength = sampler.next_1d();
-    (scene.motion.is_some().then_some(u_time), scene.dispersive.then_some(u_wavelength))
+    let u_hero = sampler.next_1d();
+    (
+        scene.motion.is_some().then_some(u_time),
+        scene.dispersive.then_some(u_wavelength),
+        scene.scattering_media.then_some(u_hero),
+    )
 }
 
-/// A pass's time and wavelength numbers (`pass_numbers`).
-type PassNumbers = (Option<f32>, Option<f32>);
+/// A pass's time, wavelength and hero channel numbers (`pass_numbers`).
+type PassNumbers = (Option<f32>, Option<f32>, Option<f32>);
 
 /// The camera paths of one pass: each pixel's light seen before and at its visible point, and
 /// the visible points (in pixel order).
@@ -144,7 +159,7 @@ fn camera_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
-    (u_time, u_wavelength): PassNumbers,
+    (u_time, u_wavelength, u_hero): PassNumbers,
     radius: f32,
     threads: usize,
     stats: &mut Stats,
@@ -158,7 +173,9 @@ fn camera_pass(
                     let mut stats = Stats::default();
                     let mut out = Vec::new();
                     let mut pose = None;
-                    let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
+                    let at = At::time(scene, u_time, &mut pose)
+                        .with_wavelength(u_wavelength)
+                        .with_hero(u_hero);
                     let mut row = t;
                     while row < rect.height {
                         for col in 0..rect.width {
@@ -236,8 +253,13 @@ fn camera_path(
     // Whether the path passed a dispersive vertex (its light takes the pass's wavelength's
     // colour, `At::tint`).
     let mut tinted = false;
+    // The path's free-flight densities per channel over their mean (`Vertex::ratios`).
+    let mut ratios = Vec3::ONE;
     for depth in 0..=scene.max_depth {
-        let Some((mut v, unlit)) = surface_vertex(scene, at, &ray, beta, stats, &mut media) else {
+        // In a scene with scattering media each segment takes a number for its free flight.
+        let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
+        let next = surface_vertex(scene, at, &ray, beta, u_flight, &mut ratios, stats, &mut media);
+        let Some((mut v, unlit)) = next else {
             // The environment, straight from the camera only where the settings show it.
             if depth > 0 || scene.environment_visible {
                 let l = beta * environment_seen(scene, ray.dir, &prev_ctx, prev_pdf);
@@ -248,6 +270,25 @@ fn camera_path(
         // What the medium on the way let through.
         beta = v.beta;
         v.tinted = tinted;
+        if v.kind == Kind::Medium {
+            // A scattering inside a medium: followed by its phase function, sampled exactly, as
+            // the path tracer follows it (no light sample: the medium's boundary stops shadow
+            // rays), and never a visible point; what the new direction finds counts in full.
+            if depth == scene.max_depth {
+                break;
+            }
+            sampler.skip(4); // The light sample and the lobe, as at a surface.
+            let g = media.current().and_then(|m| scene.materials[m as usize].volume);
+            let g = g.map_or(0.0, |volume| volume.anisotropy);
+            let dir = -v.wo;
+            let wi = Frame::from_z(dir).to_world(sample_henyey_greenstein(g, sampler.next_2d()));
+            if !roulette(sampler, &mut beta, depth + 1) {
+                break;
+            }
+            prev_pdf = 0.0;
+            ray = Ray::interior(v.p, wi);
+            continue;
+        }
         if let Some(base) = unlit {
             seen += at.tint(beta * base, tinted);
             break;
@@ -285,10 +326,25 @@ fn camera_path(
                 let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
                 let mut media = media;
                 cross_after(&v, wi, bs.wi, &mut media);
-                match surface_vertex(scene, at, &ray, weight, stats, &mut media) {
-                    Some((hit, None)) if hit.light != NONE => {
-                        let l =
-                            weight * hit.le(scene, hit.wo) * emitter_weight(scene, &hit, &ctx, pdf);
+                // Its free flight: where it scatters, no light arrives unscattered.
+                let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
+                let mut ratios = ratios;
+                let probe = surface_vertex(
+                    scene,
+                    at,
+                    &ray,
+                    weight,
+                    u_flight,
+                    &mut ratios,
+                    stats,
+                    &mut media,
+                );
+                match probe {
+                    Some((hit, None)) if hit.light != NONE && hit.kind == Kind::Surface => {
+                        // The throughput the medium on the way let through.
+                        let l = hit.beta
+                            * hit.le(scene, hit.wo)
+                            * emitter_weight(scene, &hit, &ctx, pdf);
                         seen += at.tint(l, tinted);
                     }
                     None => {
@@ -421,7 +477,7 @@ fn photon_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
-    (u_time, u_wavelength): PassNumbers,
+    (u_time, u_wavelength, u_hero): PassNumbers,
     radius: f32,
     points: &[VisiblePoint],
     threads: usize,
@@ -449,7 +505,9 @@ fn photon_pass(
                         let mut path = Vec::new();
                         let mut out = Vec::new();
                         let mut pose = None;
-                        let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength);
+                        let at = At::time(scene, u_time, &mut pose)
+                            .with_wavelength(u_wavelength)
+                            .with_hero(u_hero);
                         loop {
                             let c = next.fetch_add(1, Ordering::Relaxed);
                             if c >= last {
@@ -555,7 +613,10 @@ fn deposit(
             let v = &vp.vertex;
             // Light arrives from the photon's previous vertex and leaves toward the eye.
             let f = v.f(v.wo, photon.wo);
-            let add = at.tint(f * photon.beta, v.tints() || photon.tinted);
+            let mut add = at.tint(f * photon.beta, v.tints() || photon.tinted);
+            if scene.scattering_media {
+                add *= spectral_weight(v, photon);
+            }
             if add != Vec3::ZERO && add.is_finite() {
                 gathered.add(index, add, points.len());
             }

@@ -512,6 +512,89 @@ pub fn assert_edge_split_by_colour(stats: &[([f64; 3], [f64; 3])], width: u32) {
     assert!(at[2] < at[0], "blue moves more than red: {at:?}");
 }
 
+/// `dielectric_material` filling a scattering medium: `attenuation` (colour, distance) is the
+/// extinction, `multiscatter` and `g` the `KHR_materials_volume_scatter` values.
+pub fn scattering(
+    ior: f64,
+    attenuation: ([f64; 3], f64),
+    multiscatter: [f64; 3],
+    g: f64,
+) -> serde_json::Value {
+    let mut m = dielectric_material(ior, 1.0, Some(attenuation));
+    m["extensions"]["KHR_materials_volume_scatter"] =
+        serde_json::json!({"multiscatterColor": multiscatter, "scatterAnisotropy": g});
+    m
+}
+
+/// Scattering media of albedo 1 in the white furnace, where every pixel is 1 (each channel's
+/// image mean within the noise): a box of a medium whose extinction differs per channel behind
+/// an index-matched boundary, one behind a diffusely transmitting boundary, and one of glass
+/// (ior 1.5) over a white Lambertian floor. Returns (name, the glTF's path) for each.
+pub fn scattering_furnaces(tag: &str) -> Vec<(&'static str, PathBuf)> {
+    let chromatic = scattering(1.0, ([0.1, 0.5, 0.9], 0.3), [1.0; 3], -0.3);
+    let mut diffuse_boundary = scattering(1.0, ([0.2; 3], 0.3), [1.0; 3], 0.0);
+    diffuse_boundary["extensions"]["KHR_materials_transmission"]["transmissionFactor"] =
+        serde_json::json!(0.0);
+    diffuse_boundary["extensions"]["KHR_materials_specular"] =
+        serde_json::json!({"specularFactor": 0.0});
+    diffuse_boundary["extensions"]["KHR_materials_diffuse_transmission"] =
+        serde_json::json!({"diffuseTransmissionFactor": 1.0});
+    let mut out = vec![
+        ("chromatic", furnace_box(&format!("{tag}-chromatic"), chromatic)),
+        ("diffuse boundary", furnace_box(&format!("{tag}-diffuse-boundary"), diffuse_boundary)),
+    ];
+    let glass = scattering(1.5, ([0.2, 0.35, 0.5], 0.1), [1.0; 3], 0.3);
+    let path = box_scene(
+        &format!("{tag}-floor"),
+        [0.6, 0.4, 0.5],
+        [0.1, -0.55, -0.2],
+        glass,
+        3.0,
+        1.0,
+        0.0,
+        true,
+    );
+    // The half-plane under the box (x > 0, y = -1) becomes a white Lambertian floor.
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    json["materials"][1] = serde_json::json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0},
+        "doubleSided": true,
+        "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
+    });
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    out.push(("glass over a floor", path));
+    out
+}
+
+/// Asserts each channel's image mean (`means`, with standard errors) is 1 within four standard
+/// errors plus `bias`, naming `what`.
+pub fn assert_white(what: &str, means: [(f64, f64); 3], bias: f64) {
+    for (c, (mean, se)) in means.into_iter().enumerate() {
+        println!("{what}, channel {c}: {mean:.5} (standard error {se:.1e})");
+        assert!((mean - 1.0).abs() < 4.0 * se + bias + 1e-5, "{what}, channel {c}: {mean} ({se})");
+    }
+}
+
+/// `cornell_under_water` with its water made a fog: five times the extinction (optical depths
+/// about 4, 2 and 0.6 across it in red, green and blue, so that the free flights' channels
+/// differ), an albedo of 0.95, 0.85 and 0.7 and forward scattering (g 0.4). Paths inside meet
+/// the floor, the block and the red wall through it.
+pub fn cornell_in_fog() -> Scene {
+    let mut scene = cornell_under_water();
+    let mut fog = 0;
+    for m in scene.materials.iter_mut().filter(|m| m.volume.is_some() && m.bounds_medium()) {
+        let v = m.volume.as_mut().unwrap();
+        v.extinction *= 5.0;
+        v.albedo = glam::Vec3::new(0.95, 0.85, 0.7);
+        v.anisotropy = 0.4;
+        assert!(v.scatters());
+        fog += 1;
+    }
+    assert_eq!(fog, 1, "the water is the one volume");
+    scene
+}
+
 /// The Cornell box with its glass sphere (`scenes/cornell-glass`) made dispersive: `dispersion`
 /// 2 (an Abbe number of 10, about three times a dense flint's spread), so that the caustic the
 /// sphere throws on the floor splits into colours.
