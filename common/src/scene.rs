@@ -518,8 +518,10 @@ impl Scene {
     }
 
     /// The scene-dependent checks of the settings' integrator: what photon mapping does not take
-    /// yet (an emitter that moves within the shutter) and the light bidirectional path tracing
-    /// and photon mapping must start paths from. `Ok` for the path tracer.
+    /// yet (an emitter that moves within the shutter), the light bidirectional path tracing and
+    /// photon mapping must start paths from, and more light-traced paths than one per sample
+    /// where the camera is orthographic (light tracing cannot reach it). `Ok` for the path
+    /// tracer.
     pub fn check_integrator(
         &self,
         settings: &crate::settings::RenderSettings,
@@ -531,6 +533,24 @@ impl Scene {
         let refuse = |what: &str| {
             Err(format!("integrator: {name} does not render {what} yet (\"path\" does)"))
         };
+        if name == "bdpt" && settings.light_paths() > 1 {
+            // The camera the settings name (the first by default).
+            let camera = match &settings.camera {
+                Some(wanted) => self.cameras.iter().find(|c| &c.name == wanted),
+                None => self.cameras.first(),
+            };
+            if let Some(c) =
+                camera.filter(|c| matches!(c.projection, Projection::Orthographic { .. }))
+            {
+                return Err(format!(
+                    "bdpt.light_paths: {} light paths per sample with the orthographic camera \
+                     '{}', which light tracing cannot reach: they would only cost time (use 1, \
+                     or a perspective camera)",
+                    settings.light_paths(),
+                    c.name
+                ));
+            }
+        }
         if name == "sppm" && settings.shutter.open < settings.shutter.close {
             if let Some(anim) = &self.animation {
                 let moving_emitter = self.instances.iter().any(|inst| {

@@ -2,8 +2,9 @@
 //! (`"integrator": "bdpt"`: camera tasks over tiles and light tasks over the whole frame) and
 //! photon mapping (`"integrator": "sppm"`: one tile, the frame, whose tasks are ranges of
 //! passes). The image is bitwise the same whatever the number of workers, in one process or as
-//! `worker --join` processes, and after a worker is killed mid-job. What an integrator does not
-//! take yet is refused naming the setting before any work is leased.
+//! `worker --join` processes, after a worker is killed mid-job and after the coordinator is
+//! killed mid-job and restarted. What an integrator does not take yet is refused naming the
+//! setting before any work is leased.
 
 use std::time::Duration;
 
@@ -25,8 +26,9 @@ fn settings(integrator: &str, spp: u32, spt: u32) -> Value {
 }
 
 /// `integrator`'s image of the Cornell box on 1 and 3 workers of one process, on serve + 3
-/// worker processes (which merge `tasks` tasks) and after one of two workers is kill -9'd while
-/// both hold leases (a longer job, so that both do): the same bits.
+/// worker processes (which merge `tasks` tasks), after one of two workers is kill -9'd while
+/// both hold leases (a longer job, so that both do) and after the coordinator is kill -9'd and
+/// restarted: the same bits.
 fn same_image_on_any_workers_and_after_a_kill(integrator: &str, tasks: f64) {
     let dir = temp_dir(&format!("{integrator}-farm"));
     let s = settings(integrator, 64, 16);
@@ -58,6 +60,30 @@ fn same_image_on_any_workers_and_after_a_kill(integrator: &str, tasks: f64) {
     victim.kill9();
     wait_done(&url, &id, TIMEOUT);
     assert_same_image(&one, &fetch_exr(&url, &id, 0), "after a worker was killed");
+
+    // The coordinator kill -9'd a quarter of the way through and restarted on its data folder:
+    // the merged tasks (light tasks among them) come back from its database, none is merged
+    // twice, and the job ends with the same bits.
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let data = kill_dir.join("restart-data");
+    let mut coordinator = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    let _workers: Vec<Proc> =
+        (0..2).map(|i| start_worker(&url, 1, kill_dir.join(format!("w{i}.log")))).collect();
+    let scene = upload(&url, &cornell_zip());
+    let id = create_job(&url, &scene, &s, 0);
+    let progress = |st: &Value| st["progress"].as_f64().unwrap_or(0.0);
+    let before = wait_for(&url, &id, TIMEOUT, |st| progress(st) >= 0.25);
+    assert_eq!(before["state"], "running", "{before:#}");
+    coordinator.kill9();
+    std::thread::sleep(Duration::from_millis(500));
+    let _restarted = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    let resumed = job_status(&url, &id);
+    assert!(progress(&resumed) >= progress(&before), "merged work was lost: {resumed:#}");
+    let status = wait_done(&url, &id, TIMEOUT);
+    assert_eq!(status["samples_done"], 48 * 48 * 512, "{status:#}");
+    assert_eq!(progress(&status), 1.0, "{status:#}");
+    assert_same_image(&one, &fetch_exr(&url, &id, 0), "after the coordinator restarted");
 }
 
 #[test]

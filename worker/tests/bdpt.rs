@@ -462,9 +462,9 @@ fn bdpt_splits_an_edge_seen_through_dispersive_glass_by_colour() {
     assert_edge_split_by_colour(&bdpt_sum(&camera, &light), 128);
 }
 
-/// The prism's rainbow (`support::prism`): sunlight through a dispersive glass prism onto a
-/// white floor, which only light tracing finds (the light is a direction and the prism's faces
-/// are smooth), each wavelength bent by its own index and each in its colour. Every column's mean
+/// The prism's rainbow (`worker::test_scenes::PrismRainbow`): sunlight through a dispersive
+/// glass prism onto a white floor, which only light tracing finds (the light is a direction and
+/// the prism's faces are smooth), each wavelength bent by its own index and each in its colour. Every column's mean
 /// over the rows, per channel, within the noise of the closed form (Sidak bound at 1% over the
 /// 96 of them, plus 0.2% of the brightest).
 #[test]
@@ -522,6 +522,20 @@ fn bdpt_scattering_media_stay_white_in_the_furnace_and_match_the_path_tracer() {
     let (mine, theirs) = (mean_and_se(&camera, &light), image_mean(&path));
     println!("fog: worst block {score:.2} ({at}); means {mine:?} vs {theirs:?}");
     assert!(score < 1.0, "fog: {at}");
+}
+
+/// `bdpt.light_paths` above 1 with an orthographic camera, which light tracing cannot reach, is
+/// refused naming the key and the camera; one light path per sample renders.
+#[test]
+fn more_light_paths_with_an_orthographic_camera_are_refused() {
+    let path = furnace_box("bdpt-orthographic", dielectric_material(1.5, 1.0, None));
+    let scene = common::gltf::load_path(&path).unwrap();
+    let base = RenderSettings { integrator: "bdpt".into(), ..white_furnace(8, 4) };
+    let four =
+        RenderSettings { bdpt: Some(common::settings::Bdpt { light_paths: 4 }), ..base.clone() };
+    let e = prepare_frame(&scene, &four, None, 0).err().expect("refused").to_string();
+    assert!(e.contains("bdpt.light_paths") && e.contains("orthographic"), "{e}");
+    assert!(prepare_frame(&scene, &base, None, 0).is_ok());
 }
 
 /// Diffuse surfaces inside an absorbing volume (`cornell_under_water`: the floor, the short block

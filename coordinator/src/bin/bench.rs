@@ -28,9 +28,15 @@
 //! and those of the `--peer-csv` runs of scene `mirror-caustic` (`scenes/caustic/luxcore_peer.py`,
 //! scored against the closed form that `--caustic-reference` writes).
 //!
+//! With `--rainbow` it renders the prism's rainbow (`worker::test_scenes::PrismRainbow`, sunlight
+//! split by a dispersive prism onto a floor, which the path tracer cannot find) with
+//! bidirectional path tracing (1 and 16 light-traced paths per pixel sample) and photon mapping,
+//! scored against the closed form, and prints the others' errors at bidirectional path
+//! tracing's times (`docs/perf/integrators.md`).
+//!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights]
-//! [--materials] [--caustic [--caustic-reference OUT.exr]] [--no-warmup]`; the figures in `docs/perf/` come from this command.
+//! [--materials] [--caustic [--caustic-reference OUT.exr]] [--rainbow] [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
 use std::{
     fmt::Write as _,
@@ -82,6 +88,10 @@ struct Args {
     /// for a peer's runs to be scored against (`scenes/caustic/luxcore_peer.py`).
     #[arg(long, value_name = "OUT.exr")]
     caustic_reference: Option<PathBuf>,
+    /// Only the prism's rainbow: bidirectional path tracing and photon mapping against its
+    /// closed form (the path tracer finds none of it).
+    #[arg(long)]
+    rainbow: bool,
     /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
     #[arg(long = "peer-csv")]
     peer_csv: Vec<PathBuf>,
@@ -197,6 +207,9 @@ fn main() -> Result<()> {
     }
     if args.caustic {
         return caustic(&args);
+    }
+    if args.rainbow {
+        return rainbow(args.threads);
     }
     if args.materials {
         return materials(&args);
@@ -568,6 +581,44 @@ fn caustic(args: &Args) -> Result<()> {
     Ok(())
 }
 
+/// The prism's rainbow (64x64, `max_depth` 3) rendered by the path tracer once (it finds none
+/// of the light: a direction seen through smooth glass), bidirectional path tracing with 1 and
+/// 16 light-traced paths per pixel sample, and photon mapping, through `coordinator render`'s
+/// code path at increasing sample counts, scored against the closed form; then the others'
+/// errors at bidirectional path tracing's times.
+fn rainbow(threads: usize) -> Result<()> {
+    use worker::test_scenes::PrismRainbow;
+    let dir = std::env::temp_dir().join(format!("renderfarm-bench-rainbow-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let scene = dir.join("rainbow.gltf");
+    std::fs::write(&scene, PrismRainbow.gltf())?;
+    let res = 64;
+    let expected: Vec<[f32; 3]> =
+        PrismRainbow::image(res, 2000).iter().map(|p| p.map(|v| v as f32)).collect();
+    let base = RenderSettings {
+        width: res,
+        height: res,
+        max_depth: PrismRainbow::MAX_DEPTH,
+        seed: 5,
+        ..Default::default()
+    };
+    integrator_curves(&scene, &base, threads, &expected, &[("path", &[64])], "")?;
+    let curves = integrator_curves(
+        &scene,
+        &base,
+        threads,
+        &expected,
+        &[
+            ("bdpt", &[16, 64, 256, 1024]),
+            ("bdpt:lp16", &[4, 16, 64, 256]),
+            ("sppm", &[16, 64, 256, 1024, 4096]),
+        ],
+        "",
+    )?;
+    print_against_path(&curves, "");
+    Ok(())
+}
+
 /// Renders `scene` with each integrator at its sample counts through `coordinator render`'s
 /// code path (`render_file`, `threads` local workers) and prints a CSV row per run (`prefix`
 /// first): seconds (loading and rendering, not writing), the relative MSE against `expected` and
@@ -621,10 +672,12 @@ fn integrator_curves(
     Ok(curves)
 }
 
-/// Each curve after the first (the path tracer's) at its runs' seconds against the path tracer's
-/// error there (interpolated log-log): the ratio above 1 is how much lower its error is.
+/// Each curve after the first (the path tracer's, or the baseline's) at its runs' seconds against
+/// the first's error there (interpolated log-log): the ratio above 1 is how much lower its error
+/// is. The columns are named after the first curve.
 fn print_against_path(curves: &[Series], prefix: &str) {
-    println!("{prefix}integrator,spp,seconds,relmse,path_relmse_at_its_seconds,path_over_it");
+    let first = &curves[0].name;
+    println!("{prefix}integrator,spp,seconds,relmse,{first}_relmse_at_its_seconds,{first}_over_it");
     for curve in &curves[1..] {
         for &(seconds, rel_mse, spp) in &curve.points {
             let path = curves[0].rel_mse_at(seconds);
