@@ -482,17 +482,7 @@ fn bdpt_prism_rainbow_matches_the_closed_form() {
     let t = std::time::Instant::now();
     let (camera, light) = render_bdpt(&scene, &settings);
     println!("rendered in {:.2} s", t.elapsed().as_secs_f64());
-    let ours = prism::columns(&bdpt_sum(&camera, &light), width);
-    let expected = prism::expected(width, 2000);
-    for (x, ((m, _), e)) in ours.iter().zip(&expected).enumerate() {
-        println!(
-            "column {x:2}: {:.4} {:.4} {:.4}   closed form {:.4} {:.4} {:.4}",
-            m[0], m[1], m[2], e[0], e[1], e[2]
-        );
-    }
-    let (score, at) = prism::worst_column(&ours, &expected, 0.002);
-    println!("prism rainbow: worst {score:.2} ({at})");
-    assert!(score < 1.0, "{at}");
+    prism::assert_matches_closed_form(&bdpt_sum(&camera, &light), width, 0.002);
 }
 
 /// Scattering media: subpaths draw free flights by the sample's hero channel, and connections

@@ -367,17 +367,7 @@ fn sppm_prism_rainbow_matches_the_closed_form() {
     let t = std::time::Instant::now();
     let film = render_sppm(&scene, &settings, 64, 2);
     println!("rendered in {:.2} s", t.elapsed().as_secs_f64());
-    let ours = prism::columns(&pixel_stats(&film), width);
-    let expected = prism::expected(width, 2000);
-    for (x, ((m, _), e)) in ours.iter().zip(&expected).enumerate() {
-        println!(
-            "column {x:2}: {:.4} {:.4} {:.4}   closed form {:.4} {:.4} {:.4}",
-            m[0], m[1], m[2], e[0], e[1], e[2]
-        );
-    }
-    let (score, at) = prism::worst_column(&ours, &expected, 0.02);
-    println!("prism rainbow: worst {score:.2} ({at})");
-    assert!(score < 1.0, "{at}");
+    prism::assert_matches_closed_form(&pixel_stats(&film), width, 0.02);
 }
 
 /// Scattering media: camera paths and photons draw free flights by the pass's hero channel, a

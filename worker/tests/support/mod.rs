@@ -368,29 +368,7 @@ pub fn worst_block(
     block: u32,
     bias: f64,
 ) -> (f64, String) {
-    let height = ours.len() as u32 / width;
-    let z_bound = sidak_z(0.01, ((width / block) * (height / block)) as usize);
-    let mut worst = (0.0f64, String::new());
-    for by in 0..height / block {
-        for bx in 0..width / block {
-            let (mut a, mut b, mut var) = (0.0, 0.0, 0.0);
-            for y in by * block..(by + 1) * block {
-                for x in bx * block..(bx + 1) * block {
-                    let (p, q) =
-                        (&ours[(y * width + x) as usize], &reference[(y * width + x) as usize]);
-                    a += p.0.iter().sum::<f64>();
-                    b += q.0.iter().sum::<f64>();
-                    var += p.1.iter().sum::<f64>() + q.1.iter().sum::<f64>();
-                }
-            }
-            let score = (a - b).abs() / (z_bound * var.sqrt() + bias * b.abs());
-            if score > worst.0 {
-                let z = (a - b) / var.sqrt();
-                worst = (score, format!("block ({bx}, {by}): ratio {:.4}, z {z:.2}", a / b));
-            }
-        }
-    }
-    worst
+    worst_block_by(ours, reference, width, block, bias, &[&[0, 1, 2]])
 }
 
 /// `worst_block` for each colour channel alone (a wrong colour with the right brightness shows
@@ -402,28 +380,46 @@ pub fn worst_channel_block(
     block: u32,
     bias: f64,
 ) -> (f64, String) {
+    worst_block_by(ours, reference, width, block, bias, &[&[0], &[1], &[2]])
+}
+
+/// `worst_block` over each group of channels (summed within the group), the Sidak bound over
+/// the blocks of every group.
+fn worst_block_by(
+    ours: &[([f64; 3], [f64; 3])],
+    reference: &[([f64; 3], [f64; 3])],
+    width: u32,
+    block: u32,
+    bias: f64,
+    groups: &[&[usize]],
+) -> (f64, String) {
     let height = ours.len() as u32 / width;
-    let z_bound = sidak_z(0.01, 3 * ((width / block) * (height / block)) as usize);
+    let blocks = ((width / block) * (height / block)) as usize;
+    let z_bound = sidak_z(0.01, groups.len() * blocks);
     let mut worst = (0.0f64, String::new());
-    for c in 0..3 {
+    for &group in groups {
         for by in 0..height / block {
             for bx in 0..width / block {
                 let (mut a, mut b, mut var) = (0.0, 0.0, 0.0);
                 for y in by * block..(by + 1) * block {
                     for x in bx * block..(bx + 1) * block {
                         let i = (y * width + x) as usize;
-                        a += ours[i].0[c];
-                        b += reference[i].0[c];
-                        var += ours[i].1[c] + reference[i].1[c];
+                        for &c in group {
+                            a += ours[i].0[c];
+                            b += reference[i].0[c];
+                            var += ours[i].1[c] + reference[i].1[c];
+                        }
                     }
                 }
                 let score = (a - b).abs() / (z_bound * var.sqrt() + bias * b.abs());
                 if score > worst.0 {
                     let z = (a - b) / var.sqrt();
-                    worst = (
-                        score,
-                        format!("channel {c}, block ({bx}, {by}): ratio {:.4}, z {z:.2}", a / b),
-                    );
+                    let which = match group {
+                        [c] => format!("channel {c}, "),
+                        _ => String::new(),
+                    };
+                    worst =
+                        (score, format!("{which}block ({bx}, {by}): ratio {:.4}, z {z:.2}", a / b));
                 }
             }
         }

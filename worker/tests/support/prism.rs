@@ -47,6 +47,23 @@ pub fn worst_column(
     worst
 }
 
+/// Asserts that an image of the rainbow (`stats` per pixel as `pixel_stats` gives them, `width`
+/// wide) agrees with the closed form column by column (`worst_column` with `floor`), printing
+/// both profiles.
+pub fn assert_matches_closed_form(stats: &[([f64; 3], [f64; 3])], width: u32, floor: f64) {
+    let ours = columns(stats, width);
+    let expected = expected(width, 2000);
+    for (x, ((m, _), e)) in ours.iter().zip(&expected).enumerate() {
+        println!(
+            "column {x:2}: {:.4} {:.4} {:.4}   closed form {:.4} {:.4} {:.4}",
+            m[0], m[1], m[2], e[0], e[1], e[2]
+        );
+    }
+    let (score, at) = worst_column(&ours, &expected, floor);
+    println!("prism rainbow: worst {score:.2} ({at})");
+    assert!(score < 1.0, "{at}");
+}
+
 /// Per column and channel, the mean over the image's rows of the pixels' means (`stats` as
 /// `pixel_stats` gives them, `width` wide) and its variance.
 pub fn columns(stats: &[([f64; 3], [f64; 3])], width: u32) -> Vec<([f64; 3], [f64; 3])> {
