@@ -464,9 +464,9 @@ fn bdpt_splits_an_edge_seen_through_dispersive_glass_by_colour() {
 
 /// The prism's rainbow (`worker::test_scenes::PrismRainbow`): sunlight through a dispersive
 /// glass prism onto a white floor, which only light tracing finds (the light is a direction and
-/// the prism's faces are smooth), each wavelength bent by its own index and each in its colour. Every column's mean
-/// over the rows, per channel, within the noise of the closed form (Sidak bound at 1% over the
-/// 96 of them, plus 0.2% of the brightest).
+/// the prism's faces are smooth), each wavelength bent by its own index and each in its colour.
+/// Every column's mean over the rows, per channel, within the noise of the closed form (Sidak
+/// bound at 1% over the 96 of them, plus 0.2% of the brightest).
 #[test]
 fn bdpt_prism_rainbow_matches_the_closed_form() {
     let scene = common::gltf::load_path(&prism::scene("bdpt")).unwrap();

@@ -24,7 +24,7 @@
 mod support;
 
 use common::settings::RenderSettings;
-use serde_json::{json, Value};
+use serde_json::json;
 use support::*;
 
 /// Every pixel of a clear glass box in a white furnace is 1: a smooth dielectric boundary
@@ -254,25 +254,7 @@ fn a_coloured_medium_of_albedo_one_in_a_white_furnace_is_white_within_the_noise(
 fn a_white_floor_under_a_medium_of_albedo_one_in_a_white_furnace_is_white_within_the_noise() {
     for ior in [1.0, 1.5] {
         let material = scattering(ior, ([0.2, 0.35, 0.5], 0.1), [1.0; 3], 0.3);
-        let path = box_scene(
-            &format!("floor-furnace-{ior}"),
-            [0.6, 0.4, 0.5],
-            [0.1, -0.55, -0.2],
-            material,
-            3.0,
-            1.0,
-            0.0,
-            true,
-        );
-        // The half-plane under the box (x > 0, y = -1) becomes a white Lambertian floor.
-        let mut json: Value =
-            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-        json["materials"][1] = json!({
-            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0},
-            "doubleSided": true,
-            "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
-        });
-        std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+        let path = medium_over_floor(&format!("floor-furnace-{ior}"), material);
         let scene = common::gltf::load_path(&path).unwrap();
         let mut settings = white_furnace(16, 1024);
         settings.max_depth = 1024;

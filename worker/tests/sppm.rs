@@ -349,9 +349,9 @@ fn sppm_splits_an_edge_seen_through_dispersive_glass_by_colour() {
 
 /// The prism's rainbow (`worker::test_scenes::PrismRainbow`): sunlight through a dispersive
 /// glass prism onto a white floor, which only photons find (the light is a direction and the
-/// prism's faces are smooth), each wavelength bent by its own index and each in its colour. Every column's mean
-/// over the rows, per channel, within the noise of the closed form plus 2% of the brightest
-/// (the gather radius blurs the rainbow's edges).
+/// prism's faces are smooth), each wavelength bent by its own index and each in its colour.
+/// Every column's mean over the rows, per channel, within the noise of the closed form plus 2%
+/// of the brightest (the gather radius blurs the rainbow's edges).
 #[test]
 fn sppm_prism_rainbow_matches_the_closed_form() {
     let scene = common::gltf::load_path(&prism::scene("sppm")).unwrap();

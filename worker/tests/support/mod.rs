@@ -540,17 +540,14 @@ pub fn scattering_furnaces(tag: &str) -> Vec<(&'static str, PathBuf)> {
         ("diffuse boundary", furnace_box(&format!("{tag}-diffuse-boundary"), diffuse_boundary)),
     ];
     let glass = scattering(1.5, ([0.2, 0.35, 0.5], 0.1), [1.0; 3], 0.3);
-    let path = box_scene(
-        &format!("{tag}-floor"),
-        [0.6, 0.4, 0.5],
-        [0.1, -0.55, -0.2],
-        glass,
-        3.0,
-        1.0,
-        0.0,
-        true,
-    );
-    // The half-plane under the box (x > 0, y = -1) becomes a white Lambertian floor.
+    out.push(("glass over a floor", medium_over_floor(&format!("{tag}-floor"), glass)));
+    out
+}
+
+/// A box of `material` over a white Lambertian floor (`box_scene`'s half-plane, x > 0 at
+/// y = -1, made a floor), seen from above; returns the glTF's path.
+pub fn medium_over_floor(tag: &str, material: serde_json::Value) -> PathBuf {
+    let path = box_scene(tag, [0.6, 0.4, 0.5], [0.1, -0.55, -0.2], material, 3.0, 1.0, 0.0, true);
     let mut json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     json["materials"][1] = serde_json::json!({
@@ -559,8 +556,7 @@ pub fn scattering_furnaces(tag: &str) -> Vec<(&'static str, PathBuf)> {
         "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
     });
     std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
-    out.push(("glass over a floor", path));
-    out
+    path
 }
 
 /// Asserts each channel's image mean (`means`, with standard errors) is 1 within four standard
