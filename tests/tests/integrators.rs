@@ -99,6 +99,29 @@ fn sppm_images_are_the_same_on_one_or_three_workers_and_after_a_kill() {
     same_image_on_any_workers_and_after_a_kill("sppm", 4.0);
 }
 
+/// Photon mapping under adaptive sampling (`target_rel_error`): its frame, one tile, stops once
+/// its own estimate reaches the target, decided from merged passes only: the same bits on
+/// `coordinator render --workers 2` and on serve + 3 worker processes, fewer passes than
+/// planned, the estimate within the target.
+#[test]
+fn adaptive_photon_mapping_stops_at_its_target_with_the_same_bits_anywhere() {
+    let dir = temp_dir("sppm-adaptive");
+    let mut s = settings("sppm", 1024, 16);
+    s["target_rel_error"] = json!(0.025);
+    let local = render_reference(&dir, &s, 2);
+    let cluster = Cluster::start(&dir, 3, &[]);
+    let id = create_job(&cluster.url, &cluster.scene, &s, 0);
+    let status = wait_done(&cluster.url, &id, TIMEOUT);
+    assert_same_image(&local, &fetch_exr(&cluster.url, &id, 0), "render vs serve + 3 workers");
+    let saved = status["samples_saved"].as_u64().unwrap();
+    let done = status["samples_done"].as_u64().unwrap();
+    println!("{} passes of 1024, estimated error {}", done / (48 * 48), status["est_rel_error"]);
+    assert_eq!(done + saved, status["samples_planned"].as_u64().unwrap(), "{status:#}");
+    assert!(saved > 0 && done >= 48 * 48 * 16, "{status:#}");
+    assert!(status["est_rel_error"].as_f64().unwrap() <= 0.025, "{status:#}");
+    assert_eq!(status["progress"], 1.0);
+}
+
 #[test]
 fn what_bdpt_and_sppm_do_not_take_is_refused_naming_the_setting() {
     let dir = temp_dir("integrator-refusals");

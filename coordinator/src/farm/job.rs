@@ -16,6 +16,9 @@
 //! (a_t tile areas, A their sum; with a 10% margin). After that, a tile's task `k` is decided
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
+//! A photon-mapping frame is one tile, which stops once its own estimate reaches T² (its
+//! passes' variance grows as the gather radius shrinks, so the pilot's does not scale); its
+//! tasks then run one at a time, each on all of a worker's threads.
 
 mod restore;
 mod status;
@@ -452,12 +455,14 @@ impl Job {
             frame.scale = Some(if weighted > 0.0 { target * area / weighted } else { 1.0 });
         }
         let c = frame.scale.expect("set above");
+        // Photon mapping's frame is one tile whose passes' variance grows as the radius shrinks,
+        // so the pilot's variance per sample, which the scale assumes, understates the later
+        // passes': its tile stops when its own estimate reaches the target.
+        let photon_passes = self.settings.integrator == "sppm";
         for t in &mut frame.tiles {
             let n = (t.prefix * spt).min(spp) as f64;
-            if !t.converged
-                && t.prefix >= min_tasks
-                && (t.prefix as usize) < t.tasks.len()
-                && t.rel_mse <= c * c * n
+            let done = if photon_passes { t.rel_mse <= target } else { t.rel_mse <= c * c * n };
+            if !t.converged && t.prefix >= min_tasks && (t.prefix as usize) < t.tasks.len() && done
             {
                 t.converged = true;
             }

@@ -186,3 +186,58 @@ fn past_the_time_limit_the_last_lease_to_lapse_ends_the_job() {
     j.give_back(key, NOW);
     assert_eq!(j.state, JobState::Done, "the job must not wait for a lease that lapsed");
 }
+
+/// A photon-mapping job under adaptive sampling: its frame is one tile whose passes' variance
+/// grows (as the gather radius shrinks), so it stops at the first task after which its own
+/// estimate is within the target (the pilot's variance per sample would stop it early, above
+/// it), and no sooner.
+#[test]
+fn an_adaptive_photon_mapping_frame_stops_when_its_own_estimate_reaches_the_target() {
+    let target = 0.017;
+    let settings = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 4096,
+        samples_per_task: 16,
+        integrator: "sppm".into(),
+        target_rel_error: Some(target),
+        ..Default::default()
+    };
+    let mut j = Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap();
+    assert_eq!(j.frames[0].tiles.len(), 1, "a photon-mapping frame is one tile");
+    // Pass s: 1 plus a uniform number in [-a_s, a_s], a_s growing with the pass (the scale from
+    // the pilot, 16 passes, stops this one 1.24 times above the target, 10 tasks sooner).
+    let noisy = |j: &Job, key: TaskKey| {
+        let spec = j.spec(key);
+        let mut acc = TileAccum::new(spec.rect);
+        for y in 0..spec.rect.height {
+            for x in 0..spec.rect.width {
+                for s in spec.samples.start..spec.samples.end {
+                    let mut h = (x as u64) << 40 ^ (y as u64) << 20 ^ s as u64;
+                    h = (h ^ (h >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                    h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                    let u = (h >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+                    // Variance growing as the pass's number to the 1/3 (1 / r² for alpha 2/3).
+                    let a = 0.4 * (1.0 + s as f32 / 16.0).powf(1.0 / 6.0);
+                    acc.add_sample(x, y, s, [1.0 + a * u; 3]);
+                }
+            }
+        }
+        acc
+    };
+    let mut estimates = Vec::new();
+    while let Some(key) = j.next_task() {
+        j.lease(key, NOW);
+        let r = noisy(&j, key);
+        let n = r.pixels.iter().map(|p| p.n as u64).sum();
+        j.merge(key, r, n, NOW);
+        estimates.push(j.frames[0].tiles[0].rel_mse);
+    }
+    assert_eq!(j.state, JobState::Done);
+    let last = *estimates.last().unwrap();
+    let before = estimates[estimates.len() - 2];
+    println!("{} tasks; the estimate {before:.3e} then {last:.3e}", estimates.len());
+    assert!(last <= target * target, "stopped above the target: {last}");
+    assert!(before > target * target, "went on past the target: {before}");
+    assert!(j.status(NOW).samples_saved > 0);
+}
