@@ -82,7 +82,7 @@ use super::{
 };
 
 /// The sampler dimension a light subpath starts at (the camera subpath's come first and never
-/// reach it: each bounce takes 7).
+/// reach it: each bounce takes 7, and 8 in a scene with scattering media).
 pub const LIGHT_DIMENSION: u32 = 1 << 16;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -454,9 +454,11 @@ pub struct Paths {
 }
 
 /// Extends `path` (whose last vertex sent `ray`, with solid-angle density `pdf`) by up to
-/// `max_vertices` surface vertices. Each surface vertex takes 7 sampler numbers: 3 for a light
-/// sample (camera subpaths) or 2 for a lens point and one skipped (light subpaths, for light
-/// tracing), then the lobe, the direction and the roulette.
+/// `max_vertices` vertices. Each vertex takes 7 sampler numbers: 3 for a light sample (camera
+/// subpaths) or 2 for a lens point and one skipped (light subpaths, for light tracing), then the
+/// lobe, the direction and the roulette; in a scene with scattering media each segment takes one
+/// more first, for its free flight (a scattering's vertex takes the same 7, its phase function
+/// sampled in the direction's two).
 #[allow(clippy::too_many_arguments)]
 fn walk(
     scene: &PreparedScene,
@@ -478,7 +480,8 @@ fn walk(
     while bounces < max_vertices {
         // In a scene with scattering media each segment takes a number for its free flight.
         let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
-        let next = surface_vertex(scene, at, &ray, beta, u_flight, &mut ratios, stats, &mut media);
+        let next =
+            surface_vertex(scene, at, &ray, &mut beta, u_flight, &mut ratios, stats, &mut media);
         let Some((mut v, unlit_base)) = next else {
             if let (Mode::Radiance, Some(env)) = (mode, scene.lights.environment) {
                 // The camera subpath leaves the scene: a vertex on the environment.
@@ -529,7 +532,7 @@ fn walk(
             let n = path.len();
             // Neither side's density enters a weight (as after a delta lobe).
             path[n - 2].pdf_rev = 0.0;
-            if !roulette(sampler, &mut beta, bounces) {
+            if !beta.is_finite() || beta == Vec3::ZERO || !roulette(sampler, &mut beta, bounces) {
                 break;
             }
             pdf = 0.0;
@@ -624,13 +627,14 @@ pub(super) fn roulette(sampler: &mut Sampler, beta: &mut Vec3, bounces: u32) -> 
 /// the caller): a surface with its shading frame and BSDF (an unlit material's vertex has no
 /// BSDF and comes with the base colour the camera sees), or in a scattering medium the point
 /// where number `u_flight` puts the first scattering (`Kind::Medium`), the free flight drawn by
-/// the sample's hero channel and `ratios` (the subpath's densities so far) carried on.
+/// the sample's hero channel and `ratios` (the subpath's densities so far) carried on. `beta`
+/// becomes what the media on the way let through, also when the ray leaves the scene (`None`).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn surface_vertex(
     scene: &PreparedScene,
     at: &At<'_>,
     ray: &Ray,
-    mut beta: Vec3,
+    beta: &mut Vec3,
     u_flight: f32,
     ratios: &mut Vec3,
     stats: &mut Stats,
@@ -653,10 +657,10 @@ pub(super) fn surface_vertex(
                 let t =
                     *flight.get_or_insert_with(|| media::flight_distance(&v, at.hero, u_flight));
                 let (weight, scattered) = media::free_flight_at(&v, distance, t, ratios);
-                beta *= weight;
+                *beta *= weight;
                 if let Some(t) = scattered {
                     let dir = ray.dir / len;
-                    let mut m = Vertex::new(Kind::Medium, ray.origin + dir * t, beta);
+                    let mut m = Vertex::new(Kind::Medium, ray.origin + dir * t, *beta);
                     m.wo = -dir;
                     m.medium = media.current();
                     m.beyond = m.medium;
@@ -665,11 +669,10 @@ pub(super) fn surface_vertex(
                 }
                 flight = Some(t - distance);
             }
-            // Beer-Lambert along the segment inside the volume.
+            // Beer-Lambert along the segment inside the volume (an escape is endless).
             Some(v) => {
-                if let Some(h) = &hit {
-                    beta *= transmittance(&v, h.t * ray.dir.length());
-                }
+                let distance = hit.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
+                *beta *= transmittance(&v, distance);
             }
             None => {}
         }
@@ -707,7 +710,7 @@ pub(super) fn surface_vertex(
             }
         }
         let sp = scene.surface_point(hit.prim, b);
-        let mut v = Vertex::new(Kind::Surface, p, beta);
+        let mut v = Vertex::new(Kind::Surface, p, *beta);
         v.ratios = *ratios;
         v.p_error = p_error;
         v.ng = ng;

@@ -229,7 +229,8 @@ fn camera_pass(
 /// path's next direction is a followed vertex's BSDF sample; a visible point traces one for it),
 /// so that neither a small light on a rough surface nor a large one on a sharp lobe leaves heavy
 /// tails. Each vertex takes 7 numbers, as a bidirectional camera subpath's do: the light
-/// sample's 3, the lobe, the direction and the roulette.
+/// sample's 3, the lobe, the direction and the roulette (in a scene with scattering media, each
+/// segment one more first, for its free flight).
 fn camera_path(
     scene: &PreparedScene,
     at: &At<'_>,
@@ -258,7 +259,8 @@ fn camera_path(
     for depth in 0..=scene.max_depth {
         // In a scene with scattering media each segment takes a number for its free flight.
         let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
-        let next = surface_vertex(scene, at, &ray, beta, u_flight, &mut ratios, stats, &mut media);
+        let next =
+            surface_vertex(scene, at, &ray, &mut beta, u_flight, &mut ratios, stats, &mut media);
         let Some((mut v, unlit)) = next else {
             // The environment, straight from the camera only where the settings show it.
             if depth > 0 || scene.environment_visible {
@@ -282,7 +284,7 @@ fn camera_path(
             let g = g.map_or(0.0, |volume| volume.anisotropy);
             let dir = -v.wo;
             let wi = Frame::from_z(dir).to_world(sample_henyey_greenstein(g, sampler.next_2d()));
-            if !roulette(sampler, &mut beta, depth + 1) {
+            if !beta.is_finite() || beta == Vec3::ZERO || !roulette(sampler, &mut beta, depth + 1) {
                 break;
             }
             prev_pdf = 0.0;
@@ -329,11 +331,13 @@ fn camera_path(
                 // Its free flight: where it scatters, no light arrives unscattered.
                 let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
                 let mut ratios = ratios;
+                // What the media on the way let through, to an emitter or out of the scene.
+                let mut through = weight;
                 let probe = surface_vertex(
                     scene,
                     at,
                     &ray,
-                    weight,
+                    &mut through,
                     u_flight,
                     &mut ratios,
                     stats,
@@ -341,14 +345,13 @@ fn camera_path(
                 );
                 match probe {
                     Some((hit, None)) if hit.light != NONE && hit.kind == Kind::Surface => {
-                        // The throughput the medium on the way let through.
-                        let l = hit.beta
+                        let l = through
                             * hit.le(scene, hit.wo)
                             * emitter_weight(scene, &hit, &ctx, pdf);
                         seen += at.tint(l, tinted);
                     }
                     None => {
-                        seen += at.tint(weight * environment_seen(scene, wi, &ctx, pdf), tinted)
+                        seen += at.tint(through * environment_seen(scene, wi, &ctx, pdf), tinted)
                     }
                     _ => {}
                 }

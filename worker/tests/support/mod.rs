@@ -440,41 +440,93 @@ pub fn dispersive_slab_edge(tag: &str, width: u32) -> (PathBuf, RenderSettings) 
     (path, settings)
 }
 
-/// Asserts that the image of `dispersive_slab_edge` (`stats` per pixel, `width` wide) shows the
-/// edge where each channel's colour-weighted Snell offset puts it, within four standard errors
-/// (plus a fiftieth of a pixel), and blue moved more than red.
+/// Asserts that the image of `dispersive_slab_edge` (`stats` per pixel, `width` wide, pixels
+/// independent) shows the edge where each channel's colour-weighted Snell offset puts it, within
+/// four standard errors (plus a fiftieth of a pixel), and blue moved more than red.
 pub fn assert_edge_split_by_colour(stats: &[([f64; 3], [f64; 3])], width: u32) {
+    let pixel = 2.0 / width as f64;
+    let w = width as usize;
+    check_slab_edges(width, |c, guess| {
+        let columns: Vec<(f64, f64)> = (0..w)
+            .map(|i| {
+                let mean = (0..w).map(|row| stats[row * w + i].0[c]).sum::<f64>();
+                let var = (0..w).map(|row| stats[row * w + i].1[c]).sum::<f64>();
+                (mean / w as f64, var / (w * w) as f64)
+            })
+            .collect();
+        let means: Vec<f64> = columns.iter().map(|c| c.0).collect();
+        let (centre, far) = edge_windows(w, pixel, guess);
+        let level = means[far.clone()].iter().sum::<f64>() / 16.0;
+        let level_var = columns[far].iter().map(|c| c.1).sum::<f64>() / 256.0;
+        let lit = means[centre.clone()].iter().sum::<f64>() * pixel;
+        let lit_var = columns[centre].iter().map(|c| c.1).sum::<f64>() * pixel * pixel;
+        let se = (lit_var / (level * level) + (lit / level).powi(2) * level_var / (level * level))
+            .sqrt();
+        (slab_edge(&means, pixel, guess), se)
+    });
+}
+
+/// `assert_edge_split_by_colour` for an image rendered as independent `batches` of samples whose
+/// pixels are not independent within a batch (photon mapping: a pass's pixels share its
+/// wavelength and its photons): the standard error from the spread of the batches' edges.
+pub fn assert_edge_split_by_colour_in_batches(batches: &[Film], width: u32) {
+    let pixel = 2.0 / width as f64;
+    let w = width as usize;
+    let column_means = |films: &[&Film], c: usize| -> Vec<f64> {
+        let n = (films.len() * w) as f64;
+        (0..w)
+            .map(|i| {
+                films
+                    .iter()
+                    .map(|f| (0..w).map(|row| f.pixels[row * w + i].mean()[c]).sum::<f64>())
+                    .sum::<f64>()
+                    / n
+            })
+            .collect()
+    };
+    let all: Vec<&Film> = batches.iter().collect();
+    check_slab_edges(width, |c, guess| {
+        let edge = slab_edge(&column_means(&all, c), pixel, guess);
+        let edges: Vec<f64> =
+            batches.iter().map(|b| slab_edge(&column_means(&[b], c), pixel, guess)).collect();
+        let b = edges.len() as f64;
+        let mean = edges.iter().sum::<f64>() / b;
+        let var = edges.iter().map(|e| (e - mean) * (e - mean)).sum::<f64>() / (b - 1.0);
+        (edge, (var / b).sqrt())
+    });
+}
+
+/// The columns that `slab_edge` reads for `guess`: the window of 20 around it and the 16 far
+/// right.
+fn edge_windows(
+    w: usize,
+    pixel: f64,
+    guess: f64,
+) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+    let centre = ((guess + 1.0) / pixel) as usize;
+    (centre - 10..centre + 10, w - 16..w)
+}
+
+/// The edge, linearly in the image (a mixture of wavelengths is a mixture of edges), from a
+/// channel's column means: over a window of 20 columns around `guess`, the lit area of the mean
+/// row over the level far right, taken from the window's right end. The window leaves out the
+/// faint ghost edge of light reflected twice inside the slab, which lies farther along.
+fn slab_edge(columns: &[f64], pixel: f64, guess: f64) -> f64 {
+    let (window, far) = edge_windows(columns.len(), pixel, guess);
+    let right = -1.0 + window.end as f64 * pixel;
+    let level = columns[far].iter().sum::<f64>() / 16.0;
+    let lit = columns[window].iter().sum::<f64>() * pixel;
+    right - lit / level
+}
+
+/// Checks each channel's edge (`edge(channel, guess)`: the measured edge and its standard error)
+/// against the Snell offsets of `dispersive_slab_edge`'s slab weighted by the channel's colour of
+/// each wavelength and the slab's transmittance (1 - F) / (1 + F) at it, within four standard
+/// errors plus a fiftieth of a pixel; and blue moved more than red.
+fn check_slab_edges(width: u32, edge: impl Fn(usize, f64) -> (f64, f64)) {
     let (ior, dispersion, thickness, tilt) = (1.5f64, 2.0f64, 0.5f64, 30f64.to_radians());
     // The orthographic view is 2 x 2.
     let pixel = 2.0 / width as f64;
-    // The edge per channel, linearly in the image (a mixture of wavelengths is a mixture of
-    // edges): over a window of 20 columns around `guess`, the lit area of the mean row over the
-    // level far right, taken from the window's right end. The window leaves out the faint ghost
-    // edge of light reflected twice inside the slab, which lies farther along.
-    // Returns the edge and its standard error (from the pixels' variances).
-    let edge = |c: usize, guess: f64| {
-        let w = width as usize;
-        let column = |i: usize| {
-            let mean = (0..w).map(|row| stats[row * w + i].0[c]).sum::<f64>();
-            let var = (0..w).map(|row| stats[row * w + i].1[c]).sum::<f64>();
-            (mean / w as f64, var / (w * w) as f64)
-        };
-        let columns: Vec<(f64, f64)> = (0..w).map(column).collect();
-        let far = &columns[w - 16..];
-        let level = far.iter().map(|c| c.0).sum::<f64>() / 16.0;
-        let level_var = far.iter().map(|c| c.1).sum::<f64>() / 256.0;
-        let centre = ((guess + 1.0) / pixel) as usize;
-        let window = &columns[centre - 10..centre + 10];
-        let right = -1.0 + (centre + 10) as f64 * pixel;
-        let lit = window.iter().map(|c| c.0).sum::<f64>() * pixel;
-        let lit_var = window.iter().map(|c| c.1).sum::<f64>() * pixel * pixel;
-        let se = (lit_var / (level * level) + (lit / level).powi(2) * level_var / (level * level))
-            .sqrt();
-        (right - lit / level, se)
-    };
-    // Where each channel's weighted mean offset puts it: the Snell offset at each wavelength,
-    // weighted by the channel's colour of that light and the slab's transmittance
-    // (1 - F) / (1 + F) at it.
     let expected = |c: usize| {
         let (mut num, mut den) = (0.0, 0.0);
         for k in 0..4700 {
@@ -506,6 +558,49 @@ pub fn assert_edge_split_by_colour(stats: &[([f64; 3], [f64; 3])], width: u32) {
         );
     }
     assert!(at[2] < at[0], "blue moves more than red: {at:?}");
+}
+
+/// Photon mapping of frame 0 as `render_sppm_with`, each `batch` passes (`threads` threads)
+/// rendered into a film of its own: batches of passes are independent, where the pixels of one
+/// pass are not (they share its wavelength, hero channel and photons).
+pub fn render_sppm_batches(
+    scene: &Scene,
+    settings: &RenderSettings,
+    batch: u32,
+    threads: usize,
+) -> Vec<Film> {
+    let settings = RenderSettings { integrator: "sppm".into(), ..settings.clone() };
+    let prepared = prepare_frame(scene, &settings, None, 0).expect("prepare");
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    (0..settings.spp.div_ceil(batch))
+        .map(|b| {
+            let samples =
+                SampleRange { start: b * batch, end: ((b + 1) * batch).min(settings.spp) };
+            let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
+            let mut film = Film::new(settings.width, settings.height);
+            film.merge_tile(&render_task_threads(&prepared, settings.seed, &task, threads).tile);
+            film
+        })
+        .collect()
+}
+
+/// Each channel's image mean over equal `batches` (`render_sppm_batches`) and its standard error
+/// from the spread of the batches' image means (`image_mean` sums the pixels' variances, which
+/// only holds where pixels are independent).
+pub fn batch_mean_image(batches: &[Film]) -> [(f64, f64); 3] {
+    let b = batches.len() as f64;
+    let image: Vec<[f64; 3]> = batches
+        .iter()
+        .map(|f| {
+            let n = f.pixels.len() as f64;
+            std::array::from_fn(|c| f.pixels.iter().map(|p| p.mean()[c]).sum::<f64>() / n)
+        })
+        .collect();
+    std::array::from_fn(|c| {
+        let mean = image.iter().map(|m| m[c]).sum::<f64>() / b;
+        let var = image.iter().map(|m| (m[c] - mean) * (m[c] - mean)).sum::<f64>() / (b - 1.0);
+        (mean, (var / b).sqrt())
+    })
 }
 
 /// `dielectric_material` filling a scattering medium: `attenuation` (colour, distance) is the

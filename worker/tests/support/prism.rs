@@ -1,6 +1,7 @@
 //! The prism's rainbow (`worker::test_scenes::PrismRainbow`): its scene as a file, its closed
 //! form, and the column statistics the tests compare them by.
 
+use common::film::Film;
 use worker::test_scenes::PrismRainbow;
 
 /// Writes the scene to a temporary folder tagged `tag` and returns the glTF's path.
@@ -47,11 +48,9 @@ pub fn worst_column(
     worst
 }
 
-/// Asserts that an image of the rainbow (`stats` per pixel as `pixel_stats` gives them, `width`
-/// wide) agrees with the closed form column by column (`worst_column` with `floor`), printing
-/// both profiles.
-pub fn assert_matches_closed_form(stats: &[([f64; 3], [f64; 3])], width: u32, floor: f64) {
-    let ours = columns(stats, width);
+/// Asserts that an image of the rainbow (its `columns`, `width` of them) agrees with the closed
+/// form column by column (`worst_column` with `floor`), printing both profiles.
+pub fn assert_matches_closed_form(ours: &[([f64; 3], [f64; 3])], width: u32, floor: f64) {
     let expected = expected(width, 2000);
     for (x, ((m, _), e)) in ours.iter().zip(&expected).enumerate() {
         println!(
@@ -62,6 +61,27 @@ pub fn assert_matches_closed_form(stats: &[([f64; 3], [f64; 3])], width: u32, fl
     let (score, at) = worst_column(&ours, &expected, floor);
     println!("prism rainbow: worst {score:.2} ({at})");
     assert!(score < 1.0, "{at}");
+}
+
+/// Per column and channel, the mean over equal `batches` (`render_sppm_batches`, `width` wide) of
+/// their column means (each over the rows) and its variance from their spread: a pass's pixels
+/// are not independent (they share its wavelength and photons), which `columns` assumes.
+pub fn batch_columns(batches: &[Film], width: u32) -> Vec<([f64; 3], [f64; 3])> {
+    let b = batches.len() as f64;
+    let per_batch: Vec<Vec<([f64; 3], [f64; 3])>> =
+        batches.iter().map(|f| columns(&super::pixel_stats(f), width)).collect();
+    (0..width as usize)
+        .map(|x| {
+            let mut m = [0.0; 3];
+            let mut v = [0.0; 3];
+            for c in 0..3 {
+                m[c] = per_batch.iter().map(|cols| cols[x].0[c]).sum::<f64>() / b;
+                let ss: f64 = per_batch.iter().map(|cols| (cols[x].0[c] - m[c]).powi(2)).sum();
+                v[c] = ss / (b - 1.0) / b;
+            }
+            (m, v)
+        })
+        .collect()
 }
 
 /// Per column and channel, the mean over the image's rows of the pixels' means (`stats` as
