@@ -410,15 +410,18 @@ impl<'p> At<'p> {
         At { pose: None, camera: PlacedCamera::still(scene.camera), wavelength: None, hero: 0 }
     }
 
-    /// The same sample at the wavelength number `u` picks (`None`: a scene without dispersion).
-    pub(super) fn with_wavelength(self, u: Option<f32>) -> Self {
-        At { wavelength: u.map(spectrum::sample_wavelength), ..self }
-    }
-
-    /// The same sample with the hero channel number `u` picks (`None`: a scene without
-    /// scattering media).
-    pub(super) fn with_hero(self, u: Option<f32>) -> Self {
-        At { hero: u.map_or(0, media::hero_channel), ..self }
+    /// The sample whose shared numbers are `u` (`SharedNumbers`): its time, wavelength and hero
+    /// channel; `pose` is reset to the time.
+    pub(super) fn sample<'s: 'p>(
+        scene: &'s PreparedScene,
+        (u_time, u_wavelength, u_hero): SharedNumbers,
+        pose: &'p mut Option<Pose<'s>>,
+    ) -> Self {
+        At {
+            wavelength: u_wavelength.map(spectrum::sample_wavelength),
+            hero: u_hero.map_or(0, media::hero_channel),
+            ..At::time(scene, u_time, pose)
+        }
     }
 
     /// `l`, a path's contribution, in the colour of the sample's wavelength if the path passed a
@@ -444,6 +447,30 @@ impl<'p> At<'p> {
         pose.set_time(time);
         At { pose: Some(pose), camera: m.camera_at(&scene.camera, time), wavelength: None, hero: 0 }
     }
+}
+
+/// The numbers all the paths of a sample (or of a photon pass) share, each only in a scene that
+/// needs it: where it falls in the shutter (something moves within it), its wavelength
+/// (dispersion) and its free flights' hero channel (scattering media).
+pub(super) type SharedNumbers = (Option<f32>, Option<f32>, Option<f32>);
+
+/// Draws a sample's `SharedNumbers` after its film and lens numbers, in that order (the time as
+/// the path tracer draws it): camera and light tasks both draw them here, so that they trace the
+/// same light subpath of a sample.
+fn shared_numbers(scene: &PreparedScene, sampler: &mut Sampler) -> SharedNumbers {
+    let u_time = scene.motion.is_some().then(|| sampler.next_1d());
+    let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
+    let u_hero = scene.scattering_media.then(|| sampler.next_1d());
+    (u_time, u_wavelength, u_hero)
+}
+
+/// A direction of travel after a scattering at medium vertex `v`, by its medium's
+/// Henyey-Greenstein phase function from numbers `u` (sampled exactly: its value over its
+/// density is 1), as the path tracer scatters.
+pub(super) fn scatter(scene: &PreparedScene, media: &MediumStack, v: &Vertex, u: Vec2) -> Vec3 {
+    let volume = media.current().and_then(|m| scene.materials[m as usize].volume);
+    let g = volume.map_or(0.0, |volume| volume.anisotropy);
+    Frame::from_z(-v.wo).to_world(sample_henyey_greenstein(g, u))
 }
 
 /// Per-thread storage for the two subpaths.
@@ -518,18 +545,16 @@ fn walk(
             // it is no end of a connection (a light outside lies beyond the medium's boundary,
             // which no shadow ray crosses), so its vertex is marked delta and the MIS weights
             // leave out the strategies that would join there.
-            let (p, dir) = (v.p, -v.wo);
             v.delta = true;
+            let p = v.p;
             sampler.skip(3); // The light sample's numbers (or the lens point's), as a surface's.
             path.push(v);
             if bounces >= max_vertices {
                 break;
             }
             sampler.skip(1); // The lobe.
-            let g = media.current().and_then(|m| scene.materials[m as usize].volume);
-            let g = g.map_or(0.0, |volume| volume.anisotropy);
-            let wi = Frame::from_z(dir).to_world(sample_henyey_greenstein(g, sampler.next_2d()));
             let n = path.len();
+            let wi = scatter(scene, &media, &path[n - 1], sampler.next_2d());
             // Neither side's density enters a weight (as after a delta lobe).
             path[n - 2].pdf_rev = 0.0;
             if !beta.is_finite() || beta == Vec3::ZERO || !roulette(sampler, &mut beta, bounces) {
@@ -1311,13 +1336,7 @@ pub fn render_rows(
         sampler.start_pixel_sample(pixel, s);
         let film = pixel.as_vec2() + sampler.next_2d();
         let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-        // The time (as the path tracer draws it: only when something moves within the shutter).
-        let u_time = scene.motion.is_some().then(|| sampler.next_1d());
-        // The wavelength (only in a scene with dispersion), shared by both subpaths.
-        let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
-        // The hero channel of its free flights (only in a scene with scattering media).
-        let u_hero = scene.scattering_media.then(|| sampler.next_1d());
-        let at = At::time(scene, u_time, &mut pose).with_wavelength(u_wavelength).with_hero(u_hero);
+        let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
         let (camera, light) = (&mut paths.camera, &mut paths.light);
         let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
@@ -1357,15 +1376,10 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
             for y in 0..height {
                 for x in 0..width {
                     sampler.start_pixel_sample(UVec2::new(x, y), s);
-                    // The camera task's time and wavelength for this sample: after its film
-                    // and lens numbers.
+                    // The camera task's shared numbers for this sample: after its film and lens
+                    // numbers.
                     sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
-                    let u_time = scene.motion.is_some().then(|| sampler.next_1d());
-                    let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
-                    let u_hero = scene.scattering_media.then(|| sampler.next_1d());
-                    let at = At::time(scene, u_time, &mut pose)
-                        .with_wavelength(u_wavelength)
-                        .with_hero(u_hero);
+                    let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
                     light_subpath(
                         scene,
                         &at,

@@ -25,7 +25,7 @@
 //! `i` of pseudo-pixel (j, u32::MAX), from `LIGHT_DIMENSION` on; photons are traced in chunks of
 //! `CHUNK` whose gathered sums are added in chunk order, whatever the number of threads.
 //!
-//! Motion blur: each pass is one instant of the shutter (`pass_time`), the same for its camera
+//! Motion blur: each pass is one instant of the shutter (`pass_numbers`), the same for its camera
 //! paths and its photons, so a pass is a photon map of a still scene and the mean over passes
 //! the mean over the shutter.
 //!
@@ -59,15 +59,14 @@ use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
     bdpt::{
-        cross_after, light_subpath, roulette, sample_light, spectral_weight, surface_vertex, At,
-        Kind, Vertex,
+        cross_after, light_subpath, roulette, sample_light, scatter, spectral_weight,
+        surface_vertex, At, Kind, SharedNumbers, Vertex,
     },
-    geometry::{offset_ray_origin, Frame, Ray},
+    geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext},
     media::MediumStack,
     sampler::{mix64, Sampler},
-    sampling::sample_henyey_greenstein,
     scene::{PreparedScene, SppmParams, NONE},
 };
 
@@ -126,13 +125,14 @@ pub fn render_task(
     (tile, stats)
 }
 
-/// The numbers of pass `pass` that all its camera paths and photons share: where it falls in the
-/// shutter (for `At::time`), when something moves within it, and its wavelength (for
-/// `At::with_wavelength`), in a scene with dispersion. So each pass is a photon map of one
-/// instant and one wavelength, and the mean over passes is the mean over the shutter and the
-/// wavelengths. They are the first two numbers of sample `pass` of a pseudo-pixel no photon
-/// uses, so the passes stratify each as a pixel's samples do.
-fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> PassNumbers {
+/// The numbers of pass `pass` that all its camera paths and photons share (`At::sample`): where
+/// it falls in the shutter, when something moves within it, its wavelength, in a scene with
+/// dispersion, and its hero channel, in one with scattering media. So each pass is a photon map
+/// of one instant and one wavelength, and the mean over passes is the mean over the shutter and
+/// the wavelengths. They are the first three numbers of sample `pass` of a pseudo-pixel no photon
+/// uses (each at its place whatever the scene needs), so the passes stratify each as a pixel's
+/// samples do.
+fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> SharedNumbers {
     if scene.motion.is_none() && !scene.dispersive && !scene.scattering_media {
         return (None, None, None);
     }
@@ -148,9 +148,6 @@ fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> Pass
     )
 }
 
-/// A pass's time, wavelength and hero channel numbers (`pass_numbers`).
-type PassNumbers = (Option<f32>, Option<f32>, Option<f32>);
-
 /// The camera paths of one pass: each pixel's light seen before and at its visible point, and
 /// the visible points (in pixel order).
 #[allow(clippy::too_many_arguments)]
@@ -159,7 +156,7 @@ fn camera_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
-    (u_time, u_wavelength, u_hero): PassNumbers,
+    u: SharedNumbers,
     radius: f32,
     threads: usize,
     stats: &mut Stats,
@@ -173,9 +170,7 @@ fn camera_pass(
                     let mut stats = Stats::default();
                     let mut out = Vec::new();
                     let mut pose = None;
-                    let at = At::time(scene, u_time, &mut pose)
-                        .with_wavelength(u_wavelength)
-                        .with_hero(u_hero);
+                    let at = At::sample(scene, u, &mut pose);
                     let mut row = t;
                     while row < rect.height {
                         for col in 0..rect.width {
@@ -280,10 +275,7 @@ fn camera_path(
                 break;
             }
             sampler.skip(4); // The light sample and the lobe, as at a surface.
-            let g = media.current().and_then(|m| scene.materials[m as usize].volume);
-            let g = g.map_or(0.0, |volume| volume.anisotropy);
-            let dir = -v.wo;
-            let wi = Frame::from_z(dir).to_world(sample_henyey_greenstein(g, sampler.next_2d()));
+            let wi = scatter(scene, &media, &v, sampler.next_2d());
             if !beta.is_finite() || beta == Vec3::ZERO || !roulette(sampler, &mut beta, depth + 1) {
                 break;
             }
@@ -480,7 +472,7 @@ fn photon_pass(
     seed: u64,
     task: &TaskSpec,
     pass: u32,
-    (u_time, u_wavelength, u_hero): PassNumbers,
+    u: SharedNumbers,
     radius: f32,
     points: &[VisiblePoint],
     threads: usize,
@@ -508,9 +500,7 @@ fn photon_pass(
                         let mut path = Vec::new();
                         let mut out = Vec::new();
                         let mut pose = None;
-                        let at = At::time(scene, u_time, &mut pose)
-                            .with_wavelength(u_wavelength)
-                            .with_hero(u_hero);
+                        let at = At::sample(scene, u, &mut pose);
                         loop {
                             let c = next.fetch_add(1, Ordering::Relaxed);
                             if c >= last {
