@@ -12,8 +12,9 @@
 //! camera (t = 1, light tracing): the contribution lands on whatever pixel the connection
 //! passes through, and the sum over the frame's light subpaths of one sample index is that
 //! sample of the light-traced image. The two films add. A light subpath is a function of
-//! (pixel, sample index) alone (its sampler dimensions start at `LIGHT_DIMENSION`), so both
-//! tasks trace the same one.
+//! (pixel, sample index) alone (its light, point and direction are one point of a frame-wide
+//! low-discrepancy sequence, `light_start`, and its further numbers the pixel sample's from
+//! `LIGHT_DIMENSION` on), so both tasks trace the same one.
 //!
 //! Path vertices follow pbrt: `beta` is the throughput arriving at the vertex, `pdf_fwd` the
 //! density (per unit area, or per solid angle for a vertex at infinity) of the vertex being
@@ -72,7 +73,7 @@ use super::{
     material,
     media::{self, transmittance, Crossing, MediumStack},
     motion::Pose,
-    sampler::Sampler,
+    sampler::{Sampler, FRAME_DIMENSIONS},
     sampling::{
         sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
         uniform_sphere_pdf,
@@ -863,26 +864,62 @@ fn camera_subpath(
     unlit
 }
 
+/// The frame-wide sequences light subpaths start from (`Sampler::frame_point`): one for the
+/// even sample indices and one for the odd, so that the two halves of a pixel's samples stay
+/// independent estimates (`sampler`'s module).
+const LIGHT_SEQUENCES: [u64; 2] = [0x6c69_6768_7400_0000, 0x6c69_6768_7400_0001];
+
+/// Where the light subpath of a frame's pixel sample starts: point `s / 2 * pixels + pixel` of
+/// the frame-wide light sequence of its half (even or odd `s`), pixels numbered row by row.
+/// The first light subpaths of every pixel together form one low-discrepancy set, so where the
+/// light they carry lands (light tracing, photons) covers the image evenly, rather than as
+/// independent paths per pixel do, whose counts in a pixel vary as a Poisson draw's; each
+/// subpath on its own is as random as before, and so is each half's estimate. Camera and light
+/// tasks take the same numbers for the same sample.
+pub(super) fn light_start(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    pixel: UVec2,
+    s: u32,
+) -> LightStart {
+    let width = scene.camera.width as u64;
+    let pixels = width * scene.camera.height as u64;
+    let index = (s / 2) as u64 * pixels + pixel.y as u64 * width + pixel.x as u64;
+    sampler.frame_point(LIGHT_SEQUENCES[(s & 1) as usize], index)
+}
+
+/// The first numbers of a light subpath: which light (the last), and where and which way it
+/// leaves it (`light_subpath`).
+pub(super) type LightStart = [f32; FRAME_DIMENSIONS];
+
 /// The light subpath of the current pixel sample: the light's vertex and up to `max_vertices`
-/// surface vertices (`max_depth` for light tracing). Draws from `LIGHT_DIMENSION` on; a shorter
-/// limit gives the same first vertices.
+/// surface vertices (`max_depth` for light tracing). Its light, point and direction come from
+/// `start`; it draws the rest of its numbers from `LIGHT_DIMENSION + 3` on. A shorter limit
+/// gives the same first vertices.
 pub(super) fn light_subpath(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
+    start: LightStart,
     max_vertices: u32,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
 ) {
     path.clear();
-    sampler.set_dimension(LIGHT_DIMENSION);
-    let u_choice = sampler.next_1d();
-    let (u_pos, u_dir) = (sampler.next_2d(), sampler.next_2d());
+    sampler.set_dimension(LIGHT_DIMENSION + 3);
+    let u_choice = start[4];
     let choice = match &scene.emission {
         Some(mixture) => ChooseLight::choose(mixture, &ShadingContext::default(), u_choice),
         None => scene.lights.choose(&ShadingContext::default(), u_choice),
     };
     let Some((idx, pmf, _)) = choice else { return };
+    // The better stratified pair of numbers (the first two dimensions, a (0, 2)-net) goes to
+    // what spreads the light most: its direction, but a directional light's point.
+    let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
+    let (u_dir, u_pos) = match &scene.lights.lights[idx as usize] {
+        Light::Directional(_) => (second, first),
+        _ => (first, second),
+    };
     let (mut v, beta, ray, pdf_dir) = match &scene.lights.lights[idx as usize] {
         Light::Triangle(l) => {
             let Some((b, dir, pdf_dir)) = l.sample_le(u_pos, u_dir) else { return };
@@ -1342,10 +1379,12 @@ pub fn render_rows(
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
         // `max_depth - 1` surface vertices (the next one only light tracing connects). The
         // subpath's numbers and the vertices it keeps are the same as the whole subpath's.
+        let start = light_start(scene, &mut sampler, pixel, s);
         light_subpath(
             scene,
             &at,
             &mut sampler,
+            start,
             scene.max_depth.saturating_sub(1),
             light,
             &mut stats,
@@ -1380,10 +1419,12 @@ pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (
                     // numbers.
                     sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
                     let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
+                    let start = light_start(scene, &mut sampler, UVec2::new(x, y), s);
                     light_subpath(
                         scene,
                         &at,
                         &mut sampler,
+                        start,
                         scene.max_depth,
                         &mut light,
                         &mut stats,

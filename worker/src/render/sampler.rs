@@ -28,13 +28,22 @@ pub struct Sampler {
     sample_idx_reversed: u32,
     /// Next dimension to draw.
     dimension: u32,
+    /// The scramble seeds of the frame-wide sequence (and block of 2^32 points) last drawn
+    /// from (`frame_point`), which depend on the job, frame and sequence alone.
+    frame_seeds: (Option<(u64, u64)>, [u32; FRAME_DIMENSIONS]),
 }
 
 impl Sampler {
     /// A sampler for frame `frame` of a job with seed `seed`.
     pub fn new(seed: u64, frame: i64) -> Self {
         let base = mix64(seed ^ mix64(frame as u64 ^ 0x9e37_79b9_7f4a_7c15));
-        Sampler { base, pixel_hash: 0, sample_idx_reversed: 0, dimension: 0 }
+        Sampler {
+            base,
+            pixel_hash: 0,
+            sample_idx_reversed: 0,
+            dimension: 0,
+            frame_seeds: (None, [0; FRAME_DIMENSIONS]),
+        }
     }
 
     /// Positions the sampler at sample `sample_idx` of `pixel`, dimension 0.
@@ -91,6 +100,110 @@ impl Sampler {
             to_unit(laine_karras_permutation(sobol_1_reversed(index), seed_y).reverse_bits()),
         )
     }
+}
+
+/// How many numbers a point of a frame-wide sequence has (`Sampler::frame_point`).
+pub const FRAME_DIMENSIONS: usize = 5;
+
+impl Sampler {
+    /// Point `index` of the frame-wide sequence `sequence` of this job and frame: the first
+    /// `FRAME_DIMENSIONS` dimensions of the Sobol sequence at that index, Owen-scrambled (each
+    /// dimension with its own seed from the job, frame and sequence), so that each point is
+    /// uniform on its own while any 2^k consecutive points aligned on 2^k form a (t, k, 5)-net:
+    /// numbers drawn across a frame's pixels (a light subpath's start for every pixel of a
+    /// sample, a photon pass's photons) cover their domain evenly together, where the per-pixel
+    /// sequences stratify each pixel's samples only. Every 2^32 points start another
+    /// independently scrambled net. The sampler's pixel sample is left as it was.
+    pub fn frame_point(&mut self, sequence: u64, index: u64) -> [f32; FRAME_DIMENSIONS] {
+        let key = (sequence, index >> 32);
+        if self.frame_seeds.0 != Some(key) {
+            let h = mix64(self.base ^ mix64(sequence ^ mix64(index >> 32)));
+            let seeds = std::array::from_fn(|d| {
+                mix64(h ^ (d as u64 + 1).wrapping_mul(DIMENSION_MULTIPLIER)) as u32
+            });
+            self.frame_seeds = (Some(key), seeds);
+        }
+        let (i, seeds) = (index as u32, &self.frame_seeds.1);
+        // Owen scrambling is reverse(LK(reverse(x))); the tables hold the points reversed.
+        std::array::from_fn(|d| {
+            to_unit(laine_karras_permutation(sobol_reversed(d, i), seeds[d]).reverse_bits())
+        })
+    }
+}
+
+/// Joe and Kuo's primitive polynomials and initial direction numbers (`new-joe-kuo-6.21201`)
+/// for Sobol dimensions 1 to 4 (dimension 0 is van der Corput's): the degree `s`, the
+/// polynomial's inner coefficients `a` and `m_1..m_s`.
+const SOBOL_PARAMETERS: [(usize, u32, [u32; 3]); FRAME_DIMENSIONS - 1] =
+    [(1, 0, [1, 0, 0]), (2, 1, [1, 3, 0]), (3, 1, [1, 3, 1]), (3, 2, [1, 1, 1])];
+
+/// The generator matrices (columns as 32-bit binary fractions) of Sobol dimensions 0 to 4, by
+/// Bratley and Fox's recurrence for the direction numbers m_i.
+const SOBOL_MATRICES: [[u32; 32]; FRAME_DIMENSIONS] = {
+    let mut out = [[0u32; 32]; FRAME_DIMENSIONS];
+    let mut j = 0;
+    while j < 32 {
+        out[0][j] = 1 << (31 - j);
+        j += 1;
+    }
+    let mut d = 1;
+    while d < FRAME_DIMENSIONS {
+        let (s, a, m0) = SOBOL_PARAMETERS[d - 1];
+        let mut m = [0u32; 32];
+        let mut i = 0;
+        while i < 32 {
+            if i < s {
+                m[i] = m0[i];
+            } else {
+                // m_i = 2 a_1 m_{i-1} ^ 4 a_2 m_{i-2} ^ ... ^ 2^s m_{i-s} ^ m_{i-s}.
+                let mut v = m[i - s] ^ (m[i - s] << s);
+                let mut k = 1;
+                while k < s {
+                    if (a >> (s - 1 - k)) & 1 == 1 {
+                        v ^= m[i - k] << k;
+                    }
+                    k += 1;
+                }
+                m[i] = v;
+            }
+            out[d][i] = m[i] << (31 - i);
+            i += 1;
+        }
+        d += 1;
+    }
+    out
+};
+
+/// `SOBOL_MATRICES` by bytes of the index, bits reversed: entry `[d][k][b]` is the XOR of
+/// dimension `d`'s columns `8k..8k + 8` selected by the bits of `b` (20 KiB, four loads a
+/// dimension).
+static SOBOL_BYTES: [[[u32; 256]; 4]; FRAME_DIMENSIONS] = {
+    let mut out = [[[0u32; 256]; 4]; FRAME_DIMENSIONS];
+    let mut d = 0;
+    while d < FRAME_DIMENSIONS {
+        let mut k = 0;
+        while k < 4 {
+            let mut b = 1usize;
+            while b < 256 {
+                // The entry of `b` is that of `b` without its lowest bit, plus that bit's column.
+                let low = b.trailing_zeros() as usize;
+                out[d][k][b] =
+                    out[d][k][b & (b - 1)] ^ SOBOL_MATRICES[d][8 * k + low].reverse_bits();
+                b += 1;
+            }
+            k += 1;
+        }
+        d += 1;
+    }
+    out
+};
+
+/// Dimension `d` of the Sobol point `i` as a 32-bit binary fraction, bits reversed.
+#[inline]
+fn sobol_reversed(d: usize, i: u32) -> u32 {
+    let t = &SOBOL_BYTES[d];
+    let [b0, b1, b2, b3] = i.to_le_bytes();
+    t[0][b0 as usize] ^ t[1][b1 as usize] ^ t[2][b2 as usize] ^ t[3][b3 as usize]
 }
 
 /// Spreads a dimension's index over the hash (a sample's dimensions differ in many bits).
@@ -376,6 +489,131 @@ mod tests {
         )
         .reverse_bits();
         assert_eq!(fast, textbook);
+    }
+
+    /// The frame-wide sequence's matrices are Sobol's: dimension 1 is the one the per-pixel
+    /// sampler uses, each dimension's first 2^k points hit every interval of length 2^-k, and
+    /// its pairs of dimensions have the t-values of Joe and Kuo's first five dimensions (0 for
+    /// the first two, at most 1 otherwise, up to 2^12 points).
+    #[test]
+    fn frame_sequences_are_sobol_nets() {
+        // The byte tables give the matrices' product, bit by bit.
+        let by_bits = |d: usize, mut i: u32| {
+            let mut x = 0;
+            while i != 0 {
+                x ^= SOBOL_MATRICES[d][i.trailing_zeros() as usize];
+                i &= i - 1;
+            }
+            x
+        };
+        for k in 0..20_000u64 {
+            let i = mix64(k) as u32;
+            for d in 0..FRAME_DIMENSIONS {
+                assert_eq!(
+                    sobol_reversed(d, i),
+                    by_bits(d, i).reverse_bits(),
+                    "dimension {d} index {i}"
+                );
+            }
+        }
+        // Joe and Kuo's dimensions 3 to 5 as tabulated elsewhere (pbrt-v4's `SobolMatrices32`).
+        let published: [[u32; 6]; 3] = [
+            [0x8000_0000, 0xc000_0000, 0x6000_0000, 0x9000_0000, 0xe800_0000, 0x5c00_0000],
+            [0x8000_0000, 0xc000_0000, 0x2000_0000, 0x5000_0000, 0xf800_0000, 0x7400_0000],
+            [0x8000_0000, 0x4000_0000, 0x2000_0000, 0xb000_0000, 0xf800_0000, 0xdc00_0000],
+        ];
+        for (d, columns) in published.iter().enumerate() {
+            assert_eq!(&SOBOL_MATRICES[d + 2][..6], columns, "dimension {}", d + 2);
+        }
+        for i in (0..4096u32).chain([65_535, 1 << 31, u32::MAX]) {
+            assert_eq!(sobol_reversed(1, i), sobol_1(i).reverse_bits(), "index {i}");
+            assert_eq!(sobol_reversed(0, i), i, "index {i}");
+        }
+        // The t-value of dimensions (a, b) over the first 2^k points: the least t for which
+        // every elementary interval of area 2^(t - k) holds 2^t points.
+        let t_value = |a: usize, b: usize, k: u32, at: &dyn Fn(usize, u32) -> u32| -> u32 {
+            (0..=k)
+                .find(|&t| {
+                    (0..=k - t).all(|kx| {
+                        let ky = k - t - kx;
+                        let mut count = vec![0u32; 1 << (k - t)];
+                        for i in 0..1u32 << k {
+                            let (x, y) = (at(a, i) as u64, at(b, i) as u64);
+                            let cell = (x >> (32 - kx)) | ((y >> (32 - ky)) << kx);
+                            count[cell as usize] += 1;
+                        }
+                        count.iter().all(|&c| c == 1 << t)
+                    })
+                })
+                .unwrap()
+        };
+        for d in 0..FRAME_DIMENSIONS {
+            let mut seen = vec![false; 4096];
+            for i in 0..4096 {
+                let cell = (by_bits(d, i) >> 20) as usize;
+                assert!(!seen[cell], "dimension {d}: cell {cell} twice");
+                seen[cell] = true;
+            }
+        }
+        for a in 0..FRAME_DIMENSIONS {
+            for b in a + 1..FRAME_DIMENSIONS {
+                let t = t_value(a, b, 12, &|d, i| by_bits(d, i));
+                let most = if (a, b) == (0, 1) { 0 } else { 2 };
+                assert!(t <= most, "dimensions ({a}, {b}): t = {t}");
+            }
+        }
+        // Scrambled, an aligned block of 2^k points of the frame sequence keeps the t-values of
+        // the first 2^k points (it is those points digitally shifted, and Owen scrambling maps
+        // elementary intervals onto elementary intervals).
+        let mut s = Sampler::new(7, 2);
+        for (k, offset) in [(8u32, 0u64), (10, 1 << 10), (6, (1 << 32) + 64)] {
+            let points: Vec<[f32; FRAME_DIMENSIONS]> =
+                (offset..offset + (1 << k)).map(|i| s.frame_point(3, i)).collect();
+            let at = |d: usize, i: u32| ((points[i as usize][d] as f64) * 2f64.powi(32)) as u32;
+            for a in 0..FRAME_DIMENSIONS {
+                for b in a + 1..FRAME_DIMENSIONS {
+                    let t = t_value(a, b, k, &at);
+                    let want = t_value(a, b, k, &|d, i| by_bits(d, i));
+                    assert!(t <= want, "block {offset}+2^{k}: ({a}, {b}) t = {t}, not {want}");
+                }
+            }
+        }
+    }
+
+    /// Each point of a frame-wide sequence is uniform over its scrambles: a chi-square test of
+    /// one index's points over 20,000 sequences, in 8x8 cells of every pair of dimensions and at
+    /// several indices (the cells' counts against 1 / 64 each, 63 degrees of freedom, p = 1e-4
+    /// bound 114.6). The numbers depend on the seed, frame, sequence and index alone.
+    #[test]
+    fn frame_points_are_uniform_and_deterministic() {
+        let n = 20_000u64;
+        for (seed, index) in [(1u64, 0u64), (2, 1), (3, 777), (4, (1 << 32) + 5)] {
+            let mut s = Sampler::new(seed, 0);
+            let points: Vec<[f32; FRAME_DIMENSIONS]> =
+                (0..n).map(|seq| s.frame_point(seq, index)).collect();
+            for a in 0..FRAME_DIMENSIONS {
+                for b in a + 1..FRAME_DIMENSIONS {
+                    let mut count = [0u32; 64];
+                    for p in &points {
+                        assert!((0.0..1.0).contains(&p[a]) && (0.0..1.0).contains(&p[b]));
+                        count[(p[a] * 8.0) as usize + 8 * (p[b] * 8.0) as usize] += 1;
+                    }
+                    let expected = n as f64 / 64.0;
+                    let chi2: f64 =
+                        count.iter().map(|&c| (c as f64 - expected).powi(2) / expected).sum();
+                    assert!(chi2 < 114.6, "index {index} dimensions ({a}, {b}): chi2 {chi2}");
+                }
+            }
+        }
+        let mut pixel = Sampler::new(3, 1);
+        let first = pixel.frame_point(9, 12_345);
+        pixel.start_pixel_sample(UVec2::new(4, 4), 9);
+        pixel.next_2d();
+        assert_eq!(first, pixel.frame_point(9, 12_345), "the pixel sample must not matter");
+        assert_ne!(first, Sampler::new(4, 1).frame_point(9, 12_345), "seed");
+        assert_ne!(first, Sampler::new(3, 2).frame_point(9, 12_345), "frame");
+        assert_ne!(first, pixel.frame_point(10, 12_345), "sequence");
+        assert_ne!(first, pixel.frame_point(9, 12_346), "index");
     }
 
     #[test]

@@ -21,8 +21,9 @@
 //! point by the photons (those that arrive with no bounce are left out). A photon counts at a
 //! visible point only if the whole path stays within `max_depth` bounces.
 //!
-//! Determinism: camera paths are per pixel; photon `j` of pass `i` draws the numbers of sample
-//! `i` of pseudo-pixel (j, u32::MAX), from `LIGHT_DIMENSION` on; photons are traced in chunks of
+//! Determinism: camera paths are per pixel; photon `j` of pass `i` starts from point
+//! `i / 2 * photons + j` of a frame-wide low-discrepancy sequence (`photon_start`) and draws its
+//! further numbers as sample `i` of pseudo-pixel (j, u32::MAX); photons are traced in chunks of
 //! `CHUNK` whose gathered sums are added in chunk order, whatever the number of threads.
 //!
 //! Motion blur: each pass is one instant of the shutter (`pass_numbers`), the same for its camera
@@ -60,7 +61,7 @@ use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 use super::{
     bdpt::{
         cross_after, light_subpath, roulette, sample_light, scatter, spectral_weight,
-        surface_vertex, At, Kind, SharedNumbers, Vertex,
+        surface_vertex, At, Kind, LightStart, SharedNumbers, Vertex,
     },
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
@@ -132,6 +133,19 @@ pub fn render_task(
 /// the wavelengths. They are the first three numbers of sample `pass` of a pseudo-pixel no photon
 /// uses (each at its place whatever the scene needs), so the passes stratify each as a pixel's
 /// samples do.
+/// The frame-wide sequences photons start from (`Sampler::frame_point`), one for the even
+/// passes and one for the odd, which stay independent estimates.
+const PHOTON_SEQUENCES: [u64; 2] = [0x7068_6f74_6f6e_0000, 0x7068_6f74_6f6e_0001];
+
+/// Where photon `j` of pass `pass` starts: point `pass / 2 * photons + j` of its half's
+/// frame-wide sequence, so that a pass's photons (and the passes of a half together) leave the
+/// lights as one low-discrepancy set and land evenly, each photon on its own as random as an
+/// independent one (as bidirectional light subpaths start, `bdpt::light_start`).
+fn photon_start(sampler: &mut Sampler, photons: u32, j: u32, pass: u32) -> LightStart {
+    let index = (pass / 2) as u64 * photons as u64 + j as u64;
+    sampler.frame_point(PHOTON_SEQUENCES[(pass & 1) as usize], index)
+}
+
 fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> SharedNumbers {
     if scene.motion.is_none() && !scene.dispersive && !scene.scattering_media {
         return (None, None, None);
@@ -510,10 +524,12 @@ fn photon_pass(
                             let start = c as u32 * CHUNK;
                             for j in start..(start + CHUNK).min(params.photons) {
                                 sampler.start_pixel_sample(UVec2::new(j, u32::MAX), pass);
+                                let start = photon_start(&mut sampler, params.photons, j, pass);
                                 light_subpath(
                                     scene,
                                     &at,
                                     &mut sampler,
+                                    start,
                                     scene.max_depth,
                                     &mut path,
                                     &mut stats,
