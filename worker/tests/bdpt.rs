@@ -518,6 +518,24 @@ fn bdpt_scattering_media_stay_white_in_the_furnace_and_match_the_path_tracer() {
     assert!(score < 1.0, "fog: {at}");
 }
 
+/// The camera inside a scattering medium (`cornell_in_a_fog_bank`: fog around the whole Cornell
+/// box): camera subpaths start in the fog, light subpaths leave a light inside it, and light
+/// tracing connects to the camera through it. Every channel's 16 x 16 blocks within the noise of
+/// the path tracer's image.
+#[test]
+fn bdpt_with_the_camera_in_a_fog_bank_matches_the_path_tracer() {
+    let scene = cornell_in_a_fog_bank();
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 256, max_depth: 8, ..settings("cornell-box") };
+    let (camera, light) = render_bdpt(&scene, &base);
+    let path = render(&scene, &RenderSettings { spp: 1024, seed: 3, ..base.clone() });
+    let ours = bdpt_sum(&camera, &light);
+    let (score, at) = worst_channel_block(&ours, &pixel_stats(&path), 32, 16, 0.0);
+    let (mine, theirs) = (mean_and_se(&camera, &light), image_mean(&path));
+    println!("fog bank: worst block {score:.2} ({at}); means {mine:?} vs {theirs:?}");
+    assert!(score < 1.0, "fog bank: {at}");
+}
+
 /// `bdpt.light_paths` above 1 with an orthographic camera, which light tracing cannot reach, is
 /// refused naming the key and the camera; one light path per sample renders.
 #[test]

@@ -203,3 +203,52 @@ fn glass_holding_water_holding_a_bubble_in_a_white_furnace_is_exactly_white() {
     eprintln!("the worst pixel is {worst:.1e} away from 1");
     assert!(worst < 1e-4, "a pixel is {worst} away from 1");
 }
+
+/// A camera inside nested volumes: in an absorbing liquid held in an absorbing glass shell, both
+/// of index 1 (no reflections), the liquid overlapping the glass's inner walls, looking straight
+/// down into the white furnace from 0.1 above the cavity's middle. Every pixel sees the furnace
+/// through the rest of the liquid (0.4) and the glass's wall (0.15, the overlap included: there the glass, entered last, is the
+/// medium), each channel exactly T_liquid(0.4) T_glass(0.15), with each integrator. A camera
+/// taken to be in air would see through the glass alone.
+#[test]
+fn a_camera_inside_nested_volumes_sees_through_their_media() {
+    let (glass_color, liquid_color, distance) = ([0.9, 0.7, 0.5], [0.4, 0.8, 0.95], 0.5);
+    let (glass, liquid) = glass_with_liquid(0.3, 0.15, 1e-3);
+    let path = shells_scene(
+        "camera-inside",
+        vec![
+            (glass, dielectric_material(1.0, 1.0, Some((glass_color, distance)))),
+            (liquid, dielectric_material(1.0, 1.0, Some((liquid_color, distance)))),
+        ],
+        0.1,
+        0.0,
+    );
+    let scene = common::gltf::load_path(&path).unwrap();
+    let expected: [f64; 3] = std::array::from_fn(|c| {
+        let tau = |color: [f64; 3], length: f64| (color[c].ln() / distance * length).exp();
+        tau(liquid_color, 0.4) * tau(glass_color, 0.15)
+    });
+    let settings = white_furnace(8, 16);
+    let (camera, light) = render_bdpt_with(&scene, &settings, None);
+    let films = [
+        ("path", render(&scene, &settings)),
+        ("sppm", render_sppm_with(&scene, &settings, 8, 2, None)),
+    ];
+    let mut images: Vec<(&str, Vec<[f64; 3]>)> = films
+        .iter()
+        .map(|(name, f)| (*name, f.pixels.iter().map(|p| p.mean()).collect()))
+        .collect();
+    images.push(("bdpt", bdpt_sum(&camera, &light).into_iter().map(|(m, _)| m).collect()));
+    let mut wrong = Vec::new();
+    for (name, image) in images {
+        let worst = image
+            .iter()
+            .flat_map(|p| (0..3).map(move |c| (p[c] - expected[c]).abs() / expected[c]))
+            .fold(0.0, f64::max);
+        eprintln!("{name}: {:?} against {expected:?}, worst {worst:.1e}", image[0]);
+        if worst >= 1e-5 {
+            wrong.push(format!("{name}: a pixel is {worst} away (relative)"));
+        }
+    }
+    assert!(wrong.is_empty(), "{wrong:?} from {expected:?}");
+}

@@ -415,6 +415,25 @@ fn sppm_scattering_media_stay_white_in_the_furnace_and_match_the_path_tracer() {
     assert!(score < 1.0, "fog: {at}");
 }
 
+/// The camera inside a scattering medium (`cornell_in_a_fog_bank`: fog around the whole Cornell
+/// box): camera paths start in the fog and photons leave a light inside it. Every channel's
+/// 8 x 8 blocks within the noise plus 4% of the path tracer's image.
+#[test]
+fn sppm_with_the_camera_in_a_fog_bank_matches_the_path_tracer() {
+    let scene = cornell_in_a_fog_bank();
+    let base =
+        RenderSettings { width: 32, height: 32, spp: 256, max_depth: 8, ..settings("cornell-box") };
+    let film = render_sppm(&scene, &base, 128, 2);
+    let path = render(&scene, &RenderSettings { spp: 1024, seed: 3, ..base.clone() });
+    let (score, at) = worst_channel_block(&pixel_stats(&film), &pixel_stats(&path), 32, 8, 0.04);
+    println!(
+        "fog bank: worst block {score:.2} ({at}); means {:?} vs {:?}",
+        image_mean(&film),
+        image_mean(&path)
+    );
+    assert!(score < 1.0, "fog bank: {at}");
+}
+
 /// Refractive volumes. A clear glass box in the white furnace: every pixel within 1e-5 of 1
 /// (camera paths follow the smooth boundary; nothing there gathers photons). The Cornell box's tinted
 /// glass sphere (`scenes/cornell-glass`), whose caustic on the floor is photons' work, and the

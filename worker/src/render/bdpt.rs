@@ -38,10 +38,10 @@
 //! Volumes: subpaths cross boundaries and lose light to absorption as the path tracer's paths
 //! do (`surface_vertex`), connections carry the transmittance of the medium they run through
 //! (`segment_transmittance`), and a light subpath refracting through a smooth boundary carries
-//! flux, not radiance (pbrt-v4's importance transport: no 1 / eta²). Cameras are taken to be
-//! in air; a light subpath (and a photon) starts in the volumes its light lies inside
-//! (`light_media`, found once per scene by the boundaries a ray from the light crosses on its way
-//! out).
+//! flux, not radiance (pbrt-v4's importance transport: no 1 / eta²). A camera subpath starts in
+//! the volumes the camera lies inside (`PreparedScene::camera_media`) and a light subpath (and a
+//! photon) in those its light lies inside (`PreparedScene::light_media`), each found once per
+//! scene by the boundaries a ray from it crosses on its way out.
 //!
 //! Dispersion: a sample draws one wavelength (after its time) that every dispersive boundary of
 //! both subpaths bends light by (`At::wavelength`), so that a connection joins two halves of
@@ -855,8 +855,7 @@ fn camera_subpath(
         pdf_dir,
         Mode::Radiance,
         scene.max_depth + 1,
-        // Cameras are taken to be in air.
-        MediumStack::default(),
+        scene.camera_media,
         path,
         stats,
         &mut unlit,
@@ -1000,75 +999,6 @@ pub(super) fn light_subpath(
         stats,
         &mut unlit,
     );
-}
-
-/// Most surfaces `media_at` passes from a point to infinity (past them, it warns and takes the
-/// volumes crossed so far).
-const MAX_MEDIA_HITS: usize = 4096;
-
-/// The volumes each light of the scene lies inside (by index in `scene.lights`; `media_at` from
-/// a triangle's centroid along its normal, from a point or spot light's position; lights at
-/// infinity are in air), empty where every light is in air. Taken at the scene's rest pose:
-/// a light that moves within the shutter is taken to stay in the volumes it starts in.
-pub(super) fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
-    let media: Vec<MediumStack> = scene
-        .lights
-        .lights
-        .iter()
-        .map(|light| match light {
-            Light::Triangle(l) => {
-                media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim)
-            }
-            // A direction askew to the axes, so as not to pass along a box's edges.
-            Light::Point(l) => {
-                media_at(scene, l.position, Vec3::new(0.31, 0.87, 0.38).normalize(), NONE)
-            }
-            Light::Spot(l) => media_at(scene, l.position, l.direction, NONE),
-            Light::Environment(_) | Light::Directional(_) => MediumStack::default(),
-        })
-        .collect();
-    if media.iter().all(|m| m.current().is_none()) {
-        return Vec::new();
-    }
-    media
-}
-
-/// The volumes point `p` lies inside: the boundaries a ray from it along `dir` crosses on its way
-/// out of the scene (triangle `skip`, the light's own, left out), crossed backwards from air, as
-/// a subpath that came in from outside would have crossed them (the outermost entered first).
-fn media_at(scene: &PreparedScene, p: Vec3, dir: Vec3, skip: u32) -> MediumStack {
-    let mut crossed = Vec::new();
-    let mut ray = Ray::new(p, dir);
-    let mut passed = 0;
-    while let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) {
-        passed += 1;
-        if passed > MAX_MEDIA_HITS {
-            tracing::warn!(
-                "a light's volumes: more than {MAX_MEDIA_HITS} surfaces on the way out of the \
-                 scene; taking the {} volume boundaries crossed before them",
-                crossed.len()
-            );
-            break;
-        }
-        let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
-        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
-        let q = p0 * b[0] + p1 * b[1] + p2 * b[2];
-        let normal = (p1 - p0).cross(p2 - p0).try_normalize();
-        let tri = scene.shading[hit.prim as usize];
-        let material = &scene.materials[tri.material as usize];
-        let boundary = tri.extended && material.volume.is_some() && material.bounds_medium();
-        if let (Some(winding), true) = (normal, boundary && hit.prim != skip) {
-            crossed.push((tri.material, winding.dot(dir) < 0.0));
-        }
-        // Past the surface, on the ray's side beyond it (along the ray for a degenerate one).
-        let side = normal.map_or(dir, |n| if n.dot(dir) > 0.0 { n } else { -n });
-        ray = Ray::new(offset_ray_origin(q, interpolation_error([p0, p1, p2], b), side, dir), dir);
-    }
-    let mut media = MediumStack::default();
-    for &(m, front) in crossed.iter().rev() {
-        media.cross(m, !front);
-    }
-    media
 }
 
 /// A light subpath's first vertex on a light at infinity whose light travels along unit `d`:

@@ -26,7 +26,7 @@ use super::{
     geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
     light::{ChooseLight, Light, ShadingContext},
     material,
-    media::{self, free_flight, transmittance, Crossing, MediumStack},
+    media::{self, free_flight, transmittance, Crossing},
     motion::Pose,
     sampler::Sampler,
     sampling::sample_henyey_greenstein,
@@ -105,8 +105,9 @@ pub fn li(
     // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
     // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
     let mut eta_scale = 1.0f32;
-    // The volumes the path is inside (each by its boundary's material), the current one on top.
-    let mut media = MediumStack::default();
+    // The volumes the path is inside (each by its boundary's material), the current one on top:
+    // at first those the camera lies inside.
+    let mut media = scene.camera_media;
     // False interfaces passed (bounded, so that no geometry can hold a path forever).
     let mut passed = 0u32;
     // In a scene with dispersion, the number for the wavelength the path takes on at its first

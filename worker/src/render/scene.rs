@@ -17,12 +17,13 @@ use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 use super::{
     accel::{Accel, Hit},
     camera::{Camera, CameraModel},
-    geometry::Ray,
+    geometry::{interpolation_error, offset_ray_origin, Ray},
     light::{
         DirectionalLight, Environment as EnvironmentLight, Light, LightChoice, LightSampler,
         MapEnvironment, PointLight, PowerMixture, SpotLight, TriangleLight,
     },
     material::{self, SurfacePoint},
+    media::MediumStack,
     motion::{Motion, MotionInstance, Pose},
     sampler::{mix64, to_unit},
 };
@@ -113,7 +114,11 @@ pub struct PreparedScene {
     /// The volumes each light (by index in `lights`) lies inside, for the light subpaths and
     /// photons that leave it (`bdpt::light_media`; empty where no light is inside one, or for
     /// the path tracer).
-    pub light_media: Vec<super::media::MediumStack>,
+    pub light_media: Vec<MediumStack>,
+    /// The volumes the camera lies inside, where every camera path starts (air for most; found
+    /// as the lights' are, from where the camera is at the frame's time, which it is taken to
+    /// keep through the shutter and across a thin lens).
+    pub camera_media: MediumStack,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
     pub wavefront: Option<super::wavefront_tables::Tables>,
@@ -588,12 +593,91 @@ fn prepare_inner(
         emission,
         sphere,
         light_media: Vec::new(),
+        camera_media: MediumStack::default(),
         wavefront,
     };
-    if (bdpt || prepared.sppm.is_some()) && prepared.materials.iter().any(|m| m.bounds_medium()) {
-        prepared.light_media = super::bdpt::light_media(&prepared);
+    if prepared.materials.iter().any(|m| m.bounds_medium()) {
+        if bdpt || prepared.sppm.is_some() {
+            prepared.light_media = light_media(&prepared);
+        }
+        // The camera sits at the origin of the camera-relative world.
+        prepared.camera_media = media_at(&prepared, Vec3::ZERO, askew(), NONE);
+        if prepared.camera_media.current().is_some() {
+            prepared.wavefront = None;
+        }
     }
     Ok(prepared)
+}
+
+/// Most surfaces `media_at` passes from a point to infinity (past them, it warns and takes the
+/// volumes crossed so far).
+const MAX_MEDIA_HITS: usize = 4096;
+
+/// The volumes each light of the scene lies inside (by index in `scene.lights`; `media_at` from
+/// a triangle's centroid along its normal, from a point or spot light's position; lights at
+/// infinity are in air), empty where every light is in air. Taken at the scene's rest pose:
+/// a light that moves within the shutter is taken to stay in the volumes it starts in.
+fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
+    let media: Vec<MediumStack> = scene
+        .lights
+        .lights
+        .iter()
+        .map(|light| match light {
+            Light::Triangle(l) => {
+                media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim)
+            }
+            Light::Point(l) => media_at(scene, l.position, askew(), NONE),
+            Light::Spot(l) => media_at(scene, l.position, l.direction, NONE),
+            Light::Environment(_) | Light::Directional(_) => MediumStack::default(),
+        })
+        .collect();
+    if media.iter().all(|m| m.current().is_none()) {
+        return Vec::new();
+    }
+    media
+}
+
+/// A direction askew to the axes, so as not to pass along a box's edges.
+fn askew() -> Vec3 {
+    Vec3::new(0.31, 0.87, 0.38).normalize()
+}
+
+/// The volumes point `p` lies inside: the boundaries a ray from it along `dir` crosses on its way
+/// out of the scene (triangle `skip`, the light's own, left out), crossed backwards from air, as
+/// a subpath that came in from outside would have crossed them (the outermost entered first).
+fn media_at(scene: &PreparedScene, p: Vec3, dir: Vec3, skip: u32) -> MediumStack {
+    let mut crossed = Vec::new();
+    let mut ray = Ray::new(p, dir);
+    let mut passed = 0;
+    while let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) {
+        passed += 1;
+        if passed > MAX_MEDIA_HITS {
+            tracing::warn!(
+                "the volumes a light or the camera lies in: more than {MAX_MEDIA_HITS} surfaces \
+                 on the way out of the scene; taking the {} volume boundaries crossed before them",
+                crossed.len()
+            );
+            break;
+        }
+        let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let q = p0 * b[0] + p1 * b[1] + p2 * b[2];
+        let normal = (p1 - p0).cross(p2 - p0).try_normalize();
+        let tri = scene.shading[hit.prim as usize];
+        let material = &scene.materials[tri.material as usize];
+        let boundary = tri.extended && material.volume.is_some() && material.bounds_medium();
+        if let (Some(winding), true) = (normal, boundary && hit.prim != skip) {
+            crossed.push((tri.material, winding.dot(dir) < 0.0));
+        }
+        // Past the surface, on the ray's side beyond it (along the ray for a degenerate one).
+        let side = normal.map_or(dir, |n| if n.dot(dir) > 0.0 { n } else { -n });
+        ray = Ray::new(offset_ray_origin(q, interpolation_error([p0, p1, p2], b), side, dir), dir);
+    }
+    let mut media = MediumStack::default();
+    for &(m, front) in crossed.iter().rev() {
+        media.cross(m, !front);
+    }
+    media
 }
 
 /// Prepares frame `frame` of a scene: a static scene once for all frames; an animated one posed at

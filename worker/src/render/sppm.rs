@@ -66,7 +66,6 @@ use super::{
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext},
-    media::MediumStack,
     sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
@@ -258,8 +257,8 @@ fn camera_path(
     // whole) and the point it left.
     let mut prev_pdf = 0.0f32;
     let mut prev_ctx = ShadingContext::default();
-    // The volumes the path is inside (the camera is in air).
-    let mut media = MediumStack::default();
+    // The volumes the path is inside, at first those the camera lies inside.
+    let mut media = scene.camera_media;
     // Whether the path passed a dispersive vertex (its light takes the pass's wavelength's
     // colour, `At::tint`).
     let mut tinted = false;

@@ -682,6 +682,30 @@ pub fn cornell_in_fog() -> Scene {
     scene
 }
 
+/// The Cornell box and its camera inside a fog bank: a box of fog around the whole scene (index
+/// 1; extinction 0.7, 0.45 and 0.25 a unit in red, green and blue, about 0.9, 0.6 and 0.3 in
+/// optical depth from the camera to the back wall; albedo 0.9, 0.8 and 0.7; forward scattering,
+/// g 0.3), so that camera paths start in it, the light lies in it and light tracing reaches the
+/// camera through it.
+pub fn cornell_in_a_fog_bank() -> Scene {
+    let path = edited_scene("cornell-box", "fog-bank", |j| {
+        let material = push_water(j);
+        push_box(j, [-0.3, -0.3, -1.2], [0.9, 0.9, 0.9], material as usize);
+    });
+    let mut scene = common::gltf::load_path(&path).unwrap();
+    let mut fog = 0;
+    for m in scene.materials.iter_mut().filter(|m| m.volume.is_some() && m.bounds_medium()) {
+        let v = m.volume.as_mut().unwrap();
+        v.extinction = glam::Vec3::new(0.7, 0.45, 0.25);
+        v.albedo = glam::Vec3::new(0.9, 0.8, 0.7);
+        v.anisotropy = 0.3;
+        assert!(v.scatters());
+        fog += 1;
+    }
+    assert_eq!(fog, 1, "the fog is the one volume");
+    scene
+}
+
 /// The Cornell box with its glass sphere (`scenes/cornell-glass`) made dispersive: `dispersion`
 /// 2 (an Abbe number of 10, about three times a dense flint's spread), so that the caustic the
 /// sphere throws on the floor splits into colours.
