@@ -517,10 +517,9 @@ impl Scene {
         }
     }
 
-    /// The scene-dependent checks of the settings' integrator: what photon mapping does not take
-    /// yet (an emitter that moves within the shutter), the light bidirectional path tracing and
-    /// photon mapping must start paths from, and more light-traced paths than one per sample
-    /// where the camera is orthographic (light tracing cannot reach it). `Ok` for the path
+    /// The scene-dependent checks of the settings' integrator: the light bidirectional path
+    /// tracing and photon mapping must start paths from, and more light-traced paths than one per
+    /// sample where the camera is orthographic (light tracing cannot reach it). `Ok` for the path
     /// tracer.
     pub fn check_integrator(
         &self,
@@ -530,9 +529,6 @@ impl Scene {
         if name == "path" {
             return Ok(());
         }
-        let refuse = |what: &str| {
-            Err(format!("integrator: {name} does not render {what} yet (\"path\" does)"))
-        };
         if name == "bdpt" && settings.light_paths() > 1 {
             // The camera the settings name (the first by default).
             let camera = match &settings.camera {
@@ -549,20 +545,6 @@ impl Scene {
                     settings.light_paths(),
                     c.name
                 ));
-            }
-        }
-        if name == "sppm" && settings.shutter.open < settings.shutter.close {
-            if let Some(anim) = &self.animation {
-                let moving_emitter = self.instances.iter().any(|inst| {
-                    let m = &self.materials[self.meshes[inst.mesh].material];
-                    anim.moves(inst.node) && m.emissive.max_element() > 0.0 && !m.unlit
-                });
-                if moving_emitter {
-                    return refuse(
-                        "an emissive mesh that moves within the shutter (photons leave only \
-                         lights that stay put)",
-                    );
-                }
             }
         }
         let emissive = self.instances.iter().any(|inst| {

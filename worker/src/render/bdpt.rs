@@ -912,14 +912,35 @@ pub(super) fn light_subpath(
         None => scene.lights.choose(&ShadingContext::default(), u_choice),
     };
     let Some((idx, pmf, _)) = choice else { return };
+    let light = &scene.lights.lights[idx as usize];
+    leave_light(scene, at, sampler, start, light, Some(idx), pmf, max_vertices, path, stats);
+}
+
+/// The subpath of `light`, chosen with probability `pmf` (`idx`, its index in `scene.lights`;
+/// `None` for an emitter that moves within the shutter, posed at the sample's time, whose
+/// photons start in air): its vertex on the light, from `start`'s point and direction, and the
+/// walk from there (`light_subpath`). `path` must be empty and `sampler` at its walk's numbers.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn leave_light(
+    scene: &PreparedScene,
+    at: &At<'_>,
+    sampler: &mut Sampler,
+    start: LightStart,
+    light: &Light,
+    idx: Option<u32>,
+    pmf: f32,
+    max_vertices: u32,
+    path: &mut Vec<Vertex>,
+    stats: &mut Stats,
+) {
     // The better stratified pair of numbers (the first two dimensions, a (0, 2)-net) goes to
     // what spreads the light most: its direction, but a directional light's point.
     let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
-    let (u_dir, u_pos) = match &scene.lights.lights[idx as usize] {
+    let (u_dir, u_pos) = match light {
         Light::Directional(_) => (second, first),
         _ => (first, second),
     };
-    let (mut v, beta, ray, pdf_dir) = match &scene.lights.lights[idx as usize] {
+    let (mut v, beta, ray, pdf_dir) = match light {
         Light::Triangle(l) => {
             let Some((b, dir, pdf_dir)) = l.sample_le(u_pos, u_dir) else { return };
             let p = l.p[0] * b[0] + l.p[1] * b[1] + l.p[2] * b[2];
@@ -971,14 +992,12 @@ pub(super) fn light_subpath(
             (v, l.irradiance / (pmf * pdf_pos), ray, pdf_pos)
         }
     };
-    v.light = idx;
-    v.delta_light = matches!(
-        scene.lights.lights[idx as usize],
-        Light::Point(_) | Light::Spot(_) | Light::Directional(_)
-    );
-    v.pdf_fwd = v.pdf_light_origin(scene);
+    v.light = idx.unwrap_or(NONE);
+    v.delta_light = matches!(light, Light::Point(_) | Light::Spot(_) | Light::Directional(_));
+    // No MIS weight asks a moving emitter's density (photons carry no weights).
+    v.pdf_fwd = if idx.is_some() { v.pdf_light_origin(scene) } else { 0.0 };
     // The volumes the light lies inside (air for most).
-    let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
+    let media = idx.and_then(|i| scene.light_media.get(i as usize)).copied().unwrap_or_default();
     v.medium = media.current();
     path.push(v);
     if beta == Vec3::ZERO || !beta.is_finite() {

@@ -28,6 +28,67 @@ use super::{
     sampler::{mix64, to_unit},
 };
 
+/// The emitting triangles that move within the shutter (`TriShading::light` `UNSAMPLED`), for
+/// photon mapping: no light sample reaches them, so paths that hit them count them in full, and
+/// photons leave them too, each pass from where they are at its instant. A photon leaves one of
+/// them with probability `share` (their power's share of all, at least 1%), and a given one by
+/// its power at the shutter's opening.
+#[derive(Clone, Debug)]
+pub struct MovingEmitters {
+    /// The triangles (BVH order).
+    pub prims: Vec<u32>,
+    /// Cumulative probability of choosing each: `prims.len() + 1` entries from 0 to 1.
+    pub cdf: Vec<f32>,
+    /// The probability that a photon leaves one of them rather than a light that stays put.
+    pub share: f32,
+}
+
+impl MovingEmitters {
+    /// The moving emitters of a prepared scene with motion, or `None`.
+    fn new(scene: &PreparedScene, scene_radius: f32) -> Option<MovingEmitters> {
+        let motion = scene.motion.as_ref()?;
+        let pose = Pose::new(motion, motion.time(0.0));
+        let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722)).max(0.0);
+        let mut prims = Vec::new();
+        let mut power = Vec::new();
+        for (prim, tri) in scene.shading.iter().enumerate() {
+            if tri.light != UNSAMPLED {
+                continue;
+            }
+            let m = &scene.materials[tri.material as usize];
+            let ([p0, p1, p2], _) = scene.triangle(prim as u32, Some(&pose));
+            let area = 0.5 * (p1 - p0).cross(p2 - p0).length();
+            let sides = if m.double_sided { 2.0 } else { 1.0 };
+            let w = lum(m.emissive) * area * std::f32::consts::PI * sides;
+            if w > 0.0 && w.is_finite() {
+                prims.push(prim as u32);
+                power.push(w);
+            }
+        }
+        if prims.is_empty() {
+            return None;
+        }
+        let moving: f32 = power.iter().sum();
+        let still: f32 = scene.lights.lights.iter().map(|l| l.power(scene_radius)).sum();
+        let share = if still > 0.0 { (moving / (moving + still)).max(0.01) } else { 1.0 };
+        let mut cdf = Vec::with_capacity(power.len() + 1);
+        let mut sum = 0.0f32;
+        cdf.push(0.0);
+        for w in &power {
+            sum += w;
+            cdf.push(sum / moving);
+        }
+        *cdf.last_mut().expect("not empty") = 1.0;
+        Some(MovingEmitters { prims, cdf, share })
+    }
+
+    /// Chooses one with `u` in [0, 1): its index in `prims` and probability.
+    pub fn choose(&self, u: f32) -> (usize, f32) {
+        let i = self.cdf.partition_point(|&c| c <= u).clamp(1, self.prims.len()) - 1;
+        (i, self.cdf[i + 1] - self.cdf[i])
+    }
+}
+
 /// Marks "no such index" in the compact per-triangle tables.
 pub const NONE: u32 = u32::MAX;
 /// `TriShading::light` of an emitting triangle that moves within the shutter: its emission is
@@ -115,6 +176,9 @@ pub struct PreparedScene {
     /// photons that leave it (`bdpt::light_media`; empty where no light is inside one, or for
     /// the path tracer).
     pub light_media: Vec<MediumStack>,
+    /// The emitting triangles that move within the shutter, which photons leave as well (photon
+    /// mapping only; `None` where there are none).
+    pub moving_emitters: Option<MovingEmitters>,
     /// The volumes the camera lies inside, where every camera path starts (air for most; found
     /// as the lights' are, from where the camera is at the frame's time, which it is taken to
     /// keep through the shutter and across a thin lens).
@@ -594,8 +658,12 @@ fn prepare_inner(
         sphere,
         light_media: Vec::new(),
         camera_media: MediumStack::default(),
+        moving_emitters: None,
         wavefront,
     };
+    if prepared.sppm.is_some() {
+        prepared.moving_emitters = MovingEmitters::new(&prepared, scene_radius);
+    }
     if prepared.materials.iter().any(|m| m.bounds_medium()) {
         if bdpt || prepared.sppm.is_some() {
             prepared.light_media = light_media(&prepared);

@@ -49,9 +49,9 @@
 //! are gathered where they land on surfaces, weighed with the visible point by the densities of
 //! the whole path (`bdpt::spectral_weight`).
 //!
-//! What it does not take yet (`Scene::check_integrator` refuses them before any work): emitters
-//! that move within the shutter (photons leave only the lights in the light list, which holds
-//! the emitters that stay put).
+//! Emitters that move within the shutter are not in the light list (no light sample reaches
+//! them): a camera path counts its hits on one in full, as the path tracer does, and photons
+//! leave them too (`photon_path`), from where they are at the pass's instant.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -60,12 +60,12 @@ use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
     bdpt::{
-        cross_after, light_subpath, roulette, sample_light, scatter, spectral_weight,
-        surface_vertex, At, Kind, LightStart, SharedNumbers, Vertex,
+        cross_after, leave_light, light_subpath, roulette, sample_light, scatter, spectral_weight,
+        surface_vertex, At, Kind, LightStart, SharedNumbers, Vertex, LIGHT_DIMENSION,
     },
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
-    light::{ChooseLight, Light, ShadingContext},
+    light::{ChooseLight, Light, ShadingContext, TriangleLight},
     sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
@@ -132,6 +132,46 @@ pub fn render_task(
 /// the wavelengths. They are the first three numbers of sample `pass` of a pseudo-pixel no photon
 /// uses (each at its place whatever the scene needs), so the passes stratify each as a pixel's
 /// samples do.
+/// The path of a photon from `start` (`photon_start`; the sampler at the photon's pixel
+/// sample): from a light that stays put, chosen as light subpaths choose, or with probability
+/// `MovingEmitters::share` from an emitting triangle that moves within the shutter, where it is
+/// at the pass's instant (chosen by its power; a point on it by area and a direction by cosine,
+/// as from any emitting triangle). Each carries its flux over its whole choice's probability.
+fn photon_path(
+    scene: &PreparedScene,
+    at: &At<'_>,
+    sampler: &mut Sampler,
+    mut start: LightStart,
+    path: &mut Vec<Vertex>,
+    stats: &mut Stats,
+) {
+    let Some(moving) = &scene.moving_emitters else {
+        return light_subpath(scene, at, sampler, start, scene.max_depth, path, stats);
+    };
+    let share = moving.share;
+    if start[4] >= share {
+        // A light that stays put: the choice's number stretched back over [0, 1).
+        start[4] = ((start[4] - share) / (1.0 - share)).min(1.0 - f32::EPSILON / 2.0);
+        light_subpath(scene, at, sampler, start, scene.max_depth, path, stats);
+        for v in path.iter_mut() {
+            v.beta /= 1.0 - share;
+        }
+        return;
+    }
+    path.clear();
+    sampler.set_dimension(LIGHT_DIMENSION + 3);
+    let (i, pmf) = moving.choose(start[4] / share);
+    let prim = moving.prims[i];
+    let m = &scene.materials[scene.shading[prim as usize].material as usize];
+    let (p, _) = scene.triangle(prim, at.pose);
+    let Some(mut l) = TriangleLight::new(p, m.emissive, m.double_sided) else { return };
+    l.prim = prim;
+    l.textured = m.emissive_texture.is_some() || m.clearcoat.is_some();
+    let light = Light::Triangle(l);
+    let (max, pmf) = (scene.max_depth, share * pmf);
+    leave_light(scene, at, sampler, start, &light, None, pmf, max, path, stats);
+}
+
 /// The frame-wide sequences photons start from (`Sampler::frame_point`), one for the even
 /// passes and one for the odd, which stay independent estimates.
 const PHOTON_SEQUENCES: [u64; 2] = [0x7068_6f74_6f6e_0000, 0x7068_6f74_6f6e_0001];
@@ -304,6 +344,9 @@ fn camera_path(
             let l = beta * v.le(scene, v.wo) * emitter_weight(scene, &v, &prev_ctx, prev_pdf);
             seen += at.tint(l, tinted);
         }
+        // An emitter that moves within the shutter: no light sample reaches it, so a hit counts
+        // it in full.
+        seen += at.tint(beta * v.moving_le, tinted);
         // Light this vertex's BSDF scatters takes the wavelength's colour if it is dispersive.
         tinted = v.tints();
         if depth == scene.max_depth {
@@ -354,6 +397,9 @@ fn camera_path(
                             * hit.le(scene, hit.wo)
                             * emitter_weight(scene, &hit, &ctx, pdf);
                         seen += at.tint(l, tinted);
+                    }
+                    Some((hit, None)) if hit.kind == Kind::Surface => {
+                        seen += at.tint(through * hit.moving_le, tinted);
                     }
                     None => {
                         seen += at.tint(through * environment_seen(scene, wi, &ctx, pdf), tinted)
@@ -524,15 +570,7 @@ fn photon_pass(
                             for j in start..(start + CHUNK).min(params.photons) {
                                 sampler.start_pixel_sample(UVec2::new(j, u32::MAX), pass);
                                 let start = photon_start(&mut sampler, params.photons, j, pass);
-                                light_subpath(
-                                    scene,
-                                    &at,
-                                    &mut sampler,
-                                    start,
-                                    scene.max_depth,
-                                    &mut path,
-                                    &mut stats,
-                                );
+                                photon_path(scene, &at, &mut sampler, start, &mut path, &mut stats);
                                 deposit(scene, &at, &grid, points, &path, radius, &mut gathered);
                             }
                             out.push((c, gathered));
