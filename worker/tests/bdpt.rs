@@ -565,3 +565,37 @@ fn bdpt_inside_an_absorbing_volume_matches_the_path_tracer() {
     println!("under water: worst block {score:.2} ({at})");
     assert!(score < 1.0, "under water: {at}");
 }
+
+/// A light task's sample indices are spread over a worker's threads, one film per index, added
+/// in index order: the same bits on one thread and on three (a wave of three films, then the
+/// rest), with depth of field and the shutter open so that every shared number is drawn.
+#[test]
+fn a_light_task_gives_the_same_bits_on_any_number_of_threads() {
+    use common::{
+        film::Rect,
+        protocol::{SampleRange, TaskKind, TaskSpec},
+    };
+    let (scene, motion) = cornell_motion(true);
+    let settings = RenderSettings {
+        width: 24,
+        height: 24,
+        spp: 7,
+        max_depth: 5,
+        integrator: "bdpt".into(),
+        lens: cornell_dof_settings().lens,
+        ..motion
+    };
+    let prepared = prepare_frame(&scene, &settings, None, 0).expect("prepare");
+    let rect = Rect { x0: 0, y0: 0, width: 24, height: 24 };
+    let task = TaskSpec {
+        frame: 0,
+        rect,
+        samples: SampleRange { start: 2, end: 9 },
+        kind: TaskKind::Light,
+    };
+    let one = worker::render::render_task_threads(&prepared, 5, &task, 1);
+    let three = worker::render::render_task_threads(&prepared, 5, &task, 3);
+    assert!(one.tile.pixels.iter().any(|p| p.mean()[0] > 0.0), "light tracing reaches the camera");
+    assert_eq!(one.rays, three.rays);
+    assert!(one.tile.pixels.iter().zip(&three.tile.pixels).all(|(a, b)| a == b), "1 vs 3 threads");
+}

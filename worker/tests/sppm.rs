@@ -284,6 +284,36 @@ fn sppm_motion_blur_matches_the_path_tracer() {
         image_mean(&path)
     );
     assert!(score < 1.0, "the light moving: {at}");
+    // And a point light that stays put besides it: photons leave either kind by its share of
+    // the power, each carrying its flux over its whole choice's probability.
+    let mut scene = scene;
+    scene.lights.push(common::scene::PunctualLight {
+        name: "still".into(),
+        kind: common::scene::PunctualKind::Point,
+        intensity: glam::Vec3::new(0.02, 0.03, 0.05),
+        position: glam::DVec3::new(0.4, 0.4, 0.2),
+        direction: glam::DVec3::NEG_Z,
+        range: None,
+        node: None,
+    });
+    let prepared = prepare_frame(
+        &scene,
+        &RenderSettings { integrator: "sppm".into(), ..base.clone() },
+        None,
+        0,
+    )
+    .unwrap();
+    let share = prepared.moving_emitters.as_ref().expect("the moving light").share;
+    let film = render_sppm(&scene, &base, 128, 2);
+    let path = render_frame0(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
+    let (score, at) = worst_block(&pixel_stats(&film), &pixel_stats(&path), base.width, 16, 0.04);
+    println!(
+        "  and a still light (the moving one's share {share:.2}): worst block {score:.2} ({at}); \
+         means {:?} vs {:?}",
+        image_mean(&film),
+        image_mean(&path)
+    );
+    assert!(score < 1.0 && share > 0.1 && share < 0.9, "a still light too: {at}");
 }
 
 /// Lights at infinity. The furnace (a convex sphere of albedo 0.8 in a uniform environment of

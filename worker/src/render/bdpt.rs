@@ -12,9 +12,8 @@
 //! camera (t = 1, light tracing): the contribution lands on whatever pixel the connection
 //! passes through, and the sum over the frame's light subpaths of one sample index is that
 //! sample of the light-traced image. The two films add. A light subpath is a function of
-//! (pixel, sample index) alone (its light, point and direction are one point of a frame-wide
-//! low-discrepancy sequence, `light_start`, and its further numbers the pixel sample's from
-//! `LIGHT_DIMENSION` on), so both tasks trace the same one.
+//! (pixel, sample index) alone (its sampler dimensions start at `LIGHT_DIMENSION`), so both
+//! tasks trace the same one.
 //!
 //! Path vertices follow pbrt: `beta` is the throughput arriving at the vertex, `pdf_fwd` the
 //! density (per unit area, or per solid angle for a vertex at infinity) of the vertex being
@@ -73,7 +72,7 @@ use super::{
     material,
     media::{self, transmittance, Crossing, MediumStack},
     motion::Pose,
-    sampler::{Sampler, FRAME_DIMENSIONS},
+    sampler::Sampler,
     sampling::{
         sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
         uniform_sphere_pdf,
@@ -129,8 +128,9 @@ pub(super) struct Vertex {
     pub(super) b: [f32; 3],
     /// The numbers of the light sample taken from this camera vertex (s = 1).
     pub(super) u_light: [f32; 3],
-    /// Radiance toward `wo` of an emitter that moves within the shutter (no light subpath or
-    /// light sample starts on one, so only a camera subpath that hits it counts it, in full).
+    /// Radiance toward `wo` of an emitter that moves within the shutter (no light sample nor
+    /// bidirectional light subpath starts on one, so a camera subpath that hits it counts it in
+    /// full; photons do leave it, `sppm::photon_path`).
     pub(super) moving_le: Vec3,
     /// The medium on `wo`'s side (`None`: air) and on the other (a different one only on a
     /// volume's boundary): where a connection leaving the vertex travels.
@@ -863,69 +863,55 @@ fn camera_subpath(
     unlit
 }
 
-/// The frame-wide sequences light subpaths start from (`Sampler::frame_point`): one for the
-/// even sample indices and one for the odd, so that the two halves of a pixel's samples stay
-/// independent estimates (`sampler`'s module).
-const LIGHT_SEQUENCES: [u64; 2] = [0x6c69_6768_7400_0000, 0x6c69_6768_7400_0001];
-
-/// Where the light subpath of a frame's pixel sample starts: point `s / 2 * pixels + pixel` of
-/// the frame-wide light sequence of its half (even or odd `s`), pixels numbered row by row.
-/// The first light subpaths of every pixel together form one low-discrepancy set, so where the
-/// light they carry lands (light tracing, photons) covers the image evenly, rather than as
-/// independent paths per pixel do, whose counts in a pixel vary as a Poisson draw's; each
-/// subpath on its own is as random as before, and so is each half's estimate. Camera and light
-/// tasks take the same numbers for the same sample.
-pub(super) fn light_start(
-    scene: &PreparedScene,
-    sampler: &mut Sampler,
-    pixel: UVec2,
-    s: u32,
-) -> LightStart {
-    let width = scene.camera.width as u64;
-    let pixels = width * scene.camera.height as u64;
-    let index = (s / 2) as u64 * pixels + pixel.y as u64 * width + pixel.x as u64;
-    sampler.frame_point(LIGHT_SEQUENCES[(s & 1) as usize], index)
-}
-
-/// The first numbers of a light subpath: which light (the last), and where and which way it
-/// leaves it (`light_subpath`).
-pub(super) type LightStart = [f32; FRAME_DIMENSIONS];
-
 /// The light subpath of the current pixel sample: the light's vertex and up to `max_vertices`
-/// surface vertices (`max_depth` for light tracing). Its light, point and direction come from
-/// `start`; it draws the rest of its numbers from `LIGHT_DIMENSION + 3` on. A shorter limit
-/// gives the same first vertices.
+/// surface vertices (`max_depth` for light tracing). Draws from `LIGHT_DIMENSION` on (the
+/// light, its point, its direction, then the walk's numbers); a shorter limit gives the same
+/// first vertices.
+///
+/// Its numbers are the pixel sample's own, stratified over that pixel's samples: the strategies
+/// that join a camera subpath to its own light subpath need each pixel's light subpaths to cover
+/// the lights' points and directions. (A frame-wide sequence indexed by sample and pixel, as
+/// photons use, puts one pixel's light subpaths in the same few strata of its first dimensions,
+/// so that a pixel's connections would settle on its scramble's value.)
 pub(super) fn light_subpath(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
-    start: LightStart,
     max_vertices: u32,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
 ) {
     path.clear();
-    sampler.set_dimension(LIGHT_DIMENSION + 3);
-    let u_choice = start[4];
-    let choice = match &scene.emission {
-        Some(mixture) => ChooseLight::choose(mixture, &ShadingContext::default(), u_choice),
-        None => scene.lights.choose(&ShadingContext::default(), u_choice),
-    };
-    let Some((idx, pmf, _)) = choice else { return };
+    sampler.set_dimension(LIGHT_DIMENSION);
+    let u_choice = sampler.next_1d();
+    let (u_pos, u_dir) = (sampler.next_2d(), sampler.next_2d());
+    let Some((idx, pmf)) = choose_emitting(scene, u_choice) else { return };
     let light = &scene.lights.lights[idx as usize];
-    leave_light(scene, at, sampler, start, light, Some(idx), pmf, max_vertices, path, stats);
+    leave_light(scene, at, sampler, u_pos, u_dir, light, Some(idx), pmf, max_vertices, path, stats);
+}
+
+/// The light a light subpath or photon leaves, from `u`, and its probability: blind to any point
+/// (the power mixture where light samples choose by the tree).
+pub(super) fn choose_emitting(scene: &PreparedScene, u: f32) -> Option<(u32, f32)> {
+    let choice = match &scene.emission {
+        Some(mixture) => ChooseLight::choose(mixture, &ShadingContext::default(), u),
+        None => scene.lights.choose(&ShadingContext::default(), u),
+    };
+    choice.map(|(idx, pmf, _)| (idx, pmf))
 }
 
 /// The subpath of `light`, chosen with probability `pmf` (`idx`, its index in `scene.lights`;
 /// `None` for an emitter that moves within the shutter, posed at the sample's time, whose
-/// photons start in air): its vertex on the light, from `start`'s point and direction, and the
-/// walk from there (`light_subpath`). `path` must be empty and `sampler` at its walk's numbers.
+/// photons start in air): its vertex on the light, at the point numbers `u_pos` give and leaving
+/// in the direction `u_dir` give, and the walk from there (`light_subpath`). `path` must be
+/// empty and `sampler` at its walk's numbers.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn leave_light(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
-    start: LightStart,
+    u_pos: Vec2,
+    u_dir: Vec2,
     light: &Light,
     idx: Option<u32>,
     pmf: f32,
@@ -933,13 +919,7 @@ pub(super) fn leave_light(
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
 ) {
-    // The better stratified pair of numbers (the first two dimensions, a (0, 2)-net) goes to
-    // what spreads the light most: its direction, but a directional light's point.
-    let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
-    let (u_dir, u_pos) = match light {
-        Light::Directional(_) => (second, first),
-        _ => (first, second),
-    };
+    path.clear();
     let (mut v, beta, ray, pdf_dir) = match light {
         Light::Triangle(l) => {
             let Some((b, dir, pdf_dir)) = l.sample_le(u_pos, u_dir) else { return };
@@ -1328,12 +1308,10 @@ pub fn render_rows(
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
         // `max_depth - 1` surface vertices (the next one only light tracing connects). The
         // subpath's numbers and the vertices it keeps are the same as the whole subpath's.
-        let start = light_start(scene, &mut sampler, pixel, s);
         light_subpath(
             scene,
             &at,
             &mut sampler,
-            start,
             scene.max_depth.saturating_sub(1),
             light,
             &mut stats,
@@ -1348,48 +1326,75 @@ pub fn render_rows(
 /// frame's sums of one sample index are that sample of every pixel. `task.rect` is the whole
 /// frame. The light tile's sample indices run over `bdpt.light_paths` times the pixel samples
 /// (index `i` draws as pixel sample `i`: the first `spp` are the camera subpaths' partners).
-/// One thread, so that the sums' order is fixed.
-pub fn render_light_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> (TileAccum, Stats) {
+///
+/// A sample index's film is one thread's (its pixels' light subpaths added in pixel order), and
+/// the films enter the sums in sample order, so the result is the same bits on any number of
+/// `threads`; up to `threads` films are made at once (fewer where a frame's film is large:
+/// `LIGHT_FILMS_BYTES`).
+pub fn render_light_task(
+    scene: &PreparedScene,
+    seed: u64,
+    task: &TaskSpec,
+    threads: usize,
+) -> (TileAccum, Stats) {
     let rect = task.rect;
-    let (width, height) = (scene.camera.width as u32, scene.camera.height as u32);
+    let width = scene.camera.width as u32;
     let mut tile = TileAccum::new(rect);
     let mut stats = Stats::default();
-    let mut sampler = Sampler::new(seed, task.frame);
-    let mut light = Vec::new();
-    let mut film = vec![Vec3::ZERO; (width * height) as usize];
-    let mut pose = None;
-    for s in task.samples.start..task.samples.end {
-        film.fill(Vec3::ZERO);
-        if scene.camera.connectable() {
-            for y in 0..height {
-                for x in 0..width {
-                    sampler.start_pixel_sample(UVec2::new(x, y), s);
-                    // The camera task's shared numbers for this sample: after its film and lens
-                    // numbers.
-                    sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
-                    let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
-                    let start = light_start(scene, &mut sampler, UVec2::new(x, y), s);
-                    light_subpath(
-                        scene,
-                        &at,
-                        &mut sampler,
-                        start,
-                        scene.max_depth,
-                        &mut light,
-                        &mut stats,
-                    );
-                    splat_light_path(scene, &at, &light, &mut film, &mut stats);
+    let film_bytes = (scene.camera.width * scene.camera.height) as usize * size_of::<Vec3>();
+    let wave = threads.min(LIGHT_FILMS_BYTES / film_bytes.max(1)).max(1);
+    let samples: Vec<u32> = (task.samples.start..task.samples.end).collect();
+    for chunk in samples.chunks(wave) {
+        let films: Vec<(Vec<Vec3>, Stats)> = if chunk.len() == 1 {
+            vec![light_film(scene, seed, task.frame, chunk[0])]
+        } else {
+            std::thread::scope(|scope| {
+                let handles: Vec<_> = chunk
+                    .iter()
+                    .map(|&s| scope.spawn(move || light_film(scene, seed, task.frame, s)))
+                    .collect();
+                handles.into_iter().map(|h| h.join().expect("light thread panicked")).collect()
+            })
+        };
+        for (&s, (film, film_stats)) in chunk.iter().zip(films) {
+            stats.rays += film_stats.rays;
+            for row in 0..rect.height {
+                for col in 0..rect.width {
+                    let l = film[((rect.y0 + row) * width + rect.x0 + col) as usize];
+                    tile.add_sample(col, row, s, l.to_array());
                 }
-            }
-        }
-        for row in 0..rect.height {
-            for col in 0..rect.width {
-                let l = film[((rect.y0 + row) * width + rect.x0 + col) as usize];
-                tile.add_sample(col, row, s, l.to_array());
             }
         }
     }
     (tile, stats)
+}
+
+/// Most bytes of light-tracing films a light task holds at once (a 4K frame's film is 100 MB).
+const LIGHT_FILMS_BYTES: usize = 512 << 20;
+
+/// Sample `s` of the light-traced image of frame `frame`: every pixel's light subpath of that
+/// sample connected to the camera, added where each lands, in pixel order.
+fn light_film(scene: &PreparedScene, seed: u64, frame: i64, s: u32) -> (Vec<Vec3>, Stats) {
+    let (width, height) = (scene.camera.width as u32, scene.camera.height as u32);
+    let mut film = vec![Vec3::ZERO; (width * height) as usize];
+    let mut stats = Stats::default();
+    if !scene.camera.connectable() {
+        return (film, stats);
+    }
+    let mut sampler = Sampler::new(seed, frame);
+    let mut light = Vec::new();
+    let mut pose = None;
+    for y in 0..height {
+        for x in 0..width {
+            sampler.start_pixel_sample(UVec2::new(x, y), s);
+            // The camera task's shared numbers for this sample: after its film and lens numbers.
+            sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
+            let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
+            light_subpath(scene, &at, &mut sampler, scene.max_depth, &mut light, &mut stats);
+            splat_light_path(scene, &at, &light, &mut film, &mut stats);
+        }
+    }
+    (film, stats)
 }
 
 /// Connects each vertex of a light subpath (from the second on) to the camera (t = 1) and adds

@@ -56,8 +56,8 @@ pub fn render_task_threads(
         return TaskResult { spec: *task, tile, rays: stats.rays };
     }
     if task.kind == TaskKind::Light {
-        // One thread: the frame's light paths add into one film in a fixed order.
-        let (tile, stats) = bdpt::render_light_task(scene, seed, task);
+        // A sample index's film per thread, added in sample order: the same bits on any count.
+        let (tile, stats) = bdpt::render_light_task(scene, seed, task, threads);
         return TaskResult { spec: *task, tile, rays: stats.rays };
     }
     let rect = task.rect;

@@ -10,6 +10,10 @@
 //! Even and odd sample indices are two independently scrambled sequences (sample `s` is number
 //! `s / 2` of sequence `s % 2`): two independent randomised estimates whose difference tells the
 //! film its real error (`common::film::PixelSums::half_difference_variance`).
+//!
+//! Frame-wide sequences (`Sampler::frame_point`) are the other kind: one point per index of a
+//! sequence shared by a whole frame (a pass's photons), a pure function of (seed, f, sequence,
+//! index), for numbers that should cover their domain evenly across many paths together.
 
 use glam::{UVec2, Vec2};
 use pulp::Simd;
@@ -17,7 +21,8 @@ use pulp::Simd;
 use super::lanes::{BIT_STEPS, F, M, U, U64};
 
 /// Per-pixel sample generator. Create one per thread and call `start_pixel_sample` for every
-/// sample: it holds no state that outlives a sample.
+/// sample: it holds no state that outlives a sample (but a cache of the frame-wide sequences'
+/// seeds, which depend on the job, frame and sequence alone).
 #[derive(Clone, Debug)]
 pub struct Sampler {
     /// Hash of (seed, frame): the job-level scramble.
@@ -110,9 +115,10 @@ impl Sampler {
     /// `FRAME_DIMENSIONS` dimensions of the Sobol sequence at that index, Owen-scrambled (each
     /// dimension with its own seed from the job, frame and sequence), so that each point is
     /// uniform on its own while any 2^k consecutive points aligned on 2^k form a (t, k, 5)-net:
-    /// numbers drawn across a frame's pixels (a light subpath's start for every pixel of a
-    /// sample, a photon pass's photons) cover their domain evenly together, where the per-pixel
-    /// sequences stratify each pixel's samples only. Every 2^32 points start another
+    /// numbers drawn across many paths (a photon pass's photons) cover their domain evenly
+    /// together, where the per-pixel sequences stratify each pixel's samples only. (Not for
+    /// numbers a pixel needs stratified over its own samples: indexed by sample and pixel, one
+    /// pixel's points share the index's low bits, so its first dimension stays in a few strata.) Every 2^32 points start another
     /// independently scrambled net. The sampler's pixel sample is left as it was.
     pub fn frame_point(&mut self, sequence: u64, index: u64) -> [f32; FRAME_DIMENSIONS] {
         let key = (sequence, index >> 32);
@@ -494,7 +500,7 @@ mod tests {
     /// The frame-wide sequence's matrices are Sobol's: dimension 1 is the one the per-pixel
     /// sampler uses, each dimension's first 2^k points hit every interval of length 2^-k, and
     /// its pairs of dimensions have the t-values of Joe and Kuo's first five dimensions (0 for
-    /// the first two, at most 1 otherwise, up to 2^12 points).
+    /// the first two, at most 2 otherwise, up to 2^12 points).
     #[test]
     fn frame_sequences_are_sobol_nets() {
         // The byte tables give the matrices' product, bit by bit.

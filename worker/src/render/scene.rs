@@ -30,9 +30,9 @@ use super::{
 
 /// The emitting triangles that move within the shutter (`TriShading::light` `UNSAMPLED`), for
 /// photon mapping: no light sample reaches them, so paths that hit them count them in full, and
-/// photons leave them too, each pass from where they are at its instant. A photon leaves one of
-/// them with probability `share` (their power's share of all, at least 1%), and a given one by
-/// its power at the shutter's opening.
+/// photons leave them too, each pass from where they are at its instant (starting in air). A
+/// photon leaves one of them with probability `share` (their power's share of all, from 1% to
+/// 99%), and a given one half by its power at the shutter's opening, half uniformly.
 #[derive(Clone, Debug)]
 pub struct MovingEmitters {
     /// The triangles (BVH order).
@@ -52,34 +52,35 @@ impl MovingEmitters {
         let mut prims = Vec::new();
         let mut power = Vec::new();
         for (prim, tri) in scene.shading.iter().enumerate() {
-            if tri.light != UNSAMPLED {
-                continue;
-            }
-            let m = &scene.materials[tri.material as usize];
-            let ([p0, p1, p2], _) = scene.triangle(prim as u32, Some(&pose));
-            let area = 0.5 * (p1 - p0).cross(p2 - p0).length();
-            let sides = if m.double_sided { 2.0 } else { 1.0 };
-            let w = lum(m.emissive) * area * std::f32::consts::PI * sides;
-            if w > 0.0 && w.is_finite() {
+            if tri.light == UNSAMPLED {
+                let m = &scene.materials[tri.material as usize];
+                let ([p0, p1, p2], _) = scene.triangle(prim as u32, Some(&pose));
+                let area = 0.5 * (p1 - p0).cross(p2 - p0).length();
+                let sides = if m.double_sided { 2.0 } else { 1.0 };
+                let w = lum(m.emissive) * area * std::f32::consts::PI * sides;
                 prims.push(prim as u32);
-                power.push(w);
+                power.push(if w.is_finite() { w } else { 0.0 });
             }
         }
         if prims.is_empty() {
             return None;
         }
-        let moving: f32 = power.iter().sum();
-        let still: f32 = scene.lights.lights.iter().map(|l| l.power(scene_radius)).sum();
-        let share = if still > 0.0 { (moving / (moving + still)).max(0.01) } else { 1.0 };
-        let mut cdf = Vec::with_capacity(power.len() + 1);
-        let mut sum = 0.0f32;
+        let moving: f64 = power.iter().map(|&w| w as f64).sum();
+        let still: f64 = scene.lights.lights.iter().map(|l| l.power(scene_radius) as f64).sum();
+        // Both kinds keep at least 1% of the photons: powers taken at one instant are a guess.
+        let share = if still > 0.0 { (moving / (moving + still)).clamp(0.01, 0.99) } else { 1.0 };
+        // Half by power, half uniformly (a triangle may have no area at the shutter's opening).
+        let n = prims.len() as f64;
+        let mut cdf = Vec::with_capacity(prims.len() + 1);
+        let mut sum = 0.0f64;
         cdf.push(0.0);
-        for w in &power {
-            sum += w;
-            cdf.push(sum / moving);
+        for &w in &power {
+            let by_power = if moving > 0.0 { w as f64 / moving } else { 1.0 / n };
+            sum += 0.5 * by_power + 0.5 / n;
+            cdf.push(sum.min(1.0) as f32);
         }
         *cdf.last_mut().expect("not empty") = 1.0;
-        Some(MovingEmitters { prims, cdf, share })
+        Some(MovingEmitters { prims, cdf, share: share as f32 })
     }
 
     /// Chooses one with `u` in [0, 1): its index in `prims` and probability.
@@ -668,7 +669,8 @@ fn prepare_inner(
         if bdpt || prepared.sppm.is_some() {
             prepared.light_media = light_media(&prepared);
         }
-        // The camera sits at the origin of the camera-relative world.
+        // The camera sits at the origin of the camera-relative world (an orthographic camera's
+        // rays start across its film plane: taken to lie in the same volumes as its centre).
         prepared.camera_media = media_at(&prepared, Vec3::ZERO, askew(), NONE);
         if prepared.camera_media.current().is_some() {
             prepared.wavefront = None;

@@ -60,13 +60,13 @@ use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
     bdpt::{
-        cross_after, leave_light, light_subpath, roulette, sample_light, scatter, spectral_weight,
-        surface_vertex, At, Kind, LightStart, SharedNumbers, Vertex, LIGHT_DIMENSION,
+        choose_emitting, cross_after, leave_light, roulette, sample_light, scatter,
+        spectral_weight, surface_vertex, At, Kind, SharedNumbers, Vertex, LIGHT_DIMENSION,
     },
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext, TriangleLight},
-    sampler::{mix64, Sampler},
+    sampler::{mix64, Sampler, FRAME_DIMENSIONS},
     scene::{PreparedScene, SppmParams, NONE},
 };
 
@@ -125,52 +125,60 @@ pub fn render_task(
     (tile, stats)
 }
 
-/// The numbers of pass `pass` that all its camera paths and photons share (`At::sample`): where
-/// it falls in the shutter, when something moves within it, its wavelength, in a scene with
-/// dispersion, and its hero channel, in one with scattering media. So each pass is a photon map
-/// of one instant and one wavelength, and the mean over passes is the mean over the shutter and
-/// the wavelengths. They are the first three numbers of sample `pass` of a pseudo-pixel no photon
-/// uses (each at its place whatever the scene needs), so the passes stratify each as a pixel's
-/// samples do.
 /// The path of a photon from `start` (`photon_start`; the sampler at the photon's pixel
-/// sample): from a light that stays put, chosen as light subpaths choose, or with probability
+/// sample, whose numbers from `LIGHT_DIMENSION + 3` on it walks by): from a light that stays
+/// put, chosen as light subpaths choose (`bdpt::choose_emitting`), or with probability
 /// `MovingEmitters::share` from an emitting triangle that moves within the shutter, where it is
-/// at the pass's instant (chosen by its power; a point on it by area and a direction by cosine,
-/// as from any emitting triangle). Each carries its flux over its whole choice's probability.
+/// at the pass's instant (a point on it by area and a direction by cosine, as from any emitting
+/// triangle). Each carries its flux over its whole choice's probability. The first, best
+/// stratified pair of `start` goes to what spreads the light most: the direction, but a
+/// directional light's point.
 fn photon_path(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
-    mut start: LightStart,
+    start: PhotonStart,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
 ) {
-    let Some(moving) = &scene.moving_emitters else {
-        return light_subpath(scene, at, sampler, start, scene.max_depth, path, stats);
-    };
-    let share = moving.share;
-    if start[4] >= share {
-        // A light that stays put: the choice's number stretched back over [0, 1).
-        start[4] = ((start[4] - share) / (1.0 - share)).min(1.0 - f32::EPSILON / 2.0);
-        light_subpath(scene, at, sampler, start, scene.max_depth, path, stats);
-        for v in path.iter_mut() {
-            v.beta /= 1.0 - share;
-        }
-        return;
-    }
     path.clear();
     sampler.set_dimension(LIGHT_DIMENSION + 3);
-    let (i, pmf) = moving.choose(start[4] / share);
-    let prim = moving.prims[i];
-    let m = &scene.materials[scene.shading[prim as usize].material as usize];
-    let (p, _) = scene.triangle(prim, at.pose);
-    let Some(mut l) = TriangleLight::new(p, m.emissive, m.double_sided) else { return };
-    l.prim = prim;
-    l.textured = m.emissive_texture.is_some() || m.clearcoat.is_some();
-    let light = Light::Triangle(l);
-    let (max, pmf) = (scene.max_depth, share * pmf);
-    leave_light(scene, at, sampler, start, &light, None, pmf, max, path, stats);
+    let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
+    let max = scene.max_depth;
+    let mut u_choice = start[4];
+    let mut scale = 1.0;
+    if let Some(moving) = &scene.moving_emitters {
+        let share = moving.share;
+        if u_choice < share {
+            let (i, pmf) = moving.choose(u_choice / share);
+            let prim = moving.prims[i];
+            let m = &scene.materials[scene.shading[prim as usize].material as usize];
+            let (p, _) = scene.triangle(prim, at.pose);
+            let Some(mut l) = TriangleLight::new(p, m.emissive, m.double_sided) else { return };
+            l.prim = prim;
+            l.textured = m.emissive_texture.is_some() || m.clearcoat.is_some();
+            let light = Light::Triangle(l);
+            let pmf = share * pmf;
+            leave_light(scene, at, sampler, second, first, &light, None, pmf, max, path, stats);
+            return;
+        }
+        // A light that stays put: the choice's number stretched back over [0, 1).
+        u_choice = ((u_choice - share) / (1.0 - share)).min(1.0 - f32::EPSILON / 2.0);
+        scale = 1.0 - share;
+    }
+    let Some((idx, pmf)) = choose_emitting(scene, u_choice) else { return };
+    let light = &scene.lights.lights[idx as usize];
+    let (u_pos, u_dir) = match light {
+        Light::Directional(_) => (first, second),
+        _ => (second, first),
+    };
+    let pmf = pmf * scale;
+    leave_light(scene, at, sampler, u_pos, u_dir, light, Some(idx), pmf, max, path, stats);
 }
+
+/// The numbers a photon starts from: two pairs (the first the better stratified) for its point
+/// and direction, then its light's choice (`photon_path`).
+type PhotonStart = [f32; FRAME_DIMENSIONS];
 
 /// The frame-wide sequences photons start from (`Sampler::frame_point`), one for the even
 /// passes and one for the odd, which stay independent estimates.
@@ -179,12 +187,20 @@ const PHOTON_SEQUENCES: [u64; 2] = [0x7068_6f74_6f6e_0000, 0x7068_6f74_6f6e_0001
 /// Where photon `j` of pass `pass` starts: point `pass / 2 * photons + j` of its half's
 /// frame-wide sequence, so that a pass's photons (and the passes of a half together) leave the
 /// lights as one low-discrepancy set and land evenly, each photon on its own as random as an
-/// independent one (as bidirectional light subpaths start, `bdpt::light_start`).
-fn photon_start(sampler: &mut Sampler, photons: u32, j: u32, pass: u32) -> LightStart {
+/// independent one. (Photons are pooled at every visible point; a pixel's own subpaths, as
+/// bidirectional path tracing connects them, are not, and keep per-pixel numbers.)
+fn photon_start(sampler: &mut Sampler, photons: u32, j: u32, pass: u32) -> PhotonStart {
     let index = (pass / 2) as u64 * photons as u64 + j as u64;
     sampler.frame_point(PHOTON_SEQUENCES[(pass & 1) as usize], index)
 }
 
+/// The numbers of pass `pass` that all its camera paths and photons share (`At::sample`): where
+/// it falls in the shutter, when something moves within it, its wavelength, in a scene with
+/// dispersion, and its hero channel, in one with scattering media. So each pass is a photon map
+/// of one instant and one wavelength, and the mean over passes is the mean over the shutter and
+/// the wavelengths. They are the first three numbers of sample `pass` of a pseudo-pixel no photon
+/// uses (each at its place whatever the scene needs), so the passes stratify each as a pixel's
+/// samples do.
 fn pass_numbers(scene: &PreparedScene, seed: u64, frame: i64, pass: u32) -> SharedNumbers {
     if scene.motion.is_none() && !scene.dispersive && !scene.scattering_media {
         return (None, None, None);
@@ -346,7 +362,9 @@ fn camera_path(
         }
         // An emitter that moves within the shutter: no light sample reaches it, so a hit counts
         // it in full.
-        seen += at.tint(beta * v.moving_le, tinted);
+        if v.moving_le != Vec3::ZERO {
+            seen += at.tint(beta * v.moving_le, tinted);
+        }
         // Light this vertex's BSDF scatters takes the wavelength's colour if it is dispersive.
         tinted = v.tints();
         if depth == scene.max_depth {
@@ -398,7 +416,7 @@ fn camera_path(
                             * emitter_weight(scene, &hit, &ctx, pdf);
                         seen += at.tint(l, tinted);
                     }
-                    Some((hit, None)) if hit.kind == Kind::Surface => {
+                    Some((hit, None)) if hit.moving_le != Vec3::ZERO => {
                         seen += at.tint(through * hit.moving_le, tinted);
                     }
                     None => {
