@@ -316,6 +316,26 @@ fn sppm_motion_blur_matches_the_path_tracer() {
     assert!(score < 1.0 && share > 0.1 && share < 0.9, "a still light too: {at}");
 }
 
+/// An emitter that moves within the shutter inside an absorbing volume
+/// (`cornell_moving_light_in_water`): its photons start in the volume it lies inside at the
+/// shutter's opening and lose light on their way out (all its light reaches the room through
+/// the water's surface, so photons carry it all). Every 16 x 16 block within the noise plus 4%
+/// of the path tracer's image.
+#[test]
+fn sppm_moving_light_inside_a_volume_matches_the_path_tracer() {
+    let (scene, motion) = cornell_moving_light_in_water();
+    let base = RenderSettings { width: 32, height: 32, spp: 256, max_depth: 5, ..motion };
+    let film = render_sppm(&scene, &base, 128, 2);
+    let path = render_frame0(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
+    let (score, at) = worst_block(&pixel_stats(&film), &pixel_stats(&path), base.width, 16, 0.04);
+    println!(
+        "the light moving in water: worst block {score:.2} ({at}); means {:?} vs {:?}",
+        image_mean(&film),
+        image_mean(&path)
+    );
+    assert!(score < 1.0, "the light moving in water: {at}");
+}
+
 /// Lights at infinity. The furnace (a convex sphere of albedo 0.8 in a uniform environment of
 /// radiance 1, all its light direct, so no radius bias): every 4 x 4 block within the noise of
 /// its exact image. The Cornell box lit through its open front by a sun (a directional light)

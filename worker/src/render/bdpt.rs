@@ -887,7 +887,9 @@ pub(super) fn light_subpath(
     let (u_pos, u_dir) = (sampler.next_2d(), sampler.next_2d());
     let Some((idx, pmf)) = choose_emitting(scene, u_choice) else { return };
     let light = &scene.lights.lights[idx as usize];
-    leave_light(scene, at, sampler, u_pos, u_dir, light, Some(idx), pmf, max_vertices, path, stats);
+    let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
+    let u = (u_pos, u_dir);
+    leave_light(scene, at, sampler, u, light, Some(idx), pmf, media, max_vertices, path, stats);
 }
 
 /// The light a light subpath or photon leaves, from `u`, and its probability: blind to any point
@@ -901,20 +903,20 @@ pub(super) fn choose_emitting(scene: &PreparedScene, u: f32) -> Option<(u32, f32
 }
 
 /// The subpath of `light`, chosen with probability `pmf` (`idx`, its index in `scene.lights`;
-/// `None` for an emitter that moves within the shutter, posed at the sample's time, whose
-/// photons start in air): its vertex on the light, at the point numbers `u_pos` give and leaving
-/// in the direction `u_dir` give, and the walk from there (`light_subpath`). `path` must be
-/// empty and `sampler` at its walk's numbers.
+/// `None` for an emitter that moves within the shutter, posed at the sample's time), starting
+/// in the volumes `media`: its vertex on the light, at the point the numbers `u.0` give and
+/// leaving in the direction `u.1` give, and the walk from there (`light_subpath`). The sampler
+/// must be at its walk's numbers.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn leave_light(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
-    u_pos: Vec2,
-    u_dir: Vec2,
+    (u_pos, u_dir): (Vec2, Vec2),
     light: &Light,
     idx: Option<u32>,
     pmf: f32,
+    media: MediumStack,
     max_vertices: u32,
     path: &mut Vec<Vertex>,
     stats: &mut Stats,
@@ -976,8 +978,6 @@ pub(super) fn leave_light(
     v.delta_light = matches!(light, Light::Point(_) | Light::Spot(_) | Light::Directional(_));
     // No MIS weight asks a moving emitter's density (photons carry no weights).
     v.pdf_fwd = if idx.is_some() { v.pdf_light_origin(scene) } else { 0.0 };
-    // The volumes the light lies inside (air for most).
-    let media = idx.and_then(|i| scene.light_media.get(i as usize)).copied().unwrap_or_default();
     v.medium = media.current();
     path.push(v);
     if beta == Vec3::ZERO || !beta.is_finite() {

@@ -30,7 +30,8 @@ use super::{
 
 /// The emitting triangles that move within the shutter (`TriShading::light` `UNSAMPLED`), for
 /// photon mapping: no light sample reaches them, so paths that hit them count them in full, and
-/// photons leave them too, each pass from where they are at its instant (starting in air). A
+/// photons leave them too, each pass from where they are at its instant (starting in the volumes
+/// they lie inside at the shutter's opening). A
 /// photon leaves one of them with probability `share` (their power's share of all, from 1% to
 /// 99%), and a given one half by its power at the shutter's opening, half uniformly.
 #[derive(Clone, Debug)]
@@ -41,6 +42,9 @@ pub struct MovingEmitters {
     pub cdf: Vec<f32>,
     /// The probability that a photon leaves one of them rather than a light that stays put.
     pub share: f32,
+    /// The volumes each lies inside at the shutter's opening, where its photons start (as
+    /// `PreparedScene::light_media`; empty where the scene has no volumes).
+    pub media: Vec<MediumStack>,
 }
 
 impl MovingEmitters {
@@ -80,7 +84,17 @@ impl MovingEmitters {
             cdf.push(sum.min(1.0) as f32);
         }
         *cdf.last_mut().expect("not empty") = 1.0;
-        Some(MovingEmitters { prims, cdf, share: share as f32 })
+        let media = if scene.materials.iter().any(|m| m.bounds_medium()) {
+            let at = |prim: u32| {
+                let ([p0, p1, p2], _) = scene.triangle(prim, Some(&pose));
+                let normal = (p1 - p0).cross(p2 - p0).try_normalize().unwrap_or(askew());
+                media_at(scene, (p0 + p1 + p2) / 3.0, normal, prim)
+            };
+            prims.iter().map(|&prim| at(prim)).collect()
+        } else {
+            Vec::new()
+        };
+        Some(MovingEmitters { prims, cdf, share: share as f32, media })
     }
 
     /// Chooses one with `u` in [0, 1): its index in `prims` and probability.

@@ -159,7 +159,9 @@ fn photon_path(
             l.textured = m.emissive_texture.is_some() || m.clearcoat.is_some();
             let light = Light::Triangle(l);
             let pmf = share * pmf;
-            leave_light(scene, at, sampler, second, first, &light, None, pmf, max, path, stats);
+            let media = moving.media.get(i).copied().unwrap_or_default();
+            let u = (second, first);
+            leave_light(scene, at, sampler, u, &light, None, pmf, media, max, path, stats);
             return;
         }
         // A light that stays put: the choice's number stretched back over [0, 1).
@@ -173,7 +175,9 @@ fn photon_path(
         _ => (second, first),
     };
     let pmf = pmf * scale;
-    leave_light(scene, at, sampler, u_pos, u_dir, light, Some(idx), pmf, max, path, stats);
+    let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
+    let u = (u_pos, u_dir);
+    leave_light(scene, at, sampler, u, light, Some(idx), pmf, media, max, path, stats);
 }
 
 /// The numbers a photon starts from: two pairs (the first the better stratified) for its point

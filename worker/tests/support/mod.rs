@@ -1074,6 +1074,26 @@ pub fn cornell_light_in_water() -> Scene {
     common::gltf::load_path(&path).unwrap()
 }
 
+/// `cornell_motion` (a still camera) with its light sliding within the shutter as the short
+/// block does (`with_moving_light`) inside "water": a box of an absorbing, tinted medium of
+/// index 1 around the light's whole slide, from 0.1 below it to past the ceiling, so that every
+/// photon from the moving light starts inside the medium.
+pub fn cornell_moving_light_in_water() -> (Scene, RenderSettings) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let (_, settings) = cornell_motion(false);
+    let mut j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("cornell-motion.gltf")).unwrap())
+            .unwrap();
+    let material = push_water(&mut j);
+    push_box(&mut j, [0.15, 0.45, 0.18], [0.47, 0.6, 0.38], material);
+    let out = std::env::temp_dir().join(format!("renderfarm-moving-water-{}", std::process::id()));
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::copy(dir.join("cornell-box.bin"), out.join("cornell-box.bin")).unwrap();
+    let path = out.join("cornell-motion-water.gltf");
+    std::fs::write(&path, serde_json::to_string(&j).unwrap()).unwrap();
+    (with_moving_light(&common::gltf::load_path(&path).unwrap()), settings)
+}
+
 /// The many-lights scene of `n` small emitters over a floor
 /// (`worker::test_scenes::many_lights_gltf`), written to a temporary file and loaded.
 pub fn load_many_lights(n: usize, tag: &str) -> Scene {
