@@ -455,9 +455,23 @@ impl<'p> At<'p> {
 /// (dispersion) and its free flights' hero channel (scattering media).
 pub(super) type SharedNumbers = (Option<f32>, Option<f32>, Option<f32>);
 
-/// Draws a sample's `SharedNumbers` after its film and lens numbers, in that order (the time as
-/// the path tracer draws it): camera and light tasks both draw them here, so that they trace the
-/// same light subpath of a sample.
+/// The start of pixel sample `s` of `pixel`: its film position and lens numbers (zero for a
+/// pinhole) and its `SharedNumbers`, drawn in that order (the time as the path tracer draws it).
+/// Camera and light tasks both start a sample here, so that they draw the same shared numbers
+/// and trace the same light subpath of a sample.
+fn start_sample(
+    scene: &PreparedScene,
+    sampler: &mut Sampler,
+    pixel: UVec2,
+    s: u32,
+) -> (Vec2, Vec2, SharedNumbers) {
+    sampler.start_pixel_sample(pixel, s);
+    let film = pixel.as_vec2() + sampler.next_2d();
+    let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+    (film, lens, shared_numbers(scene, sampler))
+}
+
+/// Draws a sample's `SharedNumbers` after its film and lens numbers (`start_sample`).
 fn shared_numbers(scene: &PreparedScene, sampler: &mut Sampler) -> SharedNumbers {
     let u_time = scene.motion.is_some().then(|| sampler.next_1d());
     let u_wavelength = scene.dispersive.then(|| sampler.next_1d());
@@ -1299,10 +1313,8 @@ pub fn render_rows(
     let mut paths = Paths::default();
     let mut pose = None;
     let tile = super::render_rows_with(task, first, step, |pixel, s| {
-        sampler.start_pixel_sample(pixel, s);
-        let film = pixel.as_vec2() + sampler.next_2d();
-        let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-        let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
+        let (film, lens, shared) = start_sample(scene, &mut sampler, pixel, s);
+        let at = At::sample(scene, shared, &mut pose);
         let (camera, light) = (&mut paths.camera, &mut paths.light);
         let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
@@ -1386,10 +1398,9 @@ fn light_film(scene: &PreparedScene, seed: u64, frame: i64, s: u32) -> (Vec<Vec3
     let mut pose = None;
     for y in 0..height {
         for x in 0..width {
-            sampler.start_pixel_sample(UVec2::new(x, y), s);
-            // The camera task's shared numbers for this sample: after its film and lens numbers.
-            sampler.skip(if scene.camera.has_lens() { 4 } else { 2 });
-            let at = At::sample(scene, shared_numbers(scene, &mut sampler), &mut pose);
+            // The camera task's shared numbers for this sample (its film and lens numbers unused).
+            let (_, _, shared) = start_sample(scene, &mut sampler, UVec2::new(x, y), s);
+            let at = At::sample(scene, shared, &mut pose);
             light_subpath(scene, &at, &mut sampler, scene.max_depth, &mut light, &mut stats);
             splat_light_path(scene, &at, &light, &mut film, &mut stats);
         }

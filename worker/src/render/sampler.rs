@@ -118,8 +118,9 @@ impl Sampler {
     /// numbers drawn across many paths (a photon pass's photons) cover their domain evenly
     /// together, where the per-pixel sequences stratify each pixel's samples only. (Not for
     /// numbers a pixel needs stratified over its own samples: indexed by sample and pixel, one
-    /// pixel's points share the index's low bits, so its first dimension stays in a few strata.) Every 2^32 points start another
-    /// independently scrambled net. The sampler's pixel sample is left as it was.
+    /// pixel's points share the index's low bits, so its first dimension stays in a few
+    /// strata.) Every 2^32 points start another independently scrambled net. The sampler's
+    /// pixel sample is left as it was.
     pub fn frame_point(&mut self, sequence: u64, index: u64) -> [f32; FRAME_DIMENSIONS] {
         let key = (sequence, index >> 32);
         if self.frame_seeds.0 != Some(key) {

@@ -33,7 +33,8 @@ use super::{
 /// photons leave them too, each pass from where they are at its instant (starting in the volumes
 /// they lie inside at the shutter's opening). A
 /// photon leaves one of them with probability `share` (their power's share of all, from 1% to
-/// 99%), and a given one half by its power at the shutter's opening, half uniformly.
+/// 99% beside lights that stay put, else 1), and a given one half by its power at the shutter's
+/// opening, half uniformly.
 #[derive(Clone, Debug)]
 pub struct MovingEmitters {
     /// The triangles (BVH order).
@@ -42,8 +43,9 @@ pub struct MovingEmitters {
     pub cdf: Vec<f32>,
     /// The probability that a photon leaves one of them rather than a light that stays put.
     pub share: f32,
-    /// The volumes each lies inside at the shutter's opening, where its photons start (as
-    /// `PreparedScene::light_media`; empty where the scene has no volumes).
+    /// The volumes each lies inside at the shutter's opening (what moves placed there too),
+    /// where its photons start (as `PreparedScene::light_media`; empty where the scene has no
+    /// volumes).
     pub media: Vec<MediumStack>,
 }
 
@@ -88,7 +90,7 @@ impl MovingEmitters {
             let at = |prim: u32| {
                 let ([p0, p1, p2], _) = scene.triangle(prim, Some(&pose));
                 let normal = (p1 - p0).cross(p2 - p0).try_normalize().unwrap_or(askew());
-                media_at(scene, (p0 + p1 + p2) / 3.0, normal, prim)
+                media_at(scene, (p0 + p1 + p2) / 3.0, normal, prim, Some(&pose))
             };
             prims.iter().map(|&prim| at(prim)).collect()
         } else {
@@ -196,7 +198,7 @@ pub struct PreparedScene {
     pub moving_emitters: Option<MovingEmitters>,
     /// The volumes the camera lies inside, where every camera path starts (air for most; found
     /// as the lights' are, from where the camera is at the frame's time, which it is taken to
-    /// keep through the shutter and across a thin lens).
+    /// keep through the shutter and across a thin lens; among the volumes that stay put).
     pub camera_media: MediumStack,
     /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
     /// is traced by `integrator::li`).
@@ -685,7 +687,7 @@ fn prepare_inner(
         }
         // The camera sits at the origin of the camera-relative world (an orthographic camera's
         // rays start across its film plane: taken to lie in the same volumes as its centre).
-        prepared.camera_media = media_at(&prepared, Vec3::ZERO, askew(), NONE);
+        prepared.camera_media = media_at(&prepared, Vec3::ZERO, askew(), NONE, None);
         if prepared.camera_media.current().is_some() {
             prepared.wavefront = None;
         }
@@ -708,10 +710,10 @@ fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
         .iter()
         .map(|light| match light {
             Light::Triangle(l) => {
-                media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim)
+                media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim, None)
             }
-            Light::Point(l) => media_at(scene, l.position, askew(), NONE),
-            Light::Spot(l) => media_at(scene, l.position, l.direction, NONE),
+            Light::Point(l) => media_at(scene, l.position, askew(), NONE, None),
+            Light::Spot(l) => media_at(scene, l.position, l.direction, NONE, None),
             Light::Environment(_) | Light::Directional(_) => MediumStack::default(),
         })
         .collect();
@@ -729,11 +731,18 @@ fn askew() -> Vec3 {
 /// The volumes point `p` lies inside: the boundaries a ray from it along `dir` crosses on its way
 /// out of the scene (triangle `skip`, the light's own, left out), crossed backwards from air, as
 /// a subpath that came in from outside would have crossed them (the outermost entered first).
-fn media_at(scene: &PreparedScene, p: Vec3, dir: Vec3, skip: u32) -> MediumStack {
+/// What moves within the shutter is met where `pose` places it, and not at all without one.
+fn media_at(
+    scene: &PreparedScene,
+    p: Vec3,
+    dir: Vec3,
+    skip: u32,
+    pose: Option<&Pose<'_>>,
+) -> MediumStack {
     let mut crossed = Vec::new();
     let mut ray = Ray::new(p, dir);
     let mut passed = 0;
-    while let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) {
+    while let Some(hit) = scene.intersect(&ray, f32::INFINITY, pose) {
         passed += 1;
         if passed > MAX_MEDIA_HITS {
             tracing::warn!(
@@ -743,7 +752,7 @@ fn media_at(scene: &PreparedScene, p: Vec3, dir: Vec3, skip: u32) -> MediumStack
             );
             break;
         }
-        let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+        let ([p0, p1, p2], _) = scene.triangle(hit.prim, pose);
         let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
         let q = p0 * b[0] + p1 * b[1] + p2 * b[2];
         let normal = (p1 - p0).cross(p2 - p0).try_normalize();
