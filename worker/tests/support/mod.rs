@@ -669,17 +669,28 @@ pub fn assert_white(what: &str, means: [(f64, f64); 3], bias: f64) {
 /// the floor, the block and the red wall through it.
 pub fn cornell_in_fog() -> Scene {
     let mut scene = cornell_under_water();
+    make_fog(&mut scene, |extinction| extinction * 5.0, [0.95, 0.85, 0.7], 0.4);
+    scene
+}
+
+/// Turns the scene's one volume (asserted) into a fog: its extinction mapped by `extinction`,
+/// albedo `albedo` and Henyey-Greenstein `g`.
+fn make_fog(
+    scene: &mut Scene,
+    extinction: impl Fn(glam::Vec3) -> glam::Vec3,
+    albedo: [f32; 3],
+    g: f32,
+) {
     let mut fog = 0;
     for m in scene.materials.iter_mut().filter(|m| m.volume.is_some() && m.bounds_medium()) {
         let v = m.volume.as_mut().unwrap();
-        v.extinction *= 5.0;
-        v.albedo = glam::Vec3::new(0.95, 0.85, 0.7);
-        v.anisotropy = 0.4;
+        v.extinction = extinction(v.extinction);
+        v.albedo = glam::Vec3::from(albedo);
+        v.anisotropy = g;
         assert!(v.scatters());
         fog += 1;
     }
-    assert_eq!(fog, 1, "the water is the one volume");
-    scene
+    assert_eq!(fog, 1, "one volume");
 }
 
 /// The Cornell box and its camera inside a fog bank: a box of fog around the whole scene (index
@@ -693,16 +704,7 @@ pub fn cornell_in_a_fog_bank() -> Scene {
         push_box(j, [-0.3, -0.3, -1.2], [0.9, 0.9, 0.9], material as usize);
     });
     let mut scene = common::gltf::load_path(&path).unwrap();
-    let mut fog = 0;
-    for m in scene.materials.iter_mut().filter(|m| m.volume.is_some() && m.bounds_medium()) {
-        let v = m.volume.as_mut().unwrap();
-        v.extinction = glam::Vec3::new(0.7, 0.45, 0.25);
-        v.albedo = glam::Vec3::new(0.9, 0.8, 0.7);
-        v.anisotropy = 0.3;
-        assert!(v.scatters());
-        fog += 1;
-    }
-    assert_eq!(fog, 1, "the fog is the one volume");
+    make_fog(&mut scene, |_| glam::Vec3::new(0.7, 0.45, 0.25), [0.9, 0.8, 0.7], 0.3);
     scene
 }
 
