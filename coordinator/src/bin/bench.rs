@@ -36,7 +36,8 @@
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights]
-//! [--materials] [--caustic [--caustic-reference OUT.exr]] [--rainbow] [--no-warmup]`; the figures in `docs/perf/` come from this command.
+//! [--materials] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]] [--rainbow]
+//! [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
 use std::{
     fmt::Write as _,
@@ -88,6 +89,10 @@ struct Args {
     /// for a peer's runs to be scored against (`scenes/caustic/luxcore_peer.py`).
     #[arg(long, value_name = "OUT.exr")]
     caustic_reference: Option<PathBuf>,
+    /// With `--caustic`: the half side of the square light, in (0, 0.5] (its radiance scaled so
+    /// that the caustic stays as bright: a smaller light is rarer for the path tracer to hit).
+    #[arg(long, value_name = "METRES", default_value_t = 0.125)]
+    caustic_light: f64,
     /// Only the prism's rainbow: bidirectional path tracing and photon mapping against its
     /// closed form (the path tracer finds none of it).
     #[arg(long)]
@@ -526,7 +531,8 @@ fn many_lights(threads: usize) -> Result<()> {
     Ok(())
 }
 
-/// The mirror caustic (light half side 0.125, 64x64, `max_depth` 2) rendered by each integrator
+/// The mirror caustic (light half side `--caustic-light`, 0.125 unless given; 64x64, `max_depth`
+/// 2) rendered by each integrator
 /// (path, bdpt with 1 and 16 light-traced paths per pixel sample, sppm)
 /// through `coordinator render`'s code path at increasing sample counts: seconds (loading and
 /// rendering) and the relative MSE against the closed form, then each integrator's error at the
@@ -545,7 +551,9 @@ fn caustic(args: &Args) -> Result<()> {
     }
     let dir = std::env::temp_dir().join(format!("renderfarm-bench-caustic-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    let caustic = MirrorCaustic { light_half_side: 0.125, radiance: 7.5 / (0.125 * 0.125) };
+    let half = args.caustic_light;
+    anyhow::ensure!(half > 0.0 && half <= 0.5, "--caustic-light {half} is not in (0, 0.5]");
+    let caustic = MirrorCaustic { light_half_side: half, radiance: 7.5 / (half * half) };
     let scene = dir.join("caustic.gltf");
     std::fs::write(&scene, caustic.gltf())?;
     let res = 64;

@@ -72,7 +72,7 @@ use super::{
     material,
     media::{self, transmittance, Crossing, MediumStack},
     motion::Pose,
-    sampler::Sampler,
+    sampler::{Sampler, FRAME_DIMENSIONS},
     sampling::{
         sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
         uniform_sphere_pdf,
@@ -886,7 +886,9 @@ fn camera_subpath(
 /// that join a camera subpath to its own light subpath need each pixel's light subpaths to cover
 /// the lights' points and directions. (A frame-wide sequence indexed by sample and pixel, as
 /// photons use, puts one pixel's light subpaths in the same few strata of its first dimensions,
-/// so that a pixel's connections would settle on its scramble's value.)
+/// so that a pixel's connections would settle on its scramble's value.) Light tracing, which
+/// pools every pixel's light subpaths, starts them from a frame-wide sequence instead
+/// (`light_film`).
 pub(super) fn light_subpath(
     scene: &PreparedScene,
     at: &At<'_>,
@@ -903,6 +905,59 @@ pub(super) fn light_subpath(
     let light = &scene.lights.lights[idx as usize];
     let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
     let u = (u_pos, u_dir);
+    leave_light(scene, at, sampler, u, light, Some(idx), pmf, media, max_vertices, path, stats);
+}
+
+/// The frame-wide sequences (`Sampler::frame_point`) of a set of light subpaths that are pooled
+/// (light tracing's, photons'), one for the even sample indices or passes and one for the odd,
+/// which stay independent estimates.
+pub(super) type FrameSequences = [u64; 2];
+
+/// The start of light subpath `j` of `per_pass` of sample index or pass `pass`: point
+/// `pass / 2 * per_pass + j` of its half's frame-wide sequence, so that a pass's subpaths (and
+/// the passes of a half together) leave the lights as one low-discrepancy set and land evenly,
+/// each on its own as random as an independent one. Two pairs, the first the better stratified,
+/// then the light's choice (`leave_still_light`).
+pub(super) fn frame_start(
+    sampler: &mut Sampler,
+    sequences: FrameSequences,
+    per_pass: u64,
+    j: u64,
+    pass: u32,
+) -> FrameStart {
+    sampler.frame_point(sequences[(pass & 1) as usize], (pass / 2) as u64 * per_pass + j)
+}
+
+/// The numbers a pooled light subpath starts from (`frame_start`).
+pub(super) type FrameStart = [f32; FRAME_DIMENSIONS];
+
+/// The subpath of a light that stays put from `start` (`frame_start`), as `light_subpath`'s but
+/// for its first numbers: the light chosen by `start[4]` (`choose_emitting`, its probability
+/// times `scale`), and the first, best stratified pair of `start` given to what spreads the
+/// light most, the direction, but a directional light's point. The sampler must be at its
+/// walk's numbers (`LIGHT_DIMENSION + 3`).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn leave_still_light(
+    scene: &PreparedScene,
+    at: &At<'_>,
+    sampler: &mut Sampler,
+    start: FrameStart,
+    u_choice: f32,
+    scale: f32,
+    max_vertices: u32,
+    path: &mut Vec<Vertex>,
+    stats: &mut Stats,
+) {
+    path.clear();
+    let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
+    let Some((idx, pmf)) = choose_emitting(scene, u_choice) else { return };
+    let light = &scene.lights.lights[idx as usize];
+    let u = match light {
+        Light::Directional(_) => (first, second),
+        _ => (second, first),
+    };
+    let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
+    let pmf = pmf * scale;
     leave_light(scene, at, sampler, u, light, Some(idx), pmf, media, max_vertices, path, stats);
 }
 
@@ -1337,7 +1392,8 @@ pub fn render_rows(
 /// the frame connected to the camera, each contribution added to the pixel it lands on; the
 /// frame's sums of one sample index are that sample of every pixel. `task.rect` is the whole
 /// frame. The light tile's sample indices run over `bdpt.light_paths` times the pixel samples
-/// (index `i` draws as pixel sample `i`: the first `spp` are the camera subpaths' partners).
+/// (index `i` draws its shared numbers as pixel sample `i` and starts its light subpaths from
+/// the frame-wide sequences, `light_film`).
 ///
 /// A sample index's film is one thread's (its pixels' light subpaths added in pixel order), and
 /// the films enter the sums in sample order, so the result is the same bits on any number of
@@ -1384,8 +1440,16 @@ pub fn render_light_task(
 /// Most bytes of light-tracing films a light task holds at once (a 4K frame's film is 100 MB).
 const LIGHT_FILMS_BYTES: usize = 512 << 20;
 
+/// The frame-wide sequences light-traced subpaths start from (`frame_start`).
+const LIGHT_TRACING_SEQUENCES: FrameSequences = [0x6c74_7261_6365_0000, 0x6c74_7261_6365_0001];
+
 /// Sample `s` of the light-traced image of frame `frame`: every pixel's light subpath of that
-/// sample connected to the camera, added where each lands, in pixel order.
+/// sample connected to the camera, added where each lands, in pixel order. The subpaths start
+/// from one frame-wide sequence (`frame_start`, pixel `j` of the frame's pixels as photon `j` of
+/// a pass), so that together they cover the lights' points and directions evenly and where they
+/// land varies less than where independent subpaths would; they walk on by the pixel sample's
+/// numbers. They are not the camera task's light subpaths of the same samples: each strategy is
+/// an unbiased estimate on its own, whatever subpaths the others draw.
 fn light_film(scene: &PreparedScene, seed: u64, frame: i64, s: u32) -> (Vec<Vec3>, Stats) {
     let (width, height) = (scene.camera.width as u32, scene.camera.height as u32);
     let mut film = vec![Vec3::ZERO; (width * height) as usize];
@@ -1396,12 +1460,18 @@ fn light_film(scene: &PreparedScene, seed: u64, frame: i64, s: u32) -> (Vec<Vec3
     let mut sampler = Sampler::new(seed, frame);
     let mut light = Vec::new();
     let mut pose = None;
+    let pixels = (width * height) as u64;
     for y in 0..height {
         for x in 0..width {
             // The camera task's shared numbers for this sample (its film and lens numbers unused).
             let (_, _, shared) = start_sample(scene, &mut sampler, UVec2::new(x, y), s);
             let at = At::sample(scene, shared, &mut pose);
-            light_subpath(scene, &at, &mut sampler, scene.max_depth, &mut light, &mut stats);
+            let j = (y * width + x) as u64;
+            let start = frame_start(&mut sampler, LIGHT_TRACING_SEQUENCES, pixels, j, s);
+            sampler.set_dimension(LIGHT_DIMENSION + 3);
+            let max = scene.max_depth;
+            let (path, st) = (&mut light, &mut stats);
+            leave_still_light(scene, &at, &mut sampler, start, start[4], 1.0, max, path, st);
             splat_light_path(scene, &at, &light, &mut film, &mut stats);
         }
     }

@@ -60,13 +60,14 @@ use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
     bdpt::{
-        choose_emitting, cross_after, leave_light, roulette, sample_light, scatter,
-        spectral_weight, surface_vertex, At, Kind, SharedNumbers, Vertex, LIGHT_DIMENSION,
+        cross_after, frame_start, leave_light, leave_still_light, roulette, sample_light, scatter,
+        spectral_weight, surface_vertex, At, FrameSequences, FrameStart, Kind, SharedNumbers,
+        Vertex, LIGHT_DIMENSION,
     },
     geometry::{offset_ray_origin, Ray},
     integrator::{power_heuristic, same_side, Stats},
     light::{ChooseLight, Light, ShadingContext, TriangleLight},
-    sampler::{mix64, Sampler, FRAME_DIMENSIONS},
+    sampler::{mix64, Sampler},
     scene::{PreparedScene, SppmParams, NONE},
 };
 
@@ -132,7 +133,7 @@ pub fn render_task(
 /// at the pass's instant (a point on it by area and a direction by cosine, as from any emitting
 /// triangle). Each carries its flux over its whole choice's probability. The first, best
 /// stratified pair of `start` goes to what spreads the light most: the direction, but a
-/// directional light's point.
+/// directional light's point (`bdpt::leave_still_light`).
 fn photon_path(
     scene: &PreparedScene,
     at: &At<'_>,
@@ -143,7 +144,6 @@ fn photon_path(
 ) {
     path.clear();
     sampler.set_dimension(LIGHT_DIMENSION + 3);
-    let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
     let max = scene.max_depth;
     let mut u_choice = start[4];
     let mut scale = 1.0;
@@ -160,7 +160,7 @@ fn photon_path(
             let light = Light::Triangle(l);
             let pmf = share * pmf;
             let media = moving.media.get(i).copied().unwrap_or_default();
-            let u = (second, first);
+            let u = (Vec2::new(start[2], start[3]), Vec2::new(start[0], start[1]));
             leave_light(scene, at, sampler, u, &light, None, pmf, media, max, path, stats);
             return;
         }
@@ -168,34 +168,21 @@ fn photon_path(
         u_choice = ((u_choice - share) / (1.0 - share)).min(1.0 - f32::EPSILON / 2.0);
         scale = 1.0 - share;
     }
-    let Some((idx, pmf)) = choose_emitting(scene, u_choice) else { return };
-    let light = &scene.lights.lights[idx as usize];
-    let (u_pos, u_dir) = match light {
-        Light::Directional(_) => (first, second),
-        _ => (second, first),
-    };
-    let pmf = pmf * scale;
-    let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
-    let u = (u_pos, u_dir);
-    leave_light(scene, at, sampler, u, light, Some(idx), pmf, media, max, path, stats);
+    leave_still_light(scene, at, sampler, start, u_choice, scale, max, path, stats);
 }
 
-/// The numbers a photon starts from: two pairs (the first the better stratified) for its point
-/// and direction, then its light's choice (`photon_path`).
-type PhotonStart = [f32; FRAME_DIMENSIONS];
+/// The numbers a photon starts from (`bdpt::frame_start`).
+type PhotonStart = FrameStart;
 
-/// The frame-wide sequences photons start from (`Sampler::frame_point`), one for the even
-/// passes and one for the odd, which stay independent estimates.
-const PHOTON_SEQUENCES: [u64; 2] = [0x7068_6f74_6f6e_0000, 0x7068_6f74_6f6e_0001];
+/// The frame-wide sequences photons start from, one for the even passes and one for the odd.
+const PHOTON_SEQUENCES: FrameSequences = [0x7068_6f74_6f6e_0000, 0x7068_6f74_6f6e_0001];
 
 /// Where photon `j` of pass `pass` starts: point `pass / 2 * photons + j` of its half's
-/// frame-wide sequence, so that a pass's photons (and the passes of a half together) leave the
-/// lights as one low-discrepancy set and land evenly, each photon on its own as random as an
-/// independent one. (Photons are pooled at every visible point; a pixel's own subpaths, as
-/// bidirectional path tracing connects them, are not, and keep per-pixel numbers.)
+/// frame-wide sequence (`bdpt::frame_start`). (Photons are pooled at every visible point; a
+/// pixel's own subpaths, as bidirectional path tracing connects them, are not, and keep per-pixel
+/// numbers.)
 fn photon_start(sampler: &mut Sampler, photons: u32, j: u32, pass: u32) -> PhotonStart {
-    let index = (pass / 2) as u64 * photons as u64 + j as u64;
-    sampler.frame_point(PHOTON_SEQUENCES[(pass & 1) as usize], index)
+    frame_start(sampler, PHOTON_SEQUENCES, photons as u64, j as u64, pass)
 }
 
 /// The numbers of pass `pass` that all its camera paths and photons share (`At::sample`): where
