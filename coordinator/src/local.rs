@@ -201,6 +201,28 @@ pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
     }
 }
 
+/// How `threads` render threads run locally, as (workers, threads each): as many local workers
+/// of one thread each, or one worker of every thread where a job has fewer tasks over the whole
+/// frame (photon mapping's ranges of passes, bidirectional path tracing's light tasks) than
+/// twice the threads. A task renders on its worker's threads (the same bits on any count), so
+/// one-thread workers would leave threads idle while so few such tasks run, and one such task
+/// would run on one thread; where they are many, one-thread workers render them side by side
+/// without the per-pass joins of threads within a task. A bidirectional camera task spreads its
+/// rows over the threads.
+fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize) {
+    let threads = threads.max(1);
+    let frames = (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(1) as u128;
+    let whole_frame_tasks = match settings.integrator.as_str() {
+        "sppm" | "bdpt" => frames * settings.spp.div_ceil(settings.samples_per_task.max(1)) as u128,
+        _ => u128::MAX,
+    };
+    if whole_frame_tasks < 2 * threads as u128 {
+        (1, threads)
+    } else {
+        (threads, 1)
+    }
+}
+
 /// Renders `scene_path` with `settings` on `workers` local workers into `out` (frame ranges
 /// write `OUT_####.exr`) through the farm: an in-process coordinator on a loopback port, the
 /// workers linked to it in-process. A relative environment map path is relative to the working
@@ -244,11 +266,12 @@ pub fn render_file_within(
     let stop = AtomicBool::new(false);
     let cache = client::SceneCache::default();
     let link = service.local_link();
+    let (workers, threads) = local_workers(settings, workers);
     let status = std::thread::scope(|s| -> Result<JobStatus> {
-        let handles: Vec<_> = (0..workers.max(1))
+        let handles: Vec<_> = (0..workers)
             .map(|i| {
                 let options = WorkerOptions {
-                    threads: 1,
+                    threads,
                     name: format!("local-{i}"),
                     wait_s: 1.0,
                     prefetch_below: client::PREFETCH_BELOW,
@@ -338,4 +361,31 @@ pub fn render_file_within(
         est_rel_mse,
         rejected,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One worker of every thread where a photon-mapping or bidirectional job has fewer
+    /// whole-frame tasks than twice the threads (counted over its frames); one-thread workers
+    /// otherwise, and always for the path tracer.
+    #[test]
+    fn few_whole_frame_tasks_render_on_one_worker_of_every_thread() {
+        let job = |integrator: &str, spp: u32, frames: i64| RenderSettings {
+            integrator: integrator.into(),
+            spp,
+            samples_per_task: 64,
+            frames: common::settings::Frames { start: 1, end: frames, ..Default::default() },
+            ..Default::default()
+        };
+        for integrator in ["sppm", "bdpt"] {
+            assert_eq!(local_workers(&job(integrator, 64, 1), 4), (1, 4));
+            assert_eq!(local_workers(&job(integrator, 7 * 64, 1), 4), (1, 4));
+            assert_eq!(local_workers(&job(integrator, 8 * 64, 1), 4), (4, 1));
+            assert_eq!(local_workers(&job(integrator, 4 * 64, 2), 4), (4, 1));
+            assert_eq!(local_workers(&job(integrator, 64, 1), 0), (1, 1));
+        }
+        assert_eq!(local_workers(&job("path", 64, 1), 4), (4, 1));
+    }
 }

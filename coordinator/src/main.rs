@@ -196,8 +196,10 @@ enum Command {
         output: PathBuf,
         #[command(flatten)]
         settings: SettingsArgs,
-        /// Local workers, one render thread each (default: one per core). `--threads` is the
-        /// same (the peers benchmark harness passes it).
+        /// Render threads (default: one per core): local workers of one thread each, or one
+        /// local worker of them all where a `sppm` or `bdpt` job has fewer whole-frame tasks
+        /// (photon passes, light tracing) than twice the threads. `--threads` is the same (the
+        /// peers benchmark harness passes it).
         #[arg(long, visible_alias = "threads")]
         workers: Option<usize>,
         #[command(flatten)]

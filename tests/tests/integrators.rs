@@ -25,7 +25,9 @@ fn settings(integrator: &str, spp: u32, spt: u32) -> Value {
     s
 }
 
-/// `integrator`'s image of the Cornell box on 1 and 3 workers of one process, on serve + 3
+/// `integrator`'s image of the Cornell box on 1 and 3 threads of one process (`render
+/// --workers`: one local worker of that many threads, the job's 4 whole-frame tasks being fewer
+/// than twice them), on serve + 3
 /// worker processes (which merge `tasks` tasks), after one of two workers is kill -9'd while
 /// both hold leases (a longer job, so that both do) and after the coordinator is kill -9'd and
 /// restarted: the same bits.
@@ -34,7 +36,7 @@ fn same_image_on_any_workers_and_after_a_kill(integrator: &str, tasks: f64) {
     let s = settings(integrator, 64, 16);
     let one = render_reference(&dir, &s, 1);
     let three = render_reference(&dir, &s, 3);
-    assert_same_image(&one, &three, "coordinator render --workers 1 vs 3");
+    assert_same_image(&one, &three, "coordinator render --workers 1 vs 3 (threads)");
     assert!(sample_counts(&one).iter().all(|&n| n == 64));
 
     // Three worker processes.

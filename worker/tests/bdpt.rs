@@ -159,13 +159,16 @@ fn bdpt_with_more_light_paths_matches_the_path_tracer_and_the_closed_form() {
 
 /// Light tracing pools every pixel's light subpaths, which start from one frame-wide
 /// low-discrepancy sequence (`light_film`). Under a light much smaller than a pixel's footprint
-/// on the floor (the mirror caustic with a light of half side 0.002, a tenth of a pixel of
+/// on the floor (the mirror caustic with a light of half side 0.002, an eighth of a pixel of
 /// 32x32), where a light path lands depends on its direction alone, the sequence's first and
 /// best stratified pair, so the image's relative MSE falls much faster than one over the light
 /// paths: at least 25 times for 16 times the samples (8 light paths per pixel sample, 4 and 64
-/// samples; 34-47 over five seeds). Light subpaths from each pixel sample's own numbers,
+/// samples; 33.6-44.4 over five seeds). Light subpaths from each pixel sample's own numbers,
 /// independent from pixel to pixel, fall as independent paths do, 15.4-16.9 times over the same
-/// seeds, their error at 64 samples 3.9 times higher.
+/// seeds, their error at 64 samples 3.7-3.9 times higher. The even and odd sample indices' light
+/// subpaths start from two independent sequences, so the image's squared errors sum to what the
+/// halves' differences predict (within 0.8-1.2 times at 64 samples: 0.97-1.07 over the seeds;
+/// one sequence for both halves, which gives the two halves the same light subpaths, 1.29-1.44).
 #[test]
 fn light_tracing_error_falls_faster_than_one_over_the_paths() {
     use common::settings::Bdpt;
@@ -186,15 +189,24 @@ fn light_tracing_error_falls_faster_than_one_over_the_paths() {
         };
         let (camera, light) = render_bdpt(&scene, &settings);
         let ours = bdpt_sum(&camera, &light);
-        rel_mse(ours.iter().map(|o| o.0[0]), &expected)
+        // The squared errors over the variance the halves' differences give (`Film`'s estimate).
+        let (mut squared, mut predicted) = (0.0, 0.0);
+        for ((c, l), e) in camera.pixels.iter().zip(&light.pixels).zip(&expected) {
+            let sum = c.plus_independent(l);
+            squared += (sum.mean()[0] - e[0] as f64).powi(2);
+            predicted += sum.half_difference_variance().expect("both halves")[0];
+        }
+        (rel_mse(ours.iter().map(|o| o.0[0]), &expected), squared / predicted)
     };
-    let (few, many) = (error(4), error(64));
+    let ((few, _), (many, calibration)) = (error(4), error(64));
     println!(
         "mirror caustic, light half side {half}, {res}x{res}, 8 light paths per sample: relative \
-         MSE {few:.3e} at 4 spp, {many:.3e} at 64 ({:.1} times lower)",
+         MSE {few:.3e} at 4 spp, {many:.3e} at 64 ({:.1} times lower); squared error over the \
+         halves' prediction at 64 spp {calibration:.2}",
         few / many
     );
     assert!(few > 25.0 * many, "{few} against {many}: {:.2} times", few / many);
+    assert!((0.8..1.2).contains(&calibration), "squared error / half differences {calibration}");
 }
 
 /// A glossy scene (`veach-mis-s` of the peers' scenes: four metal plates of GGX alpha 0.005 to

@@ -553,6 +553,11 @@ fn caustic(args: &Args) -> Result<()> {
     std::fs::create_dir_all(&dir)?;
     let half = args.caustic_light;
     anyhow::ensure!(half > 0.0 && half <= 0.5, "--caustic-light {half} is not in (0, 0.5]");
+    // The peers' script renders the light of half side 0.125 (`scenes/caustic/luxcore_peer.py`).
+    anyhow::ensure!(
+        half == 0.125 || args.peer_csv.is_empty(),
+        "--peer-csv runs are of the light of half side 0.125, not --caustic-light {half}"
+    );
     let caustic = MirrorCaustic { light_half_side: half, radiance: 7.5 / (half * half) };
     let scene = dir.join("caustic.gltf");
     std::fs::write(&scene, caustic.gltf())?;

@@ -8,12 +8,13 @@
 //! sample of its pixels, the strategies with at least two camera vertices: the camera subpath
 //! hitting a light (s = 0), a light sampled from a camera vertex (s = 1) and the connections of
 //! both subpaths (s, t >= 2). A light task (the whole frame x a sample range) traces, for each
-//! sample index, the light subpath of every pixel again and connects each of its vertices to the
-//! camera (t = 1, light tracing): the contribution lands on whatever pixel the connection
-//! passes through, and the sum over the frame's light subpaths of one sample index is that
-//! sample of the light-traced image. The two films add. A light subpath is a function of
-//! (pixel, sample index) alone (its sampler dimensions start at `LIGHT_DIMENSION`), so both
-//! tasks trace the same one.
+//! sample index, a light subpath per pixel and connects each of its vertices to the camera
+//! (t = 1, light tracing): the contribution lands on whatever pixel the connection passes
+//! through, and the sum over the frame's light subpaths of one sample index is that sample of
+//! the light-traced image. The two films add. A camera task's light subpath is a function of
+//! (pixel, sample index) alone (its sampler dimensions start at `LIGHT_DIMENSION`); a light
+//! task's starts from a frame-wide sequence (`light_film`) and is not the same one: each
+//! strategy is unbiased on its own, whatever subpaths the others draw.
 //!
 //! Path vertices follow pbrt: `beta` is the throughput arriving at the vertex, `pdf_fwd` the
 //! density (per unit area, or per solid angle for a vertex at infinity) of the vertex being
@@ -457,8 +458,7 @@ pub(super) type SharedNumbers = (Option<f32>, Option<f32>, Option<f32>);
 
 /// The start of pixel sample `s` of `pixel`: its film position and lens numbers (zero for a
 /// pinhole) and its `SharedNumbers`, drawn in that order (the time as the path tracer draws it).
-/// Camera and light tasks both start a sample here, so that they draw the same shared numbers
-/// and trace the same light subpath of a sample.
+/// Camera and light tasks both start a sample here, so that they draw the same shared numbers.
 fn start_sample(
     scene: &PreparedScene,
     sampler: &mut Sampler,
@@ -878,7 +878,8 @@ fn camera_subpath(
 }
 
 /// The light subpath of the current pixel sample: the light's vertex and up to `max_vertices`
-/// surface vertices (`max_depth` for light tracing). Draws from `LIGHT_DIMENSION` on (the
+/// surface vertices (a camera task's strategies use `max_depth - 1`). Draws from
+/// `LIGHT_DIMENSION` on (the
 /// light, its point, its direction, then the walk's numbers); a shorter limit gives the same
 /// first vertices.
 ///
@@ -932,10 +933,10 @@ pub(super) fn frame_start(
 pub(super) type FrameStart = [f32; FRAME_DIMENSIONS];
 
 /// The subpath of a light that stays put from `start` (`frame_start`), as `light_subpath`'s but
-/// for its first numbers: the light chosen by `start[4]` (`choose_emitting`, its probability
-/// times `scale`), and the first, best stratified pair of `start` given to what spreads the
-/// light most, the direction, but a directional light's point. The sampler must be at its
-/// walk's numbers (`LIGHT_DIMENSION + 3`).
+/// for its first numbers: the light chosen by `u_choice` (`choose_emitting`, its probability
+/// times `scale`; `start[4]`, or what is left of it after a choice among moving emitters), and
+/// the first, best stratified pair of `start` given to what spreads the light most, the
+/// direction, but a directional light's point. The sampler must be at its walk's numbers.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn leave_still_light(
     scene: &PreparedScene,
@@ -1373,8 +1374,7 @@ pub fn render_rows(
         let (camera, light) = (&mut paths.camera, &mut paths.light);
         let unlit = camera_subpath(scene, &at, &mut sampler, film, lens, camera, &mut stats);
         // Its strategies (t >= 2) use at most `max_depth` light vertices: the light's and
-        // `max_depth - 1` surface vertices (the next one only light tracing connects). The
-        // subpath's numbers and the vertices it keeps are the same as the whole subpath's.
+        // `max_depth - 1` surface vertices (a longer one only light tracing would connect).
         light_subpath(
             scene,
             &at,
@@ -1443,13 +1443,21 @@ const LIGHT_FILMS_BYTES: usize = 512 << 20;
 /// The frame-wide sequences light-traced subpaths start from (`frame_start`).
 const LIGHT_TRACING_SEQUENCES: FrameSequences = [0x6c74_7261_6365_0000, 0x6c74_7261_6365_0001];
 
+/// The sampler dimension a light task's light subpath walks from: apart from the numbers of the
+/// camera task's subpaths of the same pixel sample (a camera subpath takes at most 8 x 1,026 from
+/// 0, its light subpath as many from `LIGHT_DIMENSION`, `max_depth` being at most 1,024), so
+/// that the camera-traced and light-traced films are independent estimates but for the
+/// sample's shared numbers.
+const LIGHT_TRACING_DIMENSION: u32 = LIGHT_DIMENSION + (1 << 15);
+
 /// Sample `s` of the light-traced image of frame `frame`: every pixel's light subpath of that
 /// sample connected to the camera, added where each lands, in pixel order. The subpaths start
 /// from one frame-wide sequence (`frame_start`, pixel `j` of the frame's pixels as photon `j` of
 /// a pass), so that together they cover the lights' points and directions evenly and where they
 /// land varies less than where independent subpaths would; they walk on by the pixel sample's
-/// numbers. They are not the camera task's light subpaths of the same samples: each strategy is
-/// an unbiased estimate on its own, whatever subpaths the others draw.
+/// numbers from `LIGHT_TRACING_DIMENSION`. They are not the camera task's light subpaths of the
+/// same samples: each strategy is an unbiased estimate on its own, whatever subpaths the others
+/// draw.
 fn light_film(scene: &PreparedScene, seed: u64, frame: i64, s: u32) -> (Vec<Vec3>, Stats) {
     let (width, height) = (scene.camera.width as u32, scene.camera.height as u32);
     let mut film = vec![Vec3::ZERO; (width * height) as usize];
@@ -1468,7 +1476,7 @@ fn light_film(scene: &PreparedScene, seed: u64, frame: i64, s: u32) -> (Vec<Vec3
             let at = At::sample(scene, shared, &mut pose);
             let j = (y * width + x) as u64;
             let start = frame_start(&mut sampler, LIGHT_TRACING_SEQUENCES, pixels, j, s);
-            sampler.set_dimension(LIGHT_DIMENSION + 3);
+            sampler.set_dimension(LIGHT_TRACING_DIMENSION);
             let max = scene.max_depth;
             let (path, st) = (&mut light, &mut stats);
             leave_still_light(scene, &at, &mut sampler, start, start[4], 1.0, max, path, st);

@@ -12,8 +12,9 @@
 //! film its real error (`common::film::PixelSums::half_difference_variance`).
 //!
 //! Frame-wide sequences (`Sampler::frame_point`) are the other kind: one point per index of a
-//! sequence shared by a whole frame (a pass's photons), a pure function of (seed, f, sequence,
-//! index), for numbers that should cover their domain evenly across many paths together.
+//! sequence shared by a whole frame (a pass's photons, a light-traced film's subpaths), a pure
+//! function of (seed, f, sequence, index), for numbers that should cover their domain evenly
+//! across many paths together.
 
 use glam::{UVec2, Vec2};
 use pulp::Simd;
@@ -115,12 +116,12 @@ impl Sampler {
     /// `FRAME_DIMENSIONS` dimensions of the Sobol sequence at that index, Owen-scrambled (each
     /// dimension with its own seed from the job, frame and sequence), so that each point is
     /// uniform on its own while any 2^k consecutive points aligned on 2^k form a (t, k, 5)-net:
-    /// numbers drawn across many paths (a photon pass's photons) cover their domain evenly
-    /// together, where the per-pixel sequences stratify each pixel's samples only. (Not for
-    /// numbers a pixel needs stratified over its own samples: indexed by sample and pixel, one
-    /// pixel's points share the index's low bits, so its first dimension stays in a few
-    /// strata.) Every 2^32 points start another independently scrambled net. The sampler's
-    /// pixel sample is left as it was.
+    /// numbers drawn across many paths (a photon pass's photons, a light-traced film's subpaths)
+    /// cover their domain evenly together, where the per-pixel sequences stratify each pixel's
+    /// samples only. (Not for numbers a pixel needs stratified over its own samples: indexed by
+    /// sample and pixel, one pixel's points share the index's low bits, so its first dimension
+    /// stays in a few strata.) Every 2^32 points start another independently scrambled net.
+    /// The sampler's pixel sample is left as it was.
     pub fn frame_point(&mut self, sequence: u64, index: u64) -> [f32; FRAME_DIMENSIONS] {
         let key = (sequence, index >> 32);
         if self.frame_seeds.0 != Some(key) {
