@@ -10,10 +10,22 @@ use serde_json::json;
 /// an orthographic camera that frames the floor. The positions come from a fixed hash of the
 /// index, so the scene is the same on every call.
 pub fn many_lights_gltf(n: usize) -> String {
+    many_lights_gltf_at(n, 0.6, 0.25)
+}
+
+/// [`many_lights_gltf`] with its quads of side `side` (in (0, 0.5], their radiance scaled by
+/// (0.25 / side)² so that each emits the same power) at `height` over the floor (in (0, 4]).
+/// Lower and smaller, each lamp lights its own pool, seen from it in a small solid angle: at
+/// 1,024 quads, 0.56 apart, a height of 0.15 and a side of 0.05 are street lamps about four
+/// heights apart, as in a city at night.
+pub fn many_lights_gltf_at(n: usize, height: f64, side: f64) -> String {
+    assert!(height > 0.0 && height <= 4.0, "lamp height {height} is outside (0, 4]");
+    assert!(side > 0.0 && side <= 0.5, "lamp side {side} is outside (0, 0.5]");
     let floor: [[f32; 3]; 4] =
         [[-10.0, 0.0, -10.0], [10.0, 0.0, -10.0], [10.0, 0.0, 10.0], [-10.0, 0.0, 10.0]];
+    let radiance = 8.0 * (0.25 / side).powi(2);
+    let side = (side / 2.0) as f32;
     // Counter-clockwise seen from below: the quad emits downward.
-    let side = 0.125f32;
     let quad: [[f32; 3]; 4] =
         [[-side, 0.0, -side], [side, 0.0, -side], [side, 0.0, side], [-side, 0.0, side]];
     let mut bytes: Vec<u8> = Vec::new();
@@ -44,7 +56,7 @@ pub fn many_lights_gltf(n: usize) -> String {
         let (i, j) = (k % grid, k / grid);
         let x = -9.0 + cell * (i as f64 + 0.15 + 0.7 * next());
         let z = -9.0 + cell * (j as f64 + 0.15 + 0.7 * next());
-        nodes.push(json!({"mesh": 1, "translation": [x, 0.6, z]}));
+        nodes.push(json!({"mesh": 1, "translation": [x, height, z]}));
     }
     let lambert = |color: f64, emission: f64| {
         json!({
@@ -69,7 +81,7 @@ pub fn many_lights_gltf(n: usize) -> String {
             {"primitives": [{"attributes": {"POSITION": 0}, "indices": 2, "material": 0}]},
             {"primitives": [{"attributes": {"POSITION": 1}, "indices": 3, "material": 1}]}
         ],
-        "materials": [floor_material, lambert(0.0, 8.0)],
+        "materials": [floor_material, lambert(0.0, radiance)],
         "extensionsUsed": ["KHR_materials_specular", "KHR_materials_emissive_strength"],
         "accessors": [
             {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-10.0, 0.0, -10.0], "max": [10.0, 0.0, 10.0]},

@@ -13,7 +13,8 @@
 //!
 //! With `--many-lights` it measures the light choice instead, on a floor lit by N small
 //! emitters (`worker::test_scenes::many_lights_gltf`): the tree against the power mixture at
-//! equal samples for N = 4 to 1024, then at equal time for 1024 (`docs/perf/light-tree.md`).
+//! equal samples for N = 4 to 1024, then at equal time for 1024 (`docs/perf/light-tree.md`);
+//! `--lamp-height` and `--lamp-side` hang smaller lamps lower, each lighting its own pool.
 //!
 //! With `--materials` it renders the glass and the subsurface scene of `scenes/materials/`
 //! instead, at the size of their Mitsuba references (`ref/<scene>-48.exr`), prints the same
@@ -35,7 +36,8 @@
 //! tracing's times (`docs/perf/integrators.md`).
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
-//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights]
+//! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights
+//! [--lamp-height 0.6] [--lamp-side 0.25]]
 //! [--materials] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]] [--rainbow]
 //! [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
@@ -77,6 +79,14 @@ struct Args {
     /// Only the light choice on many emitters: the tree against the mixture (no Cornell box).
     #[arg(long)]
     many_lights: bool,
+    /// With `--many-lights`: the lamps' height over the floor (0.6 unless given; lower, each
+    /// lamp lights its own pool: `worker::test_scenes::many_lights_gltf_at`).
+    #[arg(long, value_name = "METRES", default_value_t = 0.6)]
+    lamp_height: f64,
+    /// With `--many-lights`: the side of the lamps' squares (0.25 unless given), each emitting
+    /// the same power whatever its size.
+    #[arg(long, value_name = "METRES", default_value_t = 0.25)]
+    lamp_side: f64,
     /// Only the glass and subsurface scenes against their Mitsuba references (no Cornell box);
     /// `--peer-csv` files then hold runs of those scenes.
     #[arg(long)]
@@ -208,7 +218,7 @@ fn csv_row(
 fn main() -> Result<()> {
     let args = Args::parse();
     if args.many_lights {
-        return many_lights(args.threads);
+        return many_lights(args.threads, args.lamp_height, args.lamp_side);
     }
     if args.caustic {
         return caustic(&args);
@@ -472,8 +482,16 @@ fn render_prepared(
 /// (interpolated log-log) over the tree's; at 1,024 emitters also the path tracer, bidirectional
 /// path tracing and photon mapping through the farm's code path. Each run's seconds count
 /// preparing the scene (the tree's build) and rendering; the reference is the tree at 1024 spp
-/// with another seed.
-fn many_lights(threads: usize) -> Result<()> {
+/// with another seed. The lamps, squares of side `lamp_side`, hang at `lamp_height`.
+fn many_lights(threads: usize, lamp_height: f64, lamp_side: f64) -> Result<()> {
+    anyhow::ensure!(
+        lamp_height > 0.0 && lamp_height <= 4.0,
+        "--lamp-height {lamp_height} is not in (0, 4]"
+    );
+    anyhow::ensure!(
+        lamp_side > 0.0 && lamp_side <= 0.5,
+        "--lamp-side {lamp_side} is not in (0, 0.5]"
+    );
     use worker::render::{light::LightChoice, scene::prepare_with_light_choice};
     let dir = std::env::temp_dir().join(format!("renderfarm-bench-many-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
@@ -488,7 +506,7 @@ fn many_lights(threads: usize) -> Result<()> {
     println!("emitters,sampler,spp,seconds,relmse");
     for n in [4usize, 16, 64, 256, 1024] {
         let path = dir.join(format!("many-{n}.gltf"));
-        std::fs::write(&path, worker::test_scenes::many_lights_gltf(n))?;
+        std::fs::write(&path, worker::test_scenes::many_lights_gltf_at(n, lamp_height, lamp_side))?;
         let scene = common::gltf::load_path(&path)?;
         let (_, reference) = run(&scene, LightChoice::Tree, 1024, 1)?;
         let spps: &[u32] = if n == 1024 { &[4, 16, 64, 256] } else { &[16, 64] };
