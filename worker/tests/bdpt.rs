@@ -172,21 +172,10 @@ fn bdpt_with_more_light_paths_matches_the_path_tracer_and_the_closed_form() {
 #[test]
 fn light_tracing_error_falls_faster_than_one_over_the_paths() {
     use common::settings::Bdpt;
-    use worker::test_scenes::MirrorCaustic;
-    let half = 0.002;
-    let caustic = MirrorCaustic { light_half_side: half, radiance: 7.5 / (half * half) };
-    let res = 32;
-    let (scene, expected) = (load_caustic(&caustic), caustic_expected(&caustic, res));
+    let (half, res) = (0.002, 32);
+    let (scene, expected, base) = caustic_with_light(half, res, 1);
     let error = |spp: u32| {
-        let settings = RenderSettings {
-            width: res,
-            height: res,
-            spp,
-            max_depth: 2,
-            seed: 7,
-            bdpt: Some(Bdpt { light_paths: 8 }),
-            ..Default::default()
-        };
+        let settings = RenderSettings { spp, bdpt: Some(Bdpt { light_paths: 8 }), ..base.clone() };
         let (camera, light) = render_bdpt(&scene, &settings);
         let ours = bdpt_sum(&camera, &light);
         // The squared errors over the variance the halves' differences give (`Film`'s estimate).

@@ -295,10 +295,14 @@ pub fn caustic_expected(caustic: &worker::test_scenes::MirrorCaustic, res: u32) 
 /// 7.5 / 0.125²) at `res` x `res`: the scene, each pixel's closed form, and settings for it
 /// (`max_depth` 2, seed 7, `spp` samples).
 pub fn bench_caustic(res: u32, spp: u32) -> (Scene, Vec<[f32; 3]>, RenderSettings) {
-    let caustic = worker::test_scenes::MirrorCaustic {
-        light_half_side: 0.125,
-        radiance: 7.5 / (0.125 * 0.125),
-    };
+    caustic_with_light(0.125, res, spp)
+}
+
+/// [`bench_caustic`] with a light of half side `half` (`bench --caustic-light`: its radiance
+/// 7.5 / half², the caustic as bright).
+pub fn caustic_with_light(half: f64, res: u32, spp: u32) -> (Scene, Vec<[f32; 3]>, RenderSettings) {
+    let caustic =
+        worker::test_scenes::MirrorCaustic { light_half_side: half, radiance: 7.5 / (half * half) };
     let settings = RenderSettings {
         width: res,
         height: res,
