@@ -62,11 +62,11 @@ fn shipped_scenes_keep_the_mixture() {
 }
 
 #[test]
-fn many_emitters_choose_by_the_tree_on_the_scalar_renderer() {
+fn many_emitters_choose_by_the_tree_on_the_wavefront() {
     let few = prepare(&many_lights(TREE_MIN_EMITTERS - 1), &settings(8, 1)).unwrap();
     assert!(!few.lights.uses_tree() && few.wavefront.is_some());
     let many = prepare(&many_lights(TREE_MIN_EMITTERS), &settings(8, 1)).unwrap();
-    assert!(many.lights.uses_tree() && many.wavefront.is_none());
+    assert!(many.lights.uses_tree() && many.wavefront.is_some());
 }
 
 #[test]

@@ -13,9 +13,9 @@ use glam::Vec3;
 use serde_json::json;
 use support::*;
 use worker::render::{
-    light::Light,
+    light::{Light, LightChoice},
     render_rows_scalar, render_task,
-    scene::{prepare, PreparedScene},
+    scene::{prepare, prepare_with_light_choice, PreparedScene},
     wavefront,
 };
 
@@ -346,7 +346,8 @@ fn every_real_asset_renders_without_nan() {
 /// the scalar one: the same sums bit for bit and the same ray count, with a lens, with short
 /// bounce limits, on an offset tile with an offset sample range, with an emitter that shines
 /// from both faces, with vertex normals, with point, spot and directional lights, and in
-/// uniform environments, the furnaces included.
+/// uniform environments, the furnaces included; each with its lights chosen by the mixture and
+/// by the light tree (whose probabilities depend on the point).
 #[test]
 fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let two_sided = edited_scene("cornell-box", "two-sided-light", |json| {
@@ -407,11 +408,15 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             t.smooth = true;
         }
     };
-    for ((name, scene), smooth) in scenes.iter().flat_map(|s| [(s, false), (s, true)]) {
+    let cases = scenes.iter().flat_map(|s| [(s, false), (s, true)]);
+    let cases = cases.flat_map(|c| [(c, LightChoice::Mixture), (c, LightChoice::Tree)]);
+    for (((name, scene), smooth), choice) in cases {
         for json in variants {
             let settings = RenderSettings::from_json(json).unwrap();
-            let mut wavefront = prepare(scene, &settings).expect("prepare");
-            let mut scalar = prepare(scene, &settings).expect("prepare");
+            let mut wavefront =
+                prepare_with_light_choice(scene, &settings, choice).expect("prepare");
+            let mut scalar = prepare_with_light_choice(scene, &settings, choice).expect("prepare");
+            assert_eq!(wavefront.lights.uses_tree(), choice == LightChoice::Tree);
             if smooth {
                 bend(&mut wavefront);
                 bend(&mut scalar);
@@ -427,7 +432,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             }
             assert_eq!(wavefront.environment.is_some(), json.contains("environment"));
             scalar.wavefront = None;
-            let name = format!("{name}{}", if smooth { ", vertex normals" } else { "" });
+            let name =
+                format!("{name}{}, {choice:?}", if smooth { ", vertex normals" } else { "" });
             for (rect, samples) in [
                 (Rect { x0: 0, y0: 0, width: 48, height: 40 }, SampleRange { start: 0, end: 6 }),
                 (Rect { x0: 13, y0: 7, width: 21, height: 17 }, SampleRange { start: 5, end: 11 }),

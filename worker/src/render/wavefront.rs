@@ -1,14 +1,15 @@
 //! The wavefront renderer: the same path tracer as `integrator::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
-//! For the scenes `wavefront_tables::Tables::new` accepts: diffuse materials without textures or vertex colours,
-//! untextured emitters, any lights and environment, nothing moving, nothing alpha-tested (the
-//! Cornell box and the furnaces among them). Each lane holds one path; a lane whose path ends
-//! takes the task's next sample at once (one whose ray escapes, before the shading), so that
-//! the vectors stay full whatever the path lengths. Ray casting, the start of a sample (its film
-//! and lens numbers), the light choice, samples of lights other than emissive triangles and
-//! what escaping rays see stay scalar, one lane at a time, through the scalar renderer's own
-//! calls. The numbers each bounce draws come from `LaneSampler`, the sampler's integer
+//! For the scenes `wavefront_tables::Tables::new` accepts: diffuse materials without textures or
+//! vertex colours, untextured emitters, any lights and environment, chosen by the mixture or the
+//! light tree, nothing moving, nothing alpha-tested (the Cornell box and the furnaces among
+//! them). Each lane holds one path; a lane whose path ends takes the task's next sample at once
+//! (one whose ray escapes, before the shading), so that the vectors stay full whatever the path
+//! lengths. Ray casting, the start of a sample (its film and lens numbers), the light choice
+//! (and under the tree, the probability of the light a path hits, from the lane's previous
+//! vertex), samples of lights other than emissive triangles and what escaping rays see stay
+//! scalar, one lane at a time, through the scalar renderer's own calls. The numbers each bounce draws come from `LaneSampler`, the sampler's integer
 //! arithmetic in all lanes at once, and the shading (hit point, frame, MIS weights, light and
 //! BSDF sampling, ray origins, roulette) is vector code transcribed from the scalar routines
 //! with the same operations in the same order, so every lane computes the scalar path's bits,
@@ -27,6 +28,7 @@ use super::{
     geometry::{gamma, Ray},
     integrator::{power_heuristic, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
     lanes::{F, M, U, V3},
+    light::{ChooseLight, ShadingContext},
     sampler::{LaneSampler, Sampler},
     scene::{PreparedScene, NONE},
     wavefront_tables::Tables,
@@ -295,6 +297,10 @@ struct Paths<S: Simd> {
     beta: V3<S>,
     radiance: V3<S>,
     prev_bsdf_pdf: F<S>,
+    /// The previous vertex's point and shading normal, where a light's probability depends on
+    /// them (the light tree; `integrator::li`'s `prev_ctx`).
+    prev_p: V3<S>,
+    prev_n: V3<S>,
     depth: [u32; MAX_LANES],
     item: [u64; MAX_LANES],
     alive: [bool; MAX_LANES],
@@ -302,6 +308,14 @@ struct Paths<S: Simd> {
     sampler: [Sampler; MAX_LANES],
     /// The same samplers as vectors, for the numbers every bounce draws in all lanes at once.
     draws: LaneSampler<S>,
+}
+
+impl<S: Simd> Paths<S> {
+    /// Lane `i`'s previous vertex as a light choice sees it.
+    #[inline]
+    fn prev_ctx(&self, i: usize) -> ShadingContext {
+        ShadingContext { p: self.prev_p.lane(i), n: self.prev_n.lane(i) }
+    }
 }
 
 #[inline(always)]
@@ -322,6 +336,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         beta: z3,
         radiance: z3,
         prev_bsdf_pdf: zero,
+        prev_p: z3,
+        prev_n: z3,
         depth: [0; MAX_LANES],
         item: [0; MAX_LANES],
         alive: [false; MAX_LANES],
@@ -406,7 +422,11 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                                 0.0
                             }
                         } else {
-                            let light_pdf = tables.mixture.probability(env_idx) * env.pdf(ray.dir);
+                            let choice = match &tables.mixture {
+                                Some(m) => m.probability(env_idx),
+                                None => scene.lights.pmf(&paths.prev_ctx(i), env_idx),
+                            };
+                            let light_pdf = choice * env.pdf(ray.dir);
                             power_heuristic(paths.prev_bsdf_pdf.lane(i), light_pdf)
                         };
                         if weight > 0.0 {
@@ -442,7 +462,14 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 {
                     l_normal.set_lane(i, l.normal);
                     l_area.set_lane(i, l.area);
-                    l_prob.set_lane(i, l.probability);
+                    // Under the tree, the probability of choosing the light from the previous
+                    // vertex (the first hit takes no weight).
+                    let prob = if tables.mixture.is_some() || first_bounce[i] {
+                        l.probability
+                    } else {
+                        scene.lights.pmf(&paths.prev_ctx(i), shading.light)
+                    };
+                    l_prob.set_lane(i, prob);
                     l_two_sided[i] = l.two_sided;
                 }
             }
@@ -511,7 +538,14 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             roulette[i] = paths.depth[i] + 1 > RR_MIN_DEPTH;
             has_light[i] = false;
             other_light[i] = false;
-            if let Some((light, pdf, u_x)) = tables.mixture.choose_remapped(u_light.x) {
+            let choice = match &tables.mixture {
+                Some(m) => m.choose_remapped(u_light.x),
+                None => {
+                    let ctx = ShadingContext { p: p.lane(i), n: ns.lane(i) };
+                    scene.lights.choose(&ctx, u_light.x)
+                }
+            };
+            if let Some((light, pdf, u_x)) = choice {
                 has_light[i] = true;
                 choice_pdf.set_lane(i, pdf);
                 ul_x.set_lane(i, u_x);
@@ -621,6 +655,10 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.origin = go_on.select3(origin, paths.origin);
         paths.dir = go_on.select3(wi, paths.dir);
         paths.prev_bsdf_pdf = go_on.select(pdf, paths.prev_bsdf_pdf);
+        if tables.mixture.is_none() {
+            paths.prev_p = go_on.select3(p, paths.prev_p);
+            paths.prev_n = go_on.select3(ns, paths.prev_n);
+        }
         go_on.to_bools(&mut survive);
         for i in 0..lanes {
             if !cont[i] {

@@ -1,5 +1,6 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
-//! prepared: the Lambert albedo and emission of each material and the emissive triangles.
+//! prepared: the Lambert albedo and emission of each material, the emissive triangles and the
+//! light choice.
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
 //! one way: `scene` does not depend on the renderers.
 
@@ -20,6 +21,8 @@ pub(super) struct LightRec {
     pub(super) area: f32,
     pub(super) emission: Vec3,
     pub(super) two_sided: bool,
+    /// The mixture's probability of choosing it (0 under the tree, whose probability depends on
+    /// the point: asked where a path hits the light).
     pub(super) probability: f32,
 }
 
@@ -33,23 +36,24 @@ pub struct Tables {
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
     /// are sampled by `Light::sample_li`, one lane at a time).
     pub(super) lights: Vec<Option<LightRec>>,
-    /// The scene's light choice, which ignores the receiving point.
-    pub(super) mixture: PowerMixture,
+    /// The scene's light choice when it is the mixture, which ignores the receiving point (its
+    /// probabilities baked into `lights`); `None` under the light tree, which each lane asks
+    /// (`LightSampler`, `ChooseLight`) at its own point, one lane at a time.
+    pub(super) mixture: Option<PowerMixture>,
 }
 
 impl Tables {
     /// The tables of a scene being prepared, or `None` when it needs something only the
     /// scalar renderer does (`scalar_only`: something moves within the shutter, is
-    /// alpha-tested or has vertex colours; lights are chosen by the tree; or a material is
-    /// textured, glossy, unlit, or has a clear coat, a sheen, anisotropy or iridescence).
+    /// alpha-tested or has vertex colours; or a material is textured, glossy, unlit, or has a
+    /// clear coat, a sheen, anisotropy or iridescence).
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
         light_sampler: &LightSampler,
         scalar_only: bool,
     ) -> Option<Tables> {
-        // The tables bake each light's probability, which the tree makes depend on the point.
-        let mixture = light_sampler.mixture()?;
+        let mixture = light_sampler.mixture();
         if scalar_only {
             return None;
         }
@@ -93,9 +97,9 @@ impl Tables {
                 area: l.area,
                 emission: l.emission,
                 two_sided: l.two_sided,
-                probability: mixture.probability(i as u32),
+                probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        Some(Tables { albedo, emission, lights, mixture: mixture.clone() })
+        Some(Tables { albedo, emission, lights, mixture: mixture.cloned() })
     }
 }

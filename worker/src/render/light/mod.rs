@@ -131,7 +131,7 @@ pub trait ChooseLight {
 /// small quads, each its own placement (`docs/perf/light-tree.md`), the tree had the lower
 /// error at equal time from N = 4 on; the threshold sits above the 9 emitters of the busiest
 /// shipped scene, so that scenes like those (a few lamps, one emissive mesh of many triangles)
-/// keep their images and the wavefront.
+/// keep their images.
 pub const TREE_MIN_EMITTERS: usize = 16;
 
 /// Which way a scene chooses its lights.

@@ -567,3 +567,75 @@ impl ChooseLight for LightTree {
         pmf
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::light::{PointLight, SpotLight, TriangleLight};
+
+    /// A node's importance (`NodeBounds`, what the walk evaluates) is pbrt-v4's
+    /// (`LightBounds::importance`) but for rounding: over the boxes of single triangles, points
+    /// and spots and of unions of them, seen from points inside, near and far, with a normal
+    /// and without.
+    #[test]
+    fn node_importance_is_the_bounds_importance() {
+        let mut state = 0x1234_5678_9abc_def0u64;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut vec3 = |scale: f32| {
+            let v = Vec3::new(next(), next(), next());
+            (v - 0.5) * scale
+        };
+        let mut lights = Vec::new();
+        for k in 0..60 {
+            let centre = vec3(8.0);
+            lights.push(match k % 6 {
+                0 => Light::Point(PointLight { position: centre, intensity: Vec3::ONE }),
+                1 => Light::Spot(SpotLight {
+                    position: centre,
+                    direction: vec3(2.0).normalize_or(Vec3::Y),
+                    intensity: Vec3::splat(3.0),
+                    cos_inner: 0.9,
+                    cos_outer: 0.7,
+                }),
+                _ => {
+                    let p = [centre, centre + vec3(1.0), centre + vec3(1.0)];
+                    let Some(t) = TriangleLight::new(p, Vec3::splat(2.0), k % 4 == 0) else {
+                        continue;
+                    };
+                    Light::Triangle(t)
+                }
+            });
+        }
+        let single: Vec<LightBounds> =
+            lights.iter().filter_map(|l| LightBounds::of(l, 8.0)).collect();
+        let mut bounds = single.clone();
+        for pair in single.windows(3) {
+            bounds.push(pair[0].union(&pair[1]));
+            bounds.push(pair[0].union(&pair[1]).union(&pair[2]));
+        }
+        let (mut compared, mut nonzero) = (0, 0);
+        for b in &bounds {
+            let node = NodeBounds::new(b);
+            for k in 0..40 {
+                let p = if k % 4 == 0 { b.centroid() + vec3(0.5) } else { vec3(16.0) };
+                let n = if k % 5 == 0 { Vec3::ZERO } else { vec3(2.0).normalize_or(Vec3::Z) };
+                let want = b.importance(p, n);
+                let got = node.importance(p, n);
+                // The angles' differences (cos_sub_clamped) cancel digits: the worst of these
+                // cases differs by about 2e-4.
+                assert!(
+                    (got - want).abs() <= 1e-3 * want,
+                    "{b:?} at {p}, {n}: {got} against {want}"
+                );
+                compared += 1;
+                nonzero += (want > 0.0) as usize;
+            }
+        }
+        assert!(compared > 5000 && nonzero > compared / 3, "{nonzero} of {compared}");
+    }
+}
