@@ -4,12 +4,20 @@
 //! bounds what the child's lights could send to the receiving point. Lights at infinity (the
 //! environment, directional lights) are chosen beside the tree with a fixed probability.
 //!
+//! The tree is built binary, as pbrt's, then folded four-wide (`WideNode`: a node's children are
+//! its binary node's grandchildren, or children where those are leaves), and the choice takes one
+//! of up to four children in proportion to their importance, evaluated for all four at once in
+//! SIMD lanes (`WideBounds`): half the steps of the binary walk, whose cost is the latency of
+//! each step's chain of roots and divisions. A child's probability is its own importance's share,
+//! where pbrt's is a product of two binary shares; either is unbiased, since every node above a
+//! light that can reach the point has nonzero importance there.
+//!
 //! The tree is built from the lights alone, in their order, with no hashing or threads, so a
 //! scene always gets the same tree.
 
 use std::f32::consts::{FRAC_PI_2, PI};
 
-use glam::{Quat, Vec3};
+use glam::{Quat, Vec3, Vec4};
 
 use super::{ChooseLight, Light, ShadingContext};
 
@@ -246,37 +254,6 @@ impl NodeBounds {
             two_sided: b.two_sided,
         }
     }
-
-    /// `LightBounds::importance`, term for term. A point inside the box is inside the sphere
-    /// around it, so the sphere alone decides when the box surrounds the point.
-    #[inline(always)]
-    fn importance(&self, p: Vec3, n: Vec3) -> f32 {
-        let d = p - self.centre;
-        let dist2 = d.length_squared();
-        let d2 = dist2.max(self.half_diagonal);
-        let wi = if dist2 > 0.0 { d * (1.0 / dist2.sqrt()) } else { Vec3::ZERO };
-        let mut cos_theta_w = self.w.dot(wi);
-        if self.two_sided {
-            cos_theta_w = cos_theta_w.abs();
-        }
-        let sin_theta_w = safe_sqrt(1.0 - cos_theta_w * cos_theta_w);
-        let (cos_theta_b, sin_theta_b) = if dist2 <= self.radius2 {
-            (-1.0, 0.0)
-        } else {
-            let sin2 = self.radius2 / dist2;
-            (safe_sqrt(1.0 - sin2), sin2.sqrt())
-        };
-        cone_importance(
-            self.phi,
-            d2,
-            wi,
-            n,
-            (sin_theta_w, cos_theta_w),
-            (self.sin_theta_o, self.cos_theta_o),
-            self.cos_theta_e,
-            (sin_theta_b, cos_theta_b),
-        )
-    }
 }
 
 /// The importance of lights of power `phi` at squared distance `d2` in direction `wi` from a
@@ -313,7 +290,8 @@ fn cone_importance(
     importance.max(0.0)
 }
 
-/// A node: its bounds and either its second child (the first follows it) or its light.
+/// A node of the binary tree as built: its bounds and either its second child (the first
+/// follows it) or its light.
 #[derive(Clone, Copy, Debug)]
 struct Node {
     bounds: NodeBounds,
@@ -322,16 +300,117 @@ struct Node {
     leaf: bool,
 }
 
-/// pbrt-v4's `BVHLightSampler`: a binary tree over the lights that have bounds, chosen down by
+/// Up to four children's `NodeBounds` side by side, one lane each, so that one evaluation in
+/// SIMD gives the importance of them all. An empty lane has no power.
+#[derive(Clone, Copy, Debug)]
+struct WideBounds {
+    centre: [Vec4; 3],
+    half_diagonal: Vec4,
+    radius2: Vec4,
+    w: [Vec4; 3],
+    phi: Vec4,
+    cos_theta_o: Vec4,
+    sin_theta_o: Vec4,
+    cos_theta_e: Vec4,
+    /// 1 where the lights emit from both faces, else 0.
+    two_sided: Vec4,
+}
+
+impl WideBounds {
+    const EMPTY: WideBounds = WideBounds {
+        centre: [Vec4::ZERO; 3],
+        half_diagonal: Vec4::ONE,
+        radius2: Vec4::ZERO,
+        w: [Vec4::ZERO, Vec4::ZERO, Vec4::ONE],
+        phi: Vec4::ZERO,
+        cos_theta_o: Vec4::ONE,
+        sin_theta_o: Vec4::ZERO,
+        cos_theta_e: Vec4::ZERO,
+        two_sided: Vec4::ZERO,
+    };
+
+    fn set(&mut self, k: usize, b: &NodeBounds) {
+        for axis in 0..3 {
+            self.centre[axis][k] = b.centre[axis];
+            self.w[axis][k] = b.w[axis];
+        }
+        self.half_diagonal[k] = b.half_diagonal;
+        self.radius2[k] = b.radius2;
+        self.phi[k] = b.phi;
+        self.cos_theta_o[k] = b.cos_theta_o;
+        self.sin_theta_o[k] = b.sin_theta_o;
+        self.cos_theta_e[k] = b.cos_theta_e;
+        self.two_sided[k] = if b.two_sided { 1.0 } else { 0.0 };
+    }
+
+    /// `LightBounds::importance` of each lane at `p` with normal `n` (zero: no cosine), term
+    /// for term in each lane (the branches as selects); 0 in empty lanes.
+    #[inline(always)]
+    fn importance(&self, p: Vec3, n: Vec3) -> Vec4 {
+        let (zero, one) = (Vec4::ZERO, Vec4::ONE);
+        let d = [0, 1, 2].map(|axis| Vec4::splat(p[axis]) - self.centre[axis]);
+        let dist2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        let d2 = dist2.max(self.half_diagonal);
+        let inv = Vec4::select(dist2.cmpgt(zero), one / sqrt4(dist2), zero);
+        let wi = d.map(|c| c * inv);
+        let cos_w = self.w[0] * wi[0] + self.w[1] * wi[1] + self.w[2] * wi[2];
+        let cos_w = Vec4::select(self.two_sided.cmpgt(zero), cos_w.abs(), cos_w);
+        let sin_w = sqrt4((one - cos_w * cos_w).max(zero));
+        // The cone of directions from the box toward p: all of them from inside its sphere.
+        let inside = dist2.cmple(self.radius2);
+        let sin2 = self.radius2 / dist2;
+        let cos_b = Vec4::select(inside, -one, sqrt4((one - sin2).max(zero)));
+        let sin_b = Vec4::select(inside, zero, sqrt4(sin2));
+        let (cos_o, sin_o) = (self.cos_theta_o, self.sin_theta_o);
+        let cos_x = cos_sub_clamped4(sin_w, cos_w, sin_o, cos_o);
+        let beyond = cos_w.cmpgt(cos_o);
+        let sin_x = Vec4::select(beyond, zero, sin_w * cos_o - cos_w * sin_o);
+        let cos_p = cos_sub_clamped4(sin_x, cos_x, sin_b, cos_b);
+        let mut importance = self.phi * cos_p / d2;
+        if n != Vec3::ZERO {
+            let cos_i = (wi[0] * n.x + wi[1] * n.y + wi[2] * n.z).abs();
+            let sin_i = sqrt4((one - cos_i * cos_i).max(zero));
+            importance *= cos_sub_clamped4(sin_i, cos_i, sin_b, cos_b);
+        }
+        let reaches = cos_p.cmpgt(self.cos_theta_e) & self.phi.cmpgt(zero);
+        Vec4::select(reaches, importance.max(zero), zero)
+    }
+}
+
+/// Lane-wise square root.
+#[inline(always)]
+fn sqrt4(v: Vec4) -> Vec4 {
+    v.sqrt()
+}
+
+/// `cos_sub_clamped` in each lane.
+#[inline(always)]
+fn cos_sub_clamped4(sin_a: Vec4, cos_a: Vec4, sin_b: Vec4, cos_b: Vec4) -> Vec4 {
+    Vec4::select(cos_a.cmpgt(cos_b), Vec4::ONE, cos_a * cos_b + sin_a * sin_b)
+}
+
+/// A node of the four-wide tree the choice walks: the binary tree with every other level
+/// folded in (an interior node's children are its binary node's grandchildren, or children
+/// where those are leaves), so that a choice takes half the steps, each one SIMD evaluation of
+/// up to four children.
+#[derive(Clone, Copy, Debug)]
+struct WideNode {
+    bounds: WideBounds,
+    /// Each lane's wide node, or its light where `leaves` has the lane's bit.
+    children: [u32; 4],
+    leaves: u8,
+}
+
+/// pbrt-v4's `BVHLightSampler` over the lights that have bounds, four-wide, chosen down by
 /// importance, and the lights at infinity beside it.
 #[derive(Clone, Debug, Default)]
 pub struct LightTree {
-    /// Nodes depth first: node 0 the root, an interior node's first child right after it.
-    nodes: Vec<Node>,
-    /// Each node's parent (the root's is itself).
-    parents: Vec<u32>,
-    /// The leaf of each light (`u32::MAX` for lights not in the tree).
-    leaf_of: Vec<u32>,
+    /// Wide nodes depth first, node 0 the root.
+    nodes: Vec<WideNode>,
+    /// Each node's parent and its lane there (the root's: itself, 0).
+    parents: Vec<(u32, u8)>,
+    /// The node and lane of each light (`u32::MAX` for lights not in the tree).
+    leaf_of: Vec<(u32, u8)>,
     /// Lights at infinity with power, chosen uniformly among themselves.
     infinite: Vec<u32>,
     /// Index of each light in `infinite` (`u32::MAX` for others).
@@ -342,7 +421,7 @@ impl LightTree {
     /// Builds the tree over `lights` (deterministic: only their order and values matter).
     pub fn new(lights: &[Light], scene_radius: f32) -> LightTree {
         let mut tree = LightTree {
-            leaf_of: vec![u32::MAX; lights.len()],
+            leaf_of: vec![(u32::MAX, 0); lights.len()],
             infinite_of: vec![u32::MAX; lights.len()],
             ..LightTree::default()
         };
@@ -364,104 +443,45 @@ impl LightTree {
             }
         }
         if !bounded.is_empty() {
-            tree.build(&mut bounded, 0, u32::MAX);
+            let mut binary = Vec::new();
+            build(&mut binary, &mut bounded, 0);
+            tree.collapse(&binary, 0, (0, 0));
         }
         tree
     }
 
-    /// Adds the subtree over `lights` and returns its bounds.
-    fn build(
-        &mut self,
-        lights: &mut [(u32, LightBounds)],
-        depth: usize,
-        parent: u32,
-    ) -> LightBounds {
+    /// Adds the wide node of binary node `b` (and its subtree) under `parent`; returns its
+    /// index.
+    fn collapse(&mut self, binary: &[Node], b: usize, parent: (u32, u8)) -> u32 {
         let index = self.nodes.len() as u32;
-        self.parents.push(if parent == u32::MAX { index } else { parent });
-        if let [(light, bounds)] = *lights {
-            self.nodes.push(Node {
-                bounds: NodeBounds::new(&bounds),
-                child_or_light: light,
-                leaf: true,
-            });
-            self.leaf_of[light as usize] = index;
-            return bounds;
-        }
-        // A placeholder until the children are built.
-        let placeholder = NodeBounds::new(&lights[0].1);
-        self.nodes.push(Node { bounds: placeholder, child_or_light: 0, leaf: false });
-        let mid = self.split(lights, depth);
-        let (first, second) = lights.split_at_mut(mid);
-        let a = self.build(first, depth + 1, index);
-        let second_index = self.nodes.len() as u32;
-        let b = self.build(second, depth + 1, index);
-        let bounds = a.union(&b);
-        self.nodes[index as usize] =
-            Node { bounds: NodeBounds::new(&bounds), child_or_light: second_index, leaf: false };
-        bounds
-    }
-
-    /// Reorders `lights` (stably) into two groups and returns where the second starts: the
-    /// cheapest bucket boundary by `split_cost`, else the middle.
-    fn split(&self, lights: &mut [(u32, LightBounds)], depth: usize) -> usize {
-        let half = lights.len() / 2;
-        if depth >= MAX_SAH_DEPTH {
-            return half;
-        }
-        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        let (mut box_min, mut box_max) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        for (_, b) in lights.iter() {
-            lo = lo.min(b.centroid());
-            hi = hi.max(b.centroid());
-            box_min = box_min.min(b.min);
-            box_max = box_max.max(b.max);
-        }
-        let extent = box_max - box_min;
-        let bucket = |b: &LightBounds, dim: usize| {
-            let offset = (b.centroid()[dim] - lo[dim]) / (hi[dim] - lo[dim]);
-            ((BUCKETS as f32 * offset) as usize).min(BUCKETS - 1)
-        };
-        let mut best: Option<(f32, usize, usize)> = None;
-        for dim in 0..3 {
-            if hi[dim] <= lo[dim] {
-                continue;
-            }
-            let mut buckets: [Option<LightBounds>; BUCKETS] = [None; BUCKETS];
-            for (_, b) in lights.iter() {
-                let k = bucket(b, dim);
-                buckets[k] = Some(buckets[k].map_or(*b, |u| u.union(b)));
-            }
-            let union = |range: &[Option<LightBounds>]| {
-                range
-                    .iter()
-                    .flatten()
-                    .fold(None, |acc: Option<LightBounds>, b| Some(acc.map_or(*b, |u| u.union(b))))
-            };
-            for split in 0..BUCKETS - 1 {
-                let (Some(below), Some(above)) =
-                    (union(&buckets[..=split]), union(&buckets[split + 1..]))
-                else {
-                    continue;
-                };
-                let cost = split_cost(&below, extent, dim) + split_cost(&above, extent, dim);
-                if cost > 0.0 && best.is_none_or(|(c, _, _)| cost < c) {
-                    best = Some((cost, dim, split));
+        let mut node = WideNode { bounds: WideBounds::EMPTY, children: [u32::MAX; 4], leaves: 0 };
+        self.nodes.push(node);
+        self.parents.push(parent);
+        let mut lanes = arrayvec::ArrayVec::<usize, 4>::new();
+        if binary[b].leaf {
+            lanes.push(b);
+        } else {
+            for c in [b + 1, binary[b].child_or_light as usize] {
+                if binary[c].leaf {
+                    lanes.push(c);
+                } else {
+                    lanes.extend([c + 1, binary[c].child_or_light as usize]);
                 }
             }
         }
-        let Some((_, dim, split)) = best else {
-            return half;
-        };
-        let (below, above): (Vec<_>, Vec<_>) =
-            lights.iter().partition(|(_, b)| bucket(b, dim) <= split);
-        if below.is_empty() || above.is_empty() {
-            return half;
+        for (k, &c) in lanes.iter().enumerate() {
+            node.bounds.set(k, &binary[c].bounds);
+            if binary[c].leaf {
+                let light = binary[c].child_or_light;
+                node.children[k] = light;
+                node.leaves |= 1 << k;
+                self.leaf_of[light as usize] = (index, k as u8);
+            } else {
+                node.children[k] = self.collapse(binary, c, (index, k as u8));
+            }
         }
-        let mid = below.len();
-        for (slot, light) in lights.iter_mut().zip(below.into_iter().chain(above)) {
-            *slot = light;
-        }
-        mid
+        self.nodes[index as usize] = node;
+        index
     }
 
     /// True when no light has power.
@@ -475,26 +495,102 @@ impl LightTree {
         n / (n + if self.nodes.is_empty() { 0.0 } else { 1.0 })
     }
 
-    /// The probability of each child of interior node `node` at `ctx`: by importance, or by
-    /// power where neither child can reach the point. pbrt-v4 gives up there instead, so its
-    /// probabilities sum to less than one; going on keeps every point's sum at one and costs
-    /// nothing in bias, since a light that reaches the point has nonzero importance at every
-    /// node above it.
+    /// The probability of each lane of node `node` at `ctx`: by importance, or by power where
+    /// no child can reach the point. pbrt-v4 gives up there instead, so its probabilities sum
+    /// to less than one; going on keeps every point's sum at one and costs nothing in bias,
+    /// since a light that reaches the point has nonzero importance at every node above it.
     #[inline]
-    fn child_probabilities(&self, node: usize, ctx: &ShadingContext) -> [f32; 2] {
-        let (first, second) =
-            (&self.nodes[node + 1], &self.nodes[self.nodes[node].child_or_light as usize]);
-        let c0 = first.bounds.importance(ctx.p, ctx.n);
-        let c1 = second.bounds.importance(ctx.p, ctx.n);
-        let sum = c0 + c1;
-        let (c0, c1) = if sum > 0.0 && sum.is_finite() {
-            (c0, c1)
-        } else {
-            (first.bounds.phi, second.bounds.phi)
-        };
-        let inverse = 1.0 / (c0 + c1);
-        [c0 * inverse, c1 * inverse]
+    fn child_probabilities(&self, node: usize, ctx: &ShadingContext) -> [f32; 4] {
+        let bounds = &self.nodes[node].bounds;
+        let importance = bounds.importance(ctx.p, ctx.n);
+        let sum = importance.element_sum();
+        let weights = if sum > 0.0 && sum.is_finite() { importance } else { bounds.phi };
+        (weights * (1.0 / weights.element_sum())).to_array()
     }
+}
+
+/// Adds the binary subtree over `lights` to `nodes` (pbrt-v4's build) and returns its bounds.
+fn build(nodes: &mut Vec<Node>, lights: &mut [(u32, LightBounds)], depth: usize) -> LightBounds {
+    let index = nodes.len();
+    if let [(light, bounds)] = *lights {
+        nodes.push(Node { bounds: NodeBounds::new(&bounds), child_or_light: light, leaf: true });
+        return bounds;
+    }
+    // A placeholder until the children are built.
+    let placeholder = NodeBounds::new(&lights[0].1);
+    nodes.push(Node { bounds: placeholder, child_or_light: 0, leaf: false });
+    let mid = split(lights, depth);
+    let (first, second) = lights.split_at_mut(mid);
+    let a = build(nodes, first, depth + 1);
+    let second_index = nodes.len() as u32;
+    let b = build(nodes, second, depth + 1);
+    let bounds = a.union(&b);
+    nodes[index] =
+        Node { bounds: NodeBounds::new(&bounds), child_or_light: second_index, leaf: false };
+    bounds
+}
+
+/// Reorders `lights` (stably) into two groups and returns where the second starts: the
+/// cheapest bucket boundary by `split_cost`, else the middle.
+fn split(lights: &mut [(u32, LightBounds)], depth: usize) -> usize {
+    let half = lights.len() / 2;
+    if depth >= MAX_SAH_DEPTH {
+        return half;
+    }
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    let (mut box_min, mut box_max) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for (_, b) in lights.iter() {
+        lo = lo.min(b.centroid());
+        hi = hi.max(b.centroid());
+        box_min = box_min.min(b.min);
+        box_max = box_max.max(b.max);
+    }
+    let extent = box_max - box_min;
+    let bucket = |b: &LightBounds, dim: usize| {
+        let offset = (b.centroid()[dim] - lo[dim]) / (hi[dim] - lo[dim]);
+        ((BUCKETS as f32 * offset) as usize).min(BUCKETS - 1)
+    };
+    let mut best: Option<(f32, usize, usize)> = None;
+    for dim in 0..3 {
+        if hi[dim] <= lo[dim] {
+            continue;
+        }
+        let mut buckets: [Option<LightBounds>; BUCKETS] = [None; BUCKETS];
+        for (_, b) in lights.iter() {
+            let k = bucket(b, dim);
+            buckets[k] = Some(buckets[k].map_or(*b, |u| u.union(b)));
+        }
+        let union = |range: &[Option<LightBounds>]| {
+            range
+                .iter()
+                .flatten()
+                .fold(None, |acc: Option<LightBounds>, b| Some(acc.map_or(*b, |u| u.union(b))))
+        };
+        for split in 0..BUCKETS - 1 {
+            let (Some(below), Some(above)) =
+                (union(&buckets[..=split]), union(&buckets[split + 1..]))
+            else {
+                continue;
+            };
+            let cost = split_cost(&below, extent, dim) + split_cost(&above, extent, dim);
+            if cost > 0.0 && best.is_none_or(|(c, _, _)| cost < c) {
+                best = Some((cost, dim, split));
+            }
+        }
+    }
+    let Some((_, dim, split)) = best else {
+        return half;
+    };
+    let (below, above): (Vec<_>, Vec<_>) =
+        lights.iter().partition(|(_, b)| bucket(b, dim) <= split);
+    if below.is_empty() || above.is_empty() {
+        return half;
+    }
+    let mid = below.len();
+    for (slot, light) in lights.iter_mut().zip(below.into_iter().chain(above)) {
+        *slot = light;
+    }
+    mid
 }
 
 impl ChooseLight for LightTree {
@@ -520,23 +616,32 @@ impl ChooseLight for LightTree {
         // than divided at every level (a chain of divisions the walk would wait on).
         let (mut start, mut width) = (0.0f64, 1.0f64);
         loop {
+            let probabilities = self.child_probabilities(node, ctx);
+            // The lane whose share holds `u`; the last with a share where rounding leaves `u`
+            // past them all.
+            let last = (0..4).rev().find(|&k| probabilities[k] > 0.0)?;
+            let mut k = last;
+            let mut lane_start = start;
+            for (j, &p) in probabilities[..last].iter().enumerate() {
+                if p > 0.0 {
+                    let end = lane_start + width * p as f64;
+                    if u < end {
+                        k = j;
+                        break;
+                    }
+                    lane_start = end;
+                }
+            }
+            let p = probabilities[k];
+            start = lane_start;
+            width *= p as f64;
+            pmf *= p;
             let n = &self.nodes[node];
-            if n.leaf {
+            if n.leaves & (1 << k) != 0 {
                 let remapped = ((u - start) / width).clamp(0.0, BELOW_ONE);
-                return Some((n.child_or_light, pmf, remapped as f32));
+                return Some((n.children[k], pmf, remapped as f32));
             }
-            let [p0, p1] = self.child_probabilities(node, ctx);
-            let split = start + width * p0 as f64;
-            if u < split || p1 == 0.0 {
-                width *= p0 as f64;
-                pmf *= p0;
-                node += 1;
-            } else {
-                start = split;
-                width *= p1 as f64;
-                pmf *= p1;
-                node = n.child_or_light as usize;
-            }
+            node = n.children[k] as usize;
         }
     }
 
@@ -546,23 +651,23 @@ impl ChooseLight for LightTree {
         if k != u32::MAX {
             return p_infinite / self.infinite.len() as f32;
         }
-        let leaf = self.leaf_of[light as usize];
+        let (leaf, lane) = self.leaf_of[light as usize];
         if leaf == u32::MAX {
             return 0.0;
         }
         // The path from the root, then the same products in the same order as `choose`.
-        let mut path = arrayvec::ArrayVec::<u32, MAX_DEPTH>::new();
-        let mut node = leaf;
-        while node != 0 {
-            path.push(node);
-            node = self.parents[node as usize];
+        let mut path = arrayvec::ArrayVec::<(u32, u8), MAX_DEPTH>::new();
+        let mut at = (leaf, lane);
+        loop {
+            path.push(at);
+            if at.0 == 0 {
+                break;
+            }
+            at = self.parents[at.0 as usize];
         }
         let mut pmf = 1.0 - p_infinite;
-        let mut parent = 0usize;
-        for &child in path.iter().rev() {
-            let [p0, p1] = self.child_probabilities(parent, ctx);
-            pmf *= if child as usize == parent + 1 { p0 } else { p1 };
-            parent = child as usize;
+        for &(node, lane) in path.iter().rev() {
+            pmf *= self.child_probabilities(node as usize, ctx)[lane as usize];
         }
         pmf
     }
@@ -573,12 +678,12 @@ mod tests {
     use super::*;
     use crate::render::light::{PointLight, SpotLight, TriangleLight};
 
-    /// A node's importance (`NodeBounds`, what the walk evaluates) is pbrt-v4's
-    /// (`LightBounds::importance`) but for rounding: over the boxes of single triangles, points
-    /// and spots and of unions of them, seen from points inside, near and far, with a normal
-    /// and without.
+    /// The importance the walk evaluates, four lanes at once (`WideBounds`), is pbrt-v4's
+    /// (`LightBounds::importance`) in each lane but for rounding, and zero in empty lanes: over
+    /// the boxes of single triangles, points and spots and of unions of them, seen from points
+    /// inside, near and far, with a normal and without.
     #[test]
-    fn node_importance_is_the_bounds_importance() {
+    fn wide_importance_is_the_bounds_importance_in_every_lane() {
         let mut state = 0x1234_5678_9abc_def0u64;
         let mut next = move || {
             state = state
@@ -614,26 +719,34 @@ mod tests {
         let single: Vec<LightBounds> =
             lights.iter().filter_map(|l| LightBounds::of(l, 8.0)).collect();
         let mut bounds = single.clone();
-        for pair in single.windows(3) {
-            bounds.push(pair[0].union(&pair[1]));
-            bounds.push(pair[0].union(&pair[1]).union(&pair[2]));
+        for triple in single.windows(3) {
+            bounds.push(triple[0].union(&triple[1]));
+            bounds.push(triple[0].union(&triple[1]).union(&triple[2]));
         }
         let (mut compared, mut nonzero) = (0, 0);
-        for b in &bounds {
-            let node = NodeBounds::new(b);
+        // Four lanes at a time, and three (an empty lane).
+        for group in bounds.chunks(4).chain(bounds.chunks(3)) {
+            let mut wide = WideBounds::EMPTY;
+            for (lane, b) in group.iter().enumerate() {
+                wide.set(lane, &NodeBounds::new(b));
+            }
             for k in 0..40 {
+                let b = &group[k % group.len()];
                 let p = if k % 4 == 0 { b.centroid() + vec3(0.5) } else { vec3(16.0) };
                 let n = if k % 5 == 0 { Vec3::ZERO } else { vec3(2.0).normalize_or(Vec3::Z) };
-                let want = b.importance(p, n);
-                let got = node.importance(p, n);
-                // The angles' differences (cos_sub_clamped) cancel digits: the worst of these
-                // cases differs by about 2e-4.
-                assert!(
-                    (got - want).abs() <= 1e-3 * want,
-                    "{b:?} at {p}, {n}: {got} against {want}"
-                );
-                compared += 1;
-                nonzero += (want > 0.0) as usize;
+                let lanes = wide.importance(p, n).to_array();
+                assert!(lanes[group.len()..].iter().all(|&l| l == 0.0), "empty lanes: {lanes:?}");
+                for (b, &got) in group.iter().zip(&lanes) {
+                    let want = b.importance(p, n);
+                    // The angles' differences (cos_sub_clamped) cancel digits: the worst of these
+                    // cases differs by about 2e-4.
+                    assert!(
+                        (got - want).abs() <= 1e-3 * want,
+                        "{b:?} at {p}, {n}: {got} against {want}"
+                    );
+                    compared += 1;
+                    nonzero += (want > 0.0) as usize;
+                }
             }
         }
         assert!(compared > 5000 && nonzero > compared / 3, "{nonzero} of {compared}");
