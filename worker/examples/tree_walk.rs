@@ -1,7 +1,9 @@
-//! The light tree's choice alone: nanoseconds per `choose` at points spread over a scene's
-//! bounds (on a floor at y = 0 facing up, as in `test_scenes::many_lights_gltf`), the fastest of
-//! seven repetitions on one thread.
-//! `cargo run --release -p worker --example tree_walk -- SCENE.gltf`
+//! The light tree's choice alone: nanoseconds per `choose` at a million points on the floor of
+//! `test_scenes::many_lights_gltf` (|x|, |z| <= 10 at y = 0, facing up), the fastest of seven
+//! repetitions on one thread. `TREE_WALK_POINTS=N` takes N points and one repetition (for
+//! `valgrind --tool=callgrind`). The scene of 1,024 lamps is the one `bench --many-lights`
+//! writes (`$TMPDIR/renderfarm-bench-many-PID/many-1024.gltf`).
+//! `cargo run --release -p worker --example tree_walk -- many-1024.gltf`
 use std::time::Instant;
 
 use common::settings::RenderSettings;

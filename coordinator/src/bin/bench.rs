@@ -528,8 +528,8 @@ fn many_lights(threads: usize, lamp_height: f64, lamp_side: f64) -> Result<()> {
         }
         if n == 1024 {
             // The integrators on the same scene through the farm's code path (bidirectional
-            // path tracing and photon mapping choose lights by the mixture), against the tree's
-            // reference.
+            // path tracing's and photon mapping's light samples choose by the tree, their light
+            // subpaths and photons leave by the mixture), against the tree's reference.
             let prefix = format!("{n},");
             let curves = integrator_curves(
                 &path,

@@ -9,12 +9,13 @@
 //! lengths. Ray casting, the start of a sample (its film and lens numbers), the light choice
 //! (and under the tree, the probability of the light a path hits, from the lane's previous
 //! vertex), samples of lights other than emissive triangles and what escaping rays see stay
-//! scalar, one lane at a time, through the scalar renderer's own calls. The numbers each bounce draws come from `LaneSampler`, the sampler's integer
-//! arithmetic in all lanes at once, and the shading (hit point, frame, MIS weights, light and
-//! BSDF sampling, ray origins, roulette) is vector code transcribed from the scalar routines
-//! with the same operations in the same order, so every lane computes the scalar path's bits,
-//! and samples reach the film in the scalar order: the images are bit for bit those of
-//! `integrator::li` on every CPU (a test compares them).
+//! scalar, one lane at a time, through the scalar renderer's own calls. The numbers each bounce
+//! draws come from `LaneSampler`, the sampler's integer arithmetic in all lanes at once, and the
+//! shading (hit point, frame, MIS weights, light and BSDF sampling, ray origins, roulette) is
+//! vector code transcribed from the scalar routines with the same operations in the same order,
+//! so every lane computes the scalar path's bits, and samples reach the film in the scalar
+//! order: the images are bit for bit those of `integrator::li` on every CPU (a test compares
+//! them).
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
@@ -298,7 +299,7 @@ struct Paths<S: Simd> {
     radiance: V3<S>,
     prev_bsdf_pdf: F<S>,
     /// The previous vertex's point and shading normal, where a light's probability depends on
-    /// them (the light tree; `integrator::li`'s `prev_ctx`).
+    /// them (`integrator::li`'s `prev_ctx`): kept only under the light tree.
     prev_p: V3<S>,
     prev_n: V3<S>,
     depth: [u32; MAX_LANES],
@@ -463,8 +464,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     l_normal.set_lane(i, l.normal);
                     l_area.set_lane(i, l.area);
                     // Under the tree, the probability of choosing the light from the previous
-                    // vertex (the first hit takes no weight).
-                    let prob = if tables.mixture.is_some() || first_bounce[i] {
+                    // vertex (the first hit takes no weight, nor a light seen from behind).
+                    let behind = !l.two_sided && l.normal.dot(paths.dir.lane(i)) >= 0.0;
+                    let prob = if tables.mixture.is_some() || first_bounce[i] || behind {
                         l.probability
                     } else {
                         scene.lights.pmf(&paths.prev_ctx(i), shading.light)

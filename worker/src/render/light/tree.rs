@@ -217,7 +217,8 @@ const BUCKETS: usize = 12;
 /// than this plus log2 of the lights (and `pmf`'s path fits its stack).
 const MAX_SAH_DEPTH: usize = 40;
 
-/// Room for a path from the root to a leaf.
+/// Room for a path from the root to a leaf (of the binary tree, twice what the four-wide one
+/// needs).
 const MAX_DEPTH: usize = MAX_SAH_DEPTH + 34;
 
 /// `LightBounds` as the choice reads it, with what does not depend on the receiving point
@@ -343,8 +344,9 @@ impl WideBounds {
         self.two_sided[k] = if b.two_sided { 1.0 } else { 0.0 };
     }
 
-    /// `LightBounds::importance` of each lane at `p` with normal `n` (zero: no cosine), term
-    /// for term in each lane (the branches as selects); 0 in empty lanes.
+    /// `LightBounds::importance` of each lane at `p` with normal `n` (zero: no cosine), the same
+    /// formula up to rounding (the branches as selects; the box's half-angle from the sphere
+    /// around it alone, as `NodeBounds` keeps it); 0 in empty lanes.
     #[inline(always)]
     fn importance(&self, p: Vec3, n: Vec3) -> Vec4 {
         let (zero, one) = (Vec4::ZERO, Vec4::ONE);
@@ -503,10 +505,19 @@ impl LightTree {
     fn child_probabilities(&self, node: usize, ctx: &ShadingContext) -> [f32; 4] {
         let bounds = &self.nodes[node].bounds;
         let importance = bounds.importance(ctx.p, ctx.n);
-        let sum = importance.element_sum();
-        let weights = if sum > 0.0 && sum.is_finite() { importance } else { bounds.phi };
-        (weights * (1.0 / weights.element_sum())).to_array()
+        let sum = sum4(importance);
+        let usable = sum > 0.0 && (1.0 / sum).is_finite();
+        let weights = if usable { importance } else { bounds.phi };
+        (weights * (1.0 / sum4(weights))).to_array()
     }
+}
+
+/// The sum of the four lanes in a fixed order on every target (glam's `element_sum` adds in its
+/// backend's order): the order of SSE2's and NEON's, so the bits are those of `element_sum` there.
+#[inline(always)]
+fn sum4(v: Vec4) -> f32 {
+    let [x, y, z, w] = v.to_array();
+    (x + y) + (z + w)
 }
 
 /// Adds the binary subtree over `lights` to `nodes` (pbrt-v4's build) and returns its bounds.
