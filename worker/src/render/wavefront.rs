@@ -322,6 +322,8 @@ impl<S: Simd> Paths<S> {
 #[inline(always)]
 fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let Job { scene, tables, seed, task, first, step } = job;
+    // The mixture's probabilities are baked into `tables.lights`; the tree's are asked per lane.
+    let mixture = scene.lights.mixture();
     let lanes = S::F32_LANES.min(MAX_LANES);
     let mut tile = TileAccum::new(task.rect);
     let mut stats = Stats::default();
@@ -423,7 +425,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                                 0.0
                             }
                         } else {
-                            let choice = match &tables.mixture {
+                            let choice = match mixture {
                                 Some(m) => m.probability(env_idx),
                                 None => scene.lights.pmf(&paths.prev_ctx(i), env_idx),
                             };
@@ -466,7 +468,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     // Under the tree, the probability of choosing the light from the previous
                     // vertex (the first hit takes no weight, nor a light seen from behind).
                     let behind = !l.two_sided && l.normal.dot(paths.dir.lane(i)) >= 0.0;
-                    let prob = if tables.mixture.is_some() || first_bounce[i] || behind {
+                    let prob = if mixture.is_some() || first_bounce[i] || behind {
                         l.probability
                     } else {
                         scene.lights.pmf(&paths.prev_ctx(i), shading.light)
@@ -540,7 +542,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             roulette[i] = paths.depth[i] + 1 > RR_MIN_DEPTH;
             has_light[i] = false;
             other_light[i] = false;
-            let choice = match &tables.mixture {
+            let choice = match mixture {
                 Some(m) => m.choose_remapped(u_light.x),
                 None => {
                     let ctx = ShadingContext { p: p.lane(i), n: ns.lane(i) };
@@ -657,7 +659,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.origin = go_on.select3(origin, paths.origin);
         paths.dir = go_on.select3(wi, paths.dir);
         paths.prev_bsdf_pdf = go_on.select(pdf, paths.prev_bsdf_pdf);
-        if tables.mixture.is_none() {
+        if mixture.is_none() {
             paths.prev_p = go_on.select3(p, paths.prev_p);
             paths.prev_n = go_on.select3(ns, paths.prev_n);
         }

@@ -1,6 +1,6 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
-//! prepared: the Lambert albedo and emission of each material, the emissive triangles and the
-//! light choice.
+//! prepared: the Lambert albedo and emission of each material and the emissive triangles (with
+//! the mixture's probabilities where the scene chooses by it).
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
 //! one way: `scene` does not depend on the renderers.
 
@@ -9,7 +9,7 @@ use glam::Vec3;
 
 use super::{
     bsdf::Bsdf,
-    light::{Light, LightSampler, PowerMixture},
+    light::{Light, LightSampler},
     material::{self, SurfacePoint},
 };
 
@@ -36,10 +36,6 @@ pub struct Tables {
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
     /// are sampled by `Light::sample_li`, one lane at a time).
     pub(super) lights: Vec<Option<LightRec>>,
-    /// The scene's light choice when it is the mixture, which ignores the receiving point (its
-    /// probabilities baked into `lights`); `None` under the light tree, which each lane asks
-    /// (`LightSampler`, `ChooseLight`) at its own point, one lane at a time.
-    pub(super) mixture: Option<PowerMixture>,
 }
 
 impl Tables {
@@ -100,6 +96,6 @@ impl Tables {
                 probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        Some(Tables { albedo, emission, lights, mixture: mixture.cloned() })
+        Some(Tables { albedo, emission, lights })
     }
 }
