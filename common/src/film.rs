@@ -220,6 +220,12 @@ impl PixelSums {
         out
     }
 
+    /// The variance of the mean per channel as the error estimates read it: the half
+    /// difference's, or the sample variance's before both halves have samples.
+    pub fn estimated_variance(&self) -> [f64; 3] {
+        self.half_difference_variance().unwrap_or_else(|| self.variance_of_mean())
+    }
+
     /// Estimated variance of the mean per channel: s² / n with the unbiased sample variance s².
     /// Exact for independent samples; an upper bound for the stratified ones the renderer draws.
     /// Infinite with fewer than two samples (nothing is known about the error yet).
@@ -392,15 +398,46 @@ impl ErrorEstimate {
         let mut sum_var = 0.0;
         let mut sum_rel = 0.0;
         for p in pixels {
-            let mean = p.mean();
-            let var = p.half_difference_variance().unwrap_or_else(|| p.variance_of_mean());
-            for c in 0..3 {
-                sum_var += var[c];
-                sum_rel += var[c] / (mean[c] * mean[c] + 0.01);
+            let var = p.estimated_variance();
+            for v in var {
+                sum_var += v;
             }
+            ErrorEstimate::add_relative(&mut sum_rel, var, p.mean());
         }
         let n = (pixels.len() * 3).max(1) as f64;
         ErrorEstimate { rmse: (sum_var / n).sqrt(), rel_mse: sum_rel / n }
+    }
+
+    /// The relative MSE of the pixels of `rect` (`pixels`, row-major) as a share of another
+    /// image's: each pixel's estimated variance over the square of `means` at that pixel (a
+    /// frame `width` wide, row-major) instead of its own mean's. For the part of an image that
+    /// one of two added estimates contributes (bidirectional path tracing's camera-traced and
+    /// light-traced images), measured against the sum. Pixels not yet sampled count zero.
+    pub fn rel_mse_against(
+        pixels: &[PixelSums],
+        rect: Rect,
+        means: &[[f32; 3]],
+        width: u32,
+    ) -> f64 {
+        let mut sum_rel = 0.0;
+        for row in 0..rect.height {
+            let from = (row * rect.width) as usize;
+            let at = ((rect.y0 + row) * width + rect.x0) as usize;
+            let own = pixels.get(from..from + rect.width as usize).unwrap_or_default();
+            for (p, m) in own.iter().zip(&means[at..at + rect.width as usize]) {
+                ErrorEstimate::add_relative(&mut sum_rel, p.estimated_variance(), m.map(f64::from));
+            }
+        }
+        sum_rel / (rect.area() * 3).max(1) as f64
+    }
+
+    /// Adds a pixel's terms of `rel_mse` to `sum`: per channel, the variance of the mean `var`
+    /// over the squared mean `mean` plus 0.01 (so that near-black pixels count their absolute
+    /// error), channels in order.
+    pub fn add_relative(sum: &mut f64, var: [f64; 3], mean: [f64; 3]) {
+        for c in 0..3 {
+            *sum += var[c] / (mean[c] * mean[c] + 0.01);
+        }
     }
 }
 

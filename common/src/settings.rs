@@ -323,14 +323,6 @@ impl RenderSettings {
                 ),
             ));
         }
-        if self.integrator == "bdpt" && self.target_rel_error.is_some() {
-            return Err(err(
-                "target_rel_error",
-                "adaptive sampling is not available with the bdpt integrator yet (its light \
-                 tracing covers the whole frame at once, so no tile's error is its own)"
-                    .to_string(),
-            ));
-        }
         if let Some(b) = &self.bdpt {
             if self.integrator != "bdpt" {
                 return Err(err(
@@ -479,9 +471,11 @@ mod tests {
                 RenderSettings::from_json(&format!(r#"{{"integrator": "{bad}"}}"#)).unwrap_err();
             assert!(e.contains("integrator") && e.contains("it has: path, bdpt, sppm"), "{e}");
         }
-        let e = RenderSettings::from_json(r#"{"integrator": "bdpt", "target_rel_error": 0.1}"#)
-            .unwrap_err();
-        assert!(e.contains("target_rel_error") && e.contains("bdpt"), "{e}");
+        // Every integrator takes adaptive sampling.
+        for name in INTEGRATORS {
+            let json = format!(r#"{{"integrator": "{name}", "target_rel_error": 0.1}}"#);
+            assert!(RenderSettings::from_json(&json).is_ok(), "{name}");
+        }
         // The settings JSON written into EXR headers and job statuses names it (and has no
         // photon-mapping keys unless they were given).
         let json = serde_json::to_string(&RenderSettings::default()).unwrap();

@@ -19,6 +19,18 @@
 //! A photon-mapping frame is one tile, which stops once its own estimate reaches T² (its
 //! passes' variance grows as the gather radius shrinks, so the pilot's does not scale); its
 //! tasks then run one at a time, each on all of a worker's threads.
+//!
+//! A bidirectional frame's image is each camera tile plus the light tile (light tracing, over
+//! the whole frame): two independent estimates with their own sample counts, each unbiased
+//! whatever the other's count (the MIS weights of a path sum to one over the strategies, and
+//! each strategy is averaged over its own samples). So each tile, the light tile included, has
+//! its own count, and e_t is the error that tile's part adds to the sum's: its variance over
+//! the sum's squared means *as the pilot merged them* (`Frame::pilot`, fixed and stored with
+//! the scale, so that a decision reads only the deciding tile's data and the image stays the
+//! same bits whatever the timing and after a restart). The light tile enters the Lagrange sum as
+//! a tile of the frame's area (a light sample index costs every pixel one light sample each
+//! `bdpt.light_paths`, taken here as a camera sample's cost) but not the area A the error is
+//! averaged over.
 
 mod restore;
 mod status;
@@ -118,8 +130,14 @@ pub struct Tile {
     pub pending: BTreeMap<u32, TileAccum>,
     /// Adaptive sampling stopped this tile.
     pub converged: bool,
-    /// Estimated relative MSE of the merged sums.
+    /// Estimated relative MSE of the merged sums: against their own means, or in a
+    /// bidirectional frame the share of the image's that this tile's part adds (its variance over
+    /// the image's squared means: the pilot's under adaptive sampling, else the current ones), so
+    /// that the tiles' shares, weighed by area, add up to the image's.
     pub rel_mse: f64,
+    /// A bidirectional frame's camera tile without a pilot image: the light tile's share over
+    /// this tile's pixels (the light tile's `rel_mse` is their mean).
+    pub light_share: f64,
     /// Bidirectional path tracing's light tile: the whole frame, whose tasks are light tasks
     /// (`TaskKind::Light`) and whose image adds to the other tiles' (the frame's last tile).
     pub light: bool,
@@ -144,6 +162,10 @@ pub struct Frame {
     pub tiles: Vec<Tile>,
     /// Adaptive sampling: the stopping scale c, fixed once the pilot is merged.
     pub scale: Option<f64>,
+    /// Adaptive sampling of a bidirectional frame: the image's means (each camera tile's plus
+    /// the light tile's, row-major over the frame) when the pilot was merged, against which
+    /// each tile's part of the error is measured. Fixed with the scale; stored with it.
+    pub pilot: Option<Vec<[f32; 3]>>,
     /// Pixel samples accepted for this frame.
     pub samples_done: u64,
     /// The frame is complete and its sums left memory (they are in the database).
@@ -247,10 +269,12 @@ impl Job {
                         pending: BTreeMap::new(),
                         converged: false,
                         rel_mse: f64::INFINITY,
+                        light_share: 0.0,
                         light: light && i + 1 == n_rects,
                     })
                     .collect(),
                 scale: None,
+                pilot: None,
                 samples_done: 0,
                 evicted: false,
             })
@@ -379,14 +403,19 @@ impl Job {
     /// Accepts the sums of the leased task `key` (the caller has checked that they answer it):
     /// adds them to the tile in task order, or keeps them pending until their predecessors are in.
     pub fn merge(&mut self, key: TaskKey, tile: TileAccum, samples: u64, now: Moment) {
-        let t = &mut self.frames[key.frame as usize].tiles[key.tile as usize];
+        let (width, height) = (self.settings.width, self.settings.height);
+        let frame = &mut self.frames[key.frame as usize];
+        let t = &mut frame.tiles[key.tile as usize];
         debug_assert_eq!(t.tasks[key.k as usize], TaskState::Leased);
         t.tasks[key.k as usize] = TaskState::Merged;
         t.merged += 1;
         t.pending.insert(key.k, tile);
-        Self::drain_pending(t);
+        let is_light = t.light;
+        if Self::drain_pending(t) {
+            frame.update_rel_mse(key.tile as usize, width, height);
+        }
         // Pixel samples count the camera's: a light task's add no pixel samples of their own.
-        let (samples, light) = if t.light { (0, samples) } else { (samples, 0) };
+        let (samples, light) = if is_light { (0, samples) } else { (samples, 0) };
         self.light_samples_done += light;
         self.in_flight -= 1;
         self.samples_done += samples;
@@ -407,11 +436,13 @@ impl Job {
             tile.sums.pixels = Vec::new();
             tile.pending.clear();
         }
+        frame.pilot = None;
         frame.evicted = true;
     }
 
-    /// Adds the pending results that continue the tile's prefix, in task order.
-    fn drain_pending(t: &mut Tile) {
+    /// Adds the pending results that continue the tile's prefix, in task order; whether the
+    /// prefix advanced.
+    fn drain_pending(t: &mut Tile) -> bool {
         let mut advanced = false;
         while let Some(next) = t.pending.remove(&t.prefix) {
             if t.sums.pixels.is_empty() {
@@ -422,9 +453,7 @@ impl Job {
             t.prefix += 1;
             advanced = true;
         }
-        if advanced {
-            t.rel_mse = ErrorEstimate::of_pixels(&t.sums.pixels).rel_mse;
-        }
+        advanced
     }
 
     /// Fixes the frame's stopping scale once its pilot is merged, and stops the tiles that the
@@ -445,11 +474,18 @@ impl Job {
                 self.count_open_tiles();
                 return;
             }
+            if frame.tiles.iter().any(|t| t.light) {
+                let (width, height) = (self.settings.width, self.settings.height);
+                frame.pilot = Some(image_means(frame, width, height));
+                frame.update_all_rel_mse(width, height);
+            }
             let n = (min_tasks * spt).min(spp) as f64;
             let (mut area, mut weighted) = (0.0, 0.0);
             for t in &frame.tiles {
                 let a = t.sums.rect.area() as f64;
-                area += a;
+                if !t.light {
+                    area += a; // the light tile's pixels are the others' (see the module doc)
+                }
                 weighted += a * (t.rel_mse.max(0.0) * n).sqrt();
             }
             frame.scale = Some(if weighted > 0.0 { target * area / weighted } else { 1.0 });
@@ -576,6 +612,90 @@ impl Job {
         }
         film
     }
+}
+
+impl Frame {
+    /// Recomputes tile `i`'s estimated error after its sums changed; in a bidirectional frame
+    /// without a pilot image, with the light tile's share (every tile's after the light tile's
+    /// sums changed). See `Tile::rel_mse`.
+    fn update_rel_mse(&mut self, i: usize, width: u32, height: u32) {
+        let light = self.tiles.iter().position(|t| t.light);
+        let Some(light) = light.filter(|_| self.pilot.is_none()) else {
+            let sums = &self.tiles[i].sums;
+            self.tiles[i].rel_mse = match &self.pilot {
+                Some(pilot) => {
+                    ErrorEstimate::rel_mse_against(&sums.pixels, sums.rect, pilot, width)
+                }
+                None => ErrorEstimate::of_pixels(&sums.pixels).rel_mse,
+            };
+            return;
+        };
+        let camera: Vec<usize> = if i == light {
+            (0..self.tiles.len()).filter(|&t| t != light).collect()
+        } else {
+            vec![i]
+        };
+        for t in camera {
+            let (own, lit) = shares(&self.tiles[t].sums, &self.tiles[light].sums, width);
+            self.tiles[t].rel_mse = own;
+            self.tiles[t].light_share = lit;
+        }
+        let area = width as f64 * height as f64;
+        let cameras = self.tiles.iter().filter(|t| !t.light);
+        let lit: f64 = cameras.map(|t| t.light_share * t.sums.rect.area() as f64).sum();
+        self.tiles[light].rel_mse = lit / area;
+    }
+
+    /// Recomputes every tile's estimated error.
+    fn update_all_rel_mse(&mut self, width: u32, height: u32) {
+        for i in 0..self.tiles.len() {
+            self.update_rel_mse(i, width, height);
+        }
+    }
+}
+
+/// The shares of a bidirectional image's relative MSE over a camera tile's pixels (`sums`) that
+/// its camera part and the light tile's part (`light`, the frame `width` wide) add, each's
+/// variance over the image's current squared means there (each camera tile's plus the light
+/// tile's); pixels not yet sampled by a part count zero for it.
+fn shares(sums: &TileAccum, light: &TileAccum, width: u32) -> (f64, f64) {
+    let r = sums.rect;
+    let (mut own, mut lit) = (0.0, 0.0);
+    for row in 0..r.height {
+        for col in 0..r.width {
+            let c = sums.pixels.get((row * r.width + col) as usize);
+            let l = light.pixels.get(((r.y0 + row) * width + r.x0 + col) as usize);
+            let (cm, lm) = (c.map(|p| p.mean()), l.map(|p| p.mean()));
+            let (cm, lm) = (cm.unwrap_or_default(), lm.unwrap_or_default());
+            let mean = [0, 1, 2].map(|k| cm[k] + lm[k]);
+            if let Some(c) = c {
+                ErrorEstimate::add_relative(&mut own, c.estimated_variance(), mean);
+            }
+            if let Some(l) = l {
+                ErrorEstimate::add_relative(&mut lit, l.estimated_variance(), mean);
+            }
+        }
+    }
+    let n = (r.area() * 3).max(1) as f64;
+    (own / n, lit / n)
+}
+
+/// A bidirectional frame's image means as its tiles' sums hold them: each camera tile's mean
+/// plus the light tile's, row-major over the frame.
+fn image_means(frame: &Frame, width: u32, height: u32) -> Vec<[f32; 3]> {
+    let mut sum = vec![[0f64; 3]; width as usize * height as usize];
+    for t in frame.tiles.iter().filter(|t| !t.light).chain(frame.tiles.iter().filter(|t| t.light)) {
+        let r = t.sums.rect;
+        for (i, p) in t.sums.pixels.iter().enumerate() {
+            let (row, col) = (i as u32 / r.width, i as u32 % r.width);
+            let px = &mut sum[((r.y0 + row) * width + r.x0 + col) as usize];
+            let m = p.mean();
+            for c in 0..3 {
+                px[c] += m[c];
+            }
+        }
+    }
+    sum.into_iter().map(|p| p.map(|v| v as f32)).collect()
 }
 
 /// The tiles a frame's image is made of, from its merged sums (`sums`, by tile index; those

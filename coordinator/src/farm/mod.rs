@@ -185,7 +185,8 @@ impl Farm {
                 job.restore_tile(tile.frame, tile.tile, tile.prefix, tile.sums, tile.pending)
                     .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;
             }
-            job.restore_adaptive(&stored.scales);
+            job.restore_adaptive(&stored.scales, store.pilots(&stored.id)?)
+                .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;
             if job.frames.len() > 1 {
                 for f in 0..job.frames.len() {
                     if job.frame_complete(f) {

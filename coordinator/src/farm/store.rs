@@ -168,7 +168,10 @@ impl Store {
              CREATE TABLE IF NOT EXISTS pending (
                  job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
                  task INTEGER NOT NULL, sums BLOB NOT NULL,
-                 PRIMARY KEY (job, frame, tile, task));",
+                 PRIMARY KEY (job, frame, tile, task));
+             CREATE TABLE IF NOT EXISTS pilots (
+                 job TEXT NOT NULL, frame INTEGER NOT NULL, means BLOB NOT NULL,
+                 PRIMARY KEY (job, frame));",
         )
         .context("creating the schema")?;
         // Databases from before jobs had an end time gain the column (empty: such a job's end
@@ -250,6 +253,7 @@ impl Store {
         let tx = self.db.transaction()?;
         tx.execute("DELETE FROM pending WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM tiles WHERE job = ?1", [id])?;
+        tx.execute("DELETE FROM pilots WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM jobs WHERE id = ?1", [id])?;
         tx.commit()?;
         Ok(())
@@ -257,7 +261,7 @@ impl Store {
 
     /// Writes what accepting task `k` of a tile changed, and the job's row, in one transaction:
     /// the result itself when it is pending, else the tile's new prefix and sums (and the pending
-    /// rows they absorbed).
+    /// rows they absorbed), and the frame's pilot image when this result fixed it.
     pub fn commit_task(
         &mut self,
         job: &Job,
@@ -276,6 +280,16 @@ impl Store {
                 "DELETE FROM pending WHERE job = ?1 AND frame = ?2 AND tile = ?3 AND task < ?4",
             )?
             .execute(params![job.id, frame, tile, t.prefix])?;
+        }
+        if let Some(means) = job.pilot(frame) {
+            let stored = tx
+                .prepare_cached("SELECT 1 FROM pilots WHERE job = ?1 AND frame = ?2")?
+                .exists(params![job.id, frame])?;
+            if !stored {
+                let blob = bincode::serde::encode_to_vec(means, bincode_config())?;
+                tx.prepare_cached("INSERT INTO pilots (job, frame, means) VALUES (?1, ?2, ?3)")?
+                    .execute(params![job.id, frame, blob])?;
+            }
         }
         put_job_state(&tx, job, now)?;
         tx.commit()?;
@@ -362,10 +376,11 @@ impl Store {
         Ok(out)
     }
 
-    /// How many rows job `id` has, over its job row, tiles and pending results (tests).
+    /// How many rows job `id` has, over its job row, tiles, pending results and pilot images
+    /// (tests).
     #[cfg(test)]
     pub fn rows_of(&self, id: &str) -> i64 {
-        ["jobs WHERE id", "tiles WHERE job", "pending WHERE job"]
+        ["jobs WHERE id", "tiles WHERE job", "pending WHERE job", "pilots WHERE job"]
             .iter()
             .map(|t| {
                 let sql = format!("SELECT COUNT(*) FROM {t} = ?1");
@@ -416,6 +431,21 @@ impl Store {
             let (sums, _): (TileAccum, usize) =
                 bincode::serde::decode_from_slice(&blob, bincode_config())?;
             out.push((frame, tile, k, sums));
+        }
+        Ok(out)
+    }
+
+    /// The stored pilot images of a job's bidirectional frames under adaptive sampling, by frame
+    /// index.
+    pub fn pilots(&self, job: &str) -> Result<Vec<(u32, Vec<[f32; 3]>)>> {
+        let mut stmt = self.db.prepare("SELECT frame, means FROM pilots WHERE job = ?1")?;
+        let rows = stmt.query_map([job], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, Vec<u8>>(1)?)))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (frame, blob) = row?;
+            let (means, _): (Vec<[f32; 3]>, usize) =
+                bincode::serde::decode_from_slice(&blob, bincode_config())?;
+            out.push((frame, means));
         }
         Ok(out)
     }

@@ -53,15 +53,47 @@ impl Job {
         Ok(())
     }
 
-    /// Restores the frames' stopping scales (as stored: they were fixed from the pilot alone,
-    /// which the merged sums no longer show) and the tiles they stop.
-    pub fn restore_adaptive(&mut self, scales: &[Option<f64>]) {
+    /// Restores the frames' stopping scales and bidirectional frames' pilot images (as stored:
+    /// they were fixed from the pilot alone, which the merged sums no longer show; `pilots` by
+    /// frame index) and the tiles they stop.
+    pub fn restore_adaptive(
+        &mut self,
+        scales: &[Option<f64>],
+        pilots: Vec<(u32, Vec<[f32; 3]>)>,
+    ) -> Result<(), String> {
         for (frame, &scale) in self.frames.iter_mut().zip(scales) {
             frame.scale = scale;
+        }
+        let pixels = self.settings.width as usize * self.settings.height as usize;
+        for (f, pilot) in pilots {
+            let frame =
+                self.frames.get_mut(f as usize).filter(|_| pilot.len() == pixels).ok_or_else(
+                    || format!("the stored pilot image of frame {f} does not fit the job"),
+                )?;
+            frame.pilot = Some(pilot);
+        }
+        // A bidirectional frame's tiles' errors are shares of the image's.
+        if self.light_tile().is_some() {
+            let (width, height) = (self.settings.width, self.settings.height);
+            for frame in &mut self.frames {
+                frame.update_all_rel_mse(width, height);
+            }
+        }
+        let light = self.light_tile().is_some();
+        if let Some(f) =
+            self.frames.iter().position(|f| light && f.scale.is_some() && f.pilot.is_none())
+        {
+            return Err(format!("frame {f} has an adaptive scale but no stored pilot image"));
         }
         for f in 0..self.frames.len() {
             self.update_adaptive(f);
         }
+        Ok(())
+    }
+
+    /// The pilot images of bidirectional frames under adaptive sampling, for the database.
+    pub fn pilot(&self, frame: u32) -> Option<&[[f32; 3]]> {
+        self.frames.get(frame as usize).and_then(|f| f.pilot.as_deref())
     }
 
     /// The frames' stopping scales, for the database.

@@ -113,6 +113,7 @@ impl Job {
         let pixels = self.settings.width as u64 * self.settings.height as u64;
         let planned = pixels * self.settings.spp as u64 * self.frames.len() as u64;
         let mut saved = 0u64;
+        let mut light_saved = 0u64;
         let mut rel_sum = 0.0;
         let mut rel_known = true;
         for frame in &self.frames {
@@ -121,7 +122,13 @@ impl Job {
                 if tile.converged {
                     let taken: u64 = (tile.prefix * self.settings.samples_per_task)
                         .min(self.settings.spp) as u64;
-                    saved += area * (self.settings.spp as u64 - taken);
+                    // A light tile's samples are light samples, not the pixel samples planned.
+                    let left = area * (self.settings.spp as u64 - taken);
+                    if tile.light {
+                        light_saved += left;
+                    } else {
+                        saved += left;
+                    }
                 }
                 rel_known &= tile.rel_mse.is_finite();
                 rel_sum += tile.rel_mse * area as f64;
@@ -130,7 +137,7 @@ impl Job {
         // The work: the pixel samples and a light tile's light samples (bidirectional path
         // tracing; `bdpt.light_paths` per pixel sample), one unit each.
         let light_planned = if self.light_tile().is_some() {
-            planned * self.settings.light_paths() as u64
+            (planned - light_saved) * self.settings.light_paths() as u64
         } else {
             0
         };

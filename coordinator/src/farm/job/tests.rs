@@ -241,3 +241,128 @@ fn an_adaptive_photon_mapping_frame_stops_when_its_own_estimate_reaches_the_targ
     assert!(before > target * target, "went on past the target: {before}");
     assert!(j.status(NOW).samples_saved > 0);
 }
+
+/// A bidirectional job under adaptive sampling: each camera tile and the light tile stop on
+/// their own counts, decided from the pilot's image and each tile's own merged tasks, so that
+/// results merged in any order, and a restart from what the database keeps, give the same bits;
+/// the image's estimated error is then within the target.
+#[test]
+fn an_adaptive_bidirectional_frame_stops_each_tile_on_its_part_of_the_error() {
+    let target = 0.02;
+    let settings = RenderSettings {
+        width: 64,
+        height: 32,
+        tile_size: 32,
+        spp: 1024,
+        samples_per_task: 16,
+        integrator: "bdpt".into(),
+        target_rel_error: Some(target),
+        ..Default::default()
+    };
+    let new_job = || Job::new("j".into(), 0, "s".into(), settings.clone(), 0, 0.0).unwrap();
+    let light = new_job().light_tile().unwrap();
+    // Tile 0's camera part is bright and smooth, tile 1's dim and noisy (where light tracing
+    // carries its pixels); the light tile's part is noisy over the whole frame.
+    let noisy = |j: &Job, key: TaskKey| {
+        let spec = j.spec(key);
+        let (base, spread) = match key.tile as usize {
+            t if t == light => (0.5, 1.0),
+            0 => (1.0, 0.3),
+            _ => (0.1, 0.6),
+        };
+        let mut acc = TileAccum::new(spec.rect);
+        for y in 0..spec.rect.height {
+            for x in 0..spec.rect.width {
+                for s in spec.samples.start..spec.samples.end {
+                    let mut h =
+                        (x as u64) << 40 ^ (y as u64) << 20 ^ s as u64 ^ (key.tile as u64) << 60;
+                    h = (h ^ (h >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                    h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                    let u = (h >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+                    acc.add_sample(x, y, s, [(base + spread * u) as f32; 3]);
+                }
+            }
+        }
+        acc
+    };
+    // Leases everything it may and merges those results in reverse order (`reverse`), or
+    // leases and merges one at a time, until the job is done or `stop_after` results are in.
+    let drive = |j: &mut Job, reverse: bool, stop_after: usize| {
+        let mut merged = 0;
+        while j.state != JobState::Done && merged < stop_after {
+            let mut keys = Vec::new();
+            while let Some(key) = j.next_task() {
+                j.lease(key, NOW);
+                keys.push(key);
+                if !reverse {
+                    break;
+                }
+            }
+            if reverse {
+                keys.reverse();
+            }
+            for key in keys {
+                let r = noisy(j, key);
+                let n = r.pixels.iter().map(|p| p.n as u64).sum();
+                j.merge(key, r, n, NOW);
+                merged += 1;
+            }
+        }
+    };
+    let mut ahead = new_job();
+    drive(&mut ahead, true, usize::MAX);
+    let mut in_order = new_job();
+    drive(&mut in_order, false, usize::MAX);
+    assert_eq!(ahead.state, JobState::Done);
+    let prefixes = |j: &Job| j.frames[0].tiles.iter().map(|t| t.prefix).collect::<Vec<_>>();
+    assert_eq!(prefixes(&ahead), prefixes(&in_order));
+    assert_eq!(ahead.film(0), in_order.film(0), "merge order changed the image");
+    let p = prefixes(&ahead);
+    println!("tasks per tile (camera 0, camera 1, light): {p:?}");
+    assert!(p.iter().all(|&k| (1..64).contains(&k)), "every tile stops on its own: {p:?}");
+    assert!(p[1] > p[0], "the noisier camera part takes more samples: {p:?}");
+    // The image's estimate (each camera tile plus the light tile) is within the target.
+    let e = ErrorEstimate::of_pixels(&ahead.film(0).pixels).rel_mse;
+    println!("estimated relative RMSE {:.4} for a target of {target}", e.sqrt());
+    assert!(e <= target * target * 1.1, "{} > {target}", e.sqrt());
+    let status = ahead.status(NOW);
+    assert_eq!(status.samples_done + status.samples_saved, status.samples_planned);
+    assert_eq!(status.progress, 1.0);
+    // The status's estimate adds the tiles' shares: the image's, but for the pilot's means.
+    let shares = status.est_rel_error.unwrap().powi(2);
+    assert!((shares / e - 1.0).abs() < 0.1, "status {shares:.3e}, image {e:.3e}");
+    // Without adaptive sampling the shares are measured against the image's current means.
+    let mut uniform = Job::new(
+        "u".into(),
+        0,
+        "s".into(),
+        RenderSettings { target_rel_error: None, spp: 64, ..settings.clone() },
+        0,
+        0.0,
+    )
+    .unwrap();
+    drive(&mut uniform, true, usize::MAX);
+    let image = ErrorEstimate::of_pixels(&uniform.film(0).pixels).rel_mse;
+    let shares = uniform.status(NOW).est_rel_error.unwrap().powi(2);
+    assert!((shares / image - 1.0).abs() < 1e-3, "status {shares:.3e}, image {image:.3e}");
+
+    // A restart past the pilot, from what the database keeps (prefix sums, pending results,
+    // the scale and the pilot image), goes on to the same bits.
+    let mut before = new_job();
+    drive(&mut before, false, 3 * 4 + 5);
+    assert!(before.frames[0].pilot.is_some() && before.state != JobState::Done);
+    let mut again = new_job();
+    for (i, t) in before.frames[0].tiles.iter().enumerate() {
+        let pending = t.pending.iter().map(|(&k, a)| (k, a.clone())).collect();
+        let sums = (t.prefix > 0).then(|| t.sums.clone());
+        again.restore_tile(0, i as u32, t.prefix, sums, pending).unwrap();
+    }
+    let pilot = before.pilot(0).unwrap().to_vec();
+    again.restore_adaptive(&before.scales(), vec![(0, pilot)]).unwrap();
+    drive(&mut again, false, usize::MAX);
+    assert_eq!(prefixes(&again), p);
+    assert_eq!(again.film(0), ahead.film(0), "a restart changed the image");
+    // Without its pilot image a restored frame is refused rather than decided otherwise.
+    let mut lost = new_job();
+    assert!(lost.restore_adaptive(&before.scales(), vec![]).unwrap_err().contains("pilot"));
+}
