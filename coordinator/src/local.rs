@@ -208,8 +208,10 @@ pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
 /// one-thread workers would leave threads idle while so few such tasks run, and one such task
 /// would run on one thread; where they are many, one-thread workers render them side by side
 /// without the per-pass joins of threads within a task. A bidirectional camera task spreads its
-/// rows over the threads.
-fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize) {
+/// rows over the threads. Under adaptive sampling, where a frame's whole-frame tasks past its
+/// pilot come one at a time, one-thread workers render each on every thread (the third value,
+/// threads for a whole-frame task), the others waiting meanwhile.
+fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize, usize) {
     let threads = threads.max(1);
     let frames = (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(1) as u128;
     let whole_frame_tasks = match settings.integrator.as_str() {
@@ -217,9 +219,11 @@ fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize) {
         _ => u128::MAX,
     };
     if whole_frame_tasks < 2 * threads as u128 {
-        (1, threads)
+        (1, threads, threads)
+    } else if whole_frame_tasks != u128::MAX && settings.target_rel_error.is_some() {
+        (threads, 1, threads)
     } else {
-        (threads, 1)
+        (threads, 1, 1)
     }
 }
 
@@ -266,12 +270,13 @@ pub fn render_file_within(
     let stop = AtomicBool::new(false);
     let cache = client::SceneCache::default();
     let link = service.local_link();
-    let (workers, threads) = local_workers(settings, workers);
+    let (workers, threads, whole_frame_threads) = local_workers(settings, workers);
     let status = std::thread::scope(|s| -> Result<JobStatus> {
         let handles: Vec<_> = (0..workers)
             .map(|i| {
                 let options = WorkerOptions {
                     threads,
+                    whole_frame_threads,
                     name: format!("local-{i}"),
                     wait_s: 1.0,
                     prefetch_below: client::PREFETCH_BELOW,
@@ -369,7 +374,8 @@ mod tests {
 
     /// One worker of every thread where a photon-mapping or bidirectional job has fewer
     /// whole-frame tasks than twice the threads (counted over its frames); one-thread workers
-    /// otherwise, and always for the path tracer.
+    /// otherwise, and always for the path tracer, which under adaptive sampling render a
+    /// whole-frame task on every thread.
     #[test]
     fn few_whole_frame_tasks_render_on_one_worker_of_every_thread() {
         let job = |integrator: &str, spp: u32, frames: i64| RenderSettings {
@@ -380,12 +386,17 @@ mod tests {
             ..Default::default()
         };
         for integrator in ["sppm", "bdpt"] {
-            assert_eq!(local_workers(&job(integrator, 64, 1), 4), (1, 4));
-            assert_eq!(local_workers(&job(integrator, 7 * 64, 1), 4), (1, 4));
-            assert_eq!(local_workers(&job(integrator, 8 * 64, 1), 4), (4, 1));
-            assert_eq!(local_workers(&job(integrator, 4 * 64, 2), 4), (4, 1));
-            assert_eq!(local_workers(&job(integrator, 64, 1), 0), (1, 1));
+            assert_eq!(local_workers(&job(integrator, 64, 1), 4), (1, 4, 4));
+            assert_eq!(local_workers(&job(integrator, 7 * 64, 1), 4), (1, 4, 4));
+            assert_eq!(local_workers(&job(integrator, 8 * 64, 1), 4), (4, 1, 1));
+            assert_eq!(local_workers(&job(integrator, 4 * 64, 2), 4), (4, 1, 1));
+            assert_eq!(local_workers(&job(integrator, 64, 1), 0), (1, 1, 1));
+            let adaptive =
+                RenderSettings { target_rel_error: Some(0.1), ..job(integrator, 8 * 64, 1) };
+            assert_eq!(local_workers(&adaptive, 4), (4, 1, 4));
         }
-        assert_eq!(local_workers(&job("path", 64, 1), 4), (4, 1));
+        assert_eq!(local_workers(&job("path", 64, 1), 4), (4, 1, 1));
+        let adaptive = RenderSettings { target_rel_error: Some(0.1), ..job("path", 8 * 64, 1) };
+        assert_eq!(local_workers(&adaptive, 4), (4, 1, 1));
     }
 }

@@ -23,7 +23,7 @@ use common::{
     bundle::Bundle,
     envmap::EnvMap,
     error::ErrorKind,
-    protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskResult},
+    protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskKind, TaskResult},
     scene::Scene,
     settings::Environment,
 };
@@ -41,6 +41,11 @@ use crate::{
 pub struct WorkerOptions {
     /// Render threads.
     pub threads: usize,
+    /// Render threads for a task over the whole frame (a light task, a photon-mapping task;
+    /// the same bits on any count): more than `threads` where one-thread workers of one process
+    /// share the machine and such tasks come one at a time (adaptive sampling), the other
+    /// workers then idle. Usually `threads`.
+    pub whole_frame_threads: usize,
     /// Name shown in the workers list.
     pub name: String,
     /// Longest a lease request waits for work, in seconds.
@@ -557,7 +562,9 @@ fn render_granted(
     cache: &SceneCache,
     g: Granted<'_>,
 ) -> Option<Outgoing> {
-    match render(link, &g.worker, &g.grant, options.threads, cache, g.renewing) {
+    let whole_frame = g.grant.task.kind == TaskKind::Light || g.grant.settings.integrator == "sppm";
+    let threads = if whole_frame { options.whole_frame_threads } else { options.threads };
+    match render(link, &g.worker, &g.grant, threads, cache, g.renewing) {
         Ok(Some(result)) => Some(Outgoing { worker: g.worker, lease: g.grant.lease, result }),
         Ok(None) => None,
         Err(e) => {
@@ -624,6 +631,7 @@ mod tests {
         std::thread::spawn(move || {
             let options = WorkerOptions {
                 threads: 1,
+                whole_frame_threads: 1,
                 name: "test".into(),
                 wait_s: 0.1,
                 prefetch_below: PREFETCH_BELOW,

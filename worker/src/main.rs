@@ -101,6 +101,7 @@ fn main() -> Result<()> {
                 token,
                 options: worker::client::WorkerOptions {
                     threads,
+                    whole_frame_threads: threads,
                     name,
                     wait_s: cli.wait,
                     prefetch_below: std::time::Duration::from_secs_f64(cli.prefetch_below),

@@ -38,7 +38,8 @@
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights
 //! [--lamp-height 0.6] [--lamp-side 0.25]]
-//! [--materials] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]] [--rainbow]
+//! [--materials] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]
+//! [--caustic-scene OUT.gltf]] [--rainbow]
 //! [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
 use std::{
@@ -103,6 +104,10 @@ struct Args {
     /// that the caustic stays as bright: a smaller light is rarer for the path tracer to hit).
     #[arg(long, value_name = "METRES", default_value_t = 0.125)]
     caustic_light: f64,
+    /// With `--caustic`: write the scene (a `.gltf` with its buffer inline) here, and its
+    /// closed form where `--caustic-reference` says, then stop without rendering.
+    #[arg(long, value_name = "OUT.gltf")]
+    caustic_scene: Option<PathBuf>,
     /// Only the prism's rainbow: bidirectional path tracing and photon mapping against its
     /// closed form (the path tracer finds none of it).
     #[arg(long)]
@@ -590,6 +595,10 @@ fn caustic(args: &Args) -> Result<()> {
             (r, g, b)
         })
         .with_context(|| format!("writing {}", out.display()))?;
+    }
+    if let Some(out) = &args.caustic_scene {
+        std::fs::write(out, caustic.gltf()).with_context(|| format!("writing {}", out.display()))?;
+        return Ok(());
     }
     let base =
         RenderSettings { width: res, height: res, max_depth: 2, seed: 5, ..Default::default() };

@@ -28,9 +28,10 @@
 //! the sum's squared means *as the pilot merged them* (`Frame::pilot`, fixed and stored with
 //! the scale, so that a decision reads only the deciding tile's data and the image stays the
 //! same bits whatever the timing and after a restart). The light tile enters the Lagrange sum as
-//! a tile of the frame's area (a light sample index costs every pixel one light sample each
-//! `bdpt.light_paths`, taken here as a camera sample's cost) but not the area A the error is
-//! averaged over.
+//! a tile of the frame's area whose sample costs r = `bdpt.light_paths` camera samples (a light
+//! sample index traces that many light subpaths a pixel, each about a camera sample's work),
+//! but not in the area A the error is averaged over: with costs the fewest-work allocation is
+//! n_t ∝ sqrt(v_t / r_t), so c = T² A / Σ a_t sqrt(v_t r_t) and a tile stops when e_t <= r_t c² n.
 
 mod restore;
 mod status;
@@ -466,6 +467,9 @@ impl Job {
         let min_tasks = self.min_adaptive_tasks();
         let spt = self.settings.samples_per_task;
         let spp = self.settings.spp;
+        // A sample's cost in camera samples (see the module doc).
+        let light_paths = self.settings.light_paths() as f64;
+        let cost = |t: &Tile| if t.light { light_paths } else { 1.0 };
         let frame = &mut self.frames[f];
         if frame.scale.is_none() {
             let pilot_done =
@@ -486,7 +490,7 @@ impl Job {
                 if !t.light {
                     area += a; // the light tile's pixels are the others' (see the module doc)
                 }
-                weighted += a * (t.rel_mse.max(0.0) * n).sqrt();
+                weighted += a * (t.rel_mse.max(0.0) * n * cost(t)).sqrt();
             }
             frame.scale = Some(if weighted > 0.0 { target * area / weighted } else { 1.0 });
         }
@@ -497,7 +501,8 @@ impl Job {
         let photon_passes = self.settings.integrator == "sppm";
         for t in &mut frame.tiles {
             let n = (t.prefix * spt).min(spp) as f64;
-            let done = if photon_passes { t.rel_mse <= target } else { t.rel_mse <= c * c * n };
+            let done =
+                if photon_passes { t.rel_mse <= target } else { t.rel_mse <= cost(t) * c * c * n };
             if !t.converged && t.prefix >= min_tasks && (t.prefix as usize) < t.tasks.len() && done
             {
                 t.converged = true;

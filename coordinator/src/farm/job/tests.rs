@@ -242,6 +242,66 @@ fn an_adaptive_photon_mapping_frame_stops_when_its_own_estimate_reaches_the_targ
     assert!(j.status(NOW).samples_saved > 0);
 }
 
+/// Task `key`'s result in a bidirectional frame of two camera tiles: tile 0's camera part is
+/// bright and smooth, tile 1's dim and noisy (where light tracing carries its pixels), and the
+/// light tile's part noisy over the whole frame: 0.5 on average, 0.5 / p with probability p
+/// and else 0, of variance `bdpt.light_paths` / 12 (so that a pixel sample's light samples are as
+/// noisy together whatever their number).
+fn noisy_bdpt(j: &Job, key: TaskKey) -> TileAccum {
+    let spec = j.spec(key);
+    let light = j.light_tile() == Some(key.tile as usize);
+    let p = 1.0 / (1.0 + j.settings.light_paths() as f32 / 3.0);
+    let (base, spread) = match key.tile {
+        _ if light => (0.5, 0.0),
+        0 => (1.0, 0.3),
+        _ => (0.1, 0.6),
+    };
+    let mut acc = TileAccum::new(spec.rect);
+    for y in 0..spec.rect.height {
+        for x in 0..spec.rect.width {
+            for s in spec.samples.start..spec.samples.end {
+                let mut h =
+                    (x as u64) << 40 ^ (y as u64) << 20 ^ s as u64 ^ (key.tile as u64) << 60;
+                h = (h ^ (h >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                let u = (h >> 40) as f32 / (1u64 << 24) as f32;
+                let v = match light {
+                    true if u < p => base / p,
+                    true => 0.0,
+                    false => base + spread * (2.0 * u - 1.0),
+                };
+                acc.add_sample(x, y, s, [v; 3]);
+            }
+        }
+    }
+    acc
+}
+
+/// Leases every task it may and merges those results in reverse order (`reverse`), or leases
+/// and merges one at a time, until the job is done or `stop_after` results are in.
+fn drive(j: &mut Job, reverse: bool, stop_after: usize, result: fn(&Job, TaskKey) -> TileAccum) {
+    let mut merged = 0;
+    while j.state != JobState::Done && merged < stop_after {
+        let mut keys = Vec::new();
+        while let Some(key) = j.next_task() {
+            j.lease(key, NOW);
+            keys.push(key);
+            if !reverse {
+                break;
+            }
+        }
+        if reverse {
+            keys.reverse();
+        }
+        for key in keys {
+            let r = result(j, key);
+            let n = r.pixels.iter().map(|p| p.n as u64).sum();
+            j.merge(key, r, n, NOW);
+            merged += 1;
+        }
+    }
+}
+
 /// A bidirectional job under adaptive sampling: each camera tile and the light tile stop on
 /// their own counts, decided from the pilot's image and each tile's own merged tasks, so that
 /// results merged in any order, and a restart from what the database keeps, give the same bits;
@@ -260,59 +320,10 @@ fn an_adaptive_bidirectional_frame_stops_each_tile_on_its_part_of_the_error() {
         ..Default::default()
     };
     let new_job = || Job::new("j".into(), 0, "s".into(), settings.clone(), 0, 0.0).unwrap();
-    let light = new_job().light_tile().unwrap();
-    // Tile 0's camera part is bright and smooth, tile 1's dim and noisy (where light tracing
-    // carries its pixels); the light tile's part is noisy over the whole frame.
-    let noisy = |j: &Job, key: TaskKey| {
-        let spec = j.spec(key);
-        let (base, spread) = match key.tile as usize {
-            t if t == light => (0.5, 1.0),
-            0 => (1.0, 0.3),
-            _ => (0.1, 0.6),
-        };
-        let mut acc = TileAccum::new(spec.rect);
-        for y in 0..spec.rect.height {
-            for x in 0..spec.rect.width {
-                for s in spec.samples.start..spec.samples.end {
-                    let mut h =
-                        (x as u64) << 40 ^ (y as u64) << 20 ^ s as u64 ^ (key.tile as u64) << 60;
-                    h = (h ^ (h >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                    h = (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-                    let u = (h >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
-                    acc.add_sample(x, y, s, [(base + spread * u) as f32; 3]);
-                }
-            }
-        }
-        acc
-    };
-    // Leases everything it may and merges those results in reverse order (`reverse`), or
-    // leases and merges one at a time, until the job is done or `stop_after` results are in.
-    let drive = |j: &mut Job, reverse: bool, stop_after: usize| {
-        let mut merged = 0;
-        while j.state != JobState::Done && merged < stop_after {
-            let mut keys = Vec::new();
-            while let Some(key) = j.next_task() {
-                j.lease(key, NOW);
-                keys.push(key);
-                if !reverse {
-                    break;
-                }
-            }
-            if reverse {
-                keys.reverse();
-            }
-            for key in keys {
-                let r = noisy(j, key);
-                let n = r.pixels.iter().map(|p| p.n as u64).sum();
-                j.merge(key, r, n, NOW);
-                merged += 1;
-            }
-        }
-    };
     let mut ahead = new_job();
-    drive(&mut ahead, true, usize::MAX);
+    drive(&mut ahead, true, usize::MAX, noisy_bdpt);
     let mut in_order = new_job();
-    drive(&mut in_order, false, usize::MAX);
+    drive(&mut in_order, false, usize::MAX, noisy_bdpt);
     assert_eq!(ahead.state, JobState::Done);
     let prefixes = |j: &Job| j.frames[0].tiles.iter().map(|t| t.prefix).collect::<Vec<_>>();
     assert_eq!(prefixes(&ahead), prefixes(&in_order));
@@ -341,7 +352,7 @@ fn an_adaptive_bidirectional_frame_stops_each_tile_on_its_part_of_the_error() {
         0.0,
     )
     .unwrap();
-    drive(&mut uniform, true, usize::MAX);
+    drive(&mut uniform, true, usize::MAX, noisy_bdpt);
     let image = ErrorEstimate::of_pixels(&uniform.film(0).pixels).rel_mse;
     let shares = uniform.status(NOW).est_rel_error.unwrap().powi(2);
     assert!((shares / image - 1.0).abs() < 1e-3, "status {shares:.3e}, image {image:.3e}");
@@ -349,7 +360,7 @@ fn an_adaptive_bidirectional_frame_stops_each_tile_on_its_part_of_the_error() {
     // A restart past the pilot, from what the database keeps (prefix sums, pending results,
     // the scale and the pilot image), goes on to the same bits.
     let mut before = new_job();
-    drive(&mut before, false, 3 * 4 + 5);
+    drive(&mut before, false, 3 * 4 + 5, noisy_bdpt);
     assert!(before.frames[0].pilot.is_some() && before.state != JobState::Done);
     let mut again = new_job();
     for (i, t) in before.frames[0].tiles.iter().enumerate() {
@@ -359,10 +370,35 @@ fn an_adaptive_bidirectional_frame_stops_each_tile_on_its_part_of_the_error() {
     }
     let pilot = before.pilot(0).unwrap().to_vec();
     again.restore_adaptive(&before.scales(), vec![(0, pilot)]).unwrap();
-    drive(&mut again, false, usize::MAX);
+    drive(&mut again, false, usize::MAX, noisy_bdpt);
     assert_eq!(prefixes(&again), p);
     assert_eq!(again.film(0), ahead.film(0), "a restart changed the image");
     // Without its pilot image a restored frame is refused rather than decided otherwise.
     let mut lost = new_job();
     assert!(lost.restore_adaptive(&before.scales(), vec![]).unwrap_err().contains("pilot"));
+}
+
+/// A light sample index of `bdpt.light_paths` light subpaths costs that many camera samples:
+/// with as noisy a pixel sample, the light tile stops sooner and the camera tiles later.
+#[test]
+fn an_adaptive_bidirectional_frame_weighs_the_light_tiles_cost() {
+    let counts = |light_paths: u32| {
+        let settings = RenderSettings {
+            width: 64,
+            height: 32,
+            tile_size: 32,
+            spp: 1024,
+            samples_per_task: 16,
+            integrator: "bdpt".into(),
+            bdpt: Some(common::settings::Bdpt { light_paths }),
+            target_rel_error: Some(0.02),
+            ..Default::default()
+        };
+        let mut j = Job::new("j".into(), 0, "s".into(), settings, 0, 0.0).unwrap();
+        drive(&mut j, true, usize::MAX, noisy_bdpt);
+        j.frames[0].tiles.iter().map(|t| t.prefix).collect::<Vec<_>>()
+    };
+    let (one, four) = (counts(1), counts(4));
+    println!("tasks per tile (camera 0, camera 1, light): {one:?} at 1 light path, {four:?} at 4");
+    assert!(four[2] < one[2] && four[0] >= one[0] && four[1] > one[1], "{one:?} {four:?}");
 }
