@@ -597,7 +597,8 @@ fn caustic(args: &Args) -> Result<()> {
         .with_context(|| format!("writing {}", out.display()))?;
     }
     if let Some(out) = &args.caustic_scene {
-        std::fs::write(out, caustic.gltf()).with_context(|| format!("writing {}", out.display()))?;
+        std::fs::write(out, caustic.gltf())
+            .with_context(|| format!("writing {}", out.display()))?;
         return Ok(());
     }
     let base =

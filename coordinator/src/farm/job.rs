@@ -648,7 +648,9 @@ impl Frame {
         let area = width as f64 * height as f64;
         let cameras = self.tiles.iter().filter(|t| !t.light);
         let lit: f64 = cameras.map(|t| t.light_share * t.sums.rect.area() as f64).sum();
-        self.tiles[light].rel_mse = lit / area;
+        // Nothing is known of the light tile's error before its first task is in.
+        let known = !self.tiles[light].sums.pixels.is_empty();
+        self.tiles[light].rel_mse = if known { lit / area } else { f64::INFINITY };
     }
 
     /// Recomputes every tile's estimated error.
