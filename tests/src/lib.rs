@@ -325,6 +325,10 @@ pub fn metric(url: &str, name: &str) -> f64 {
 pub struct Cluster {
     /// Base URL.
     pub url: String,
+    /// Its port.
+    pub port: u16,
+    /// The coordinator's data folder.
+    pub data: PathBuf,
     /// Hash of the uploaded cornell box.
     pub scene: String,
     /// The coordinator process.
@@ -338,10 +342,19 @@ impl Cluster {
     pub fn start(dir: &Path, workers: usize, extra: &[&str]) -> Cluster {
         let port = free_port();
         let url = format!("http://127.0.0.1:{port}");
-        let coordinator = start_coordinator(&dir.join("data"), port, extra);
+        let data = dir.join("data");
+        let coordinator = start_coordinator(&data, port, extra);
         let workers =
             (0..workers).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
         let scene = upload(&url, &cornell_zip());
-        Cluster { url, scene, coordinator, workers }
+        Cluster { url, port, data, scene, coordinator, workers }
+    }
+
+    /// Kills the coordinator with SIGKILL and starts it again on the same data folder and
+    /// port (`extra` goes to `coordinator serve`); the workers find it again by themselves.
+    pub fn restart_coordinator(&mut self, extra: &[&str]) {
+        self.coordinator.kill9();
+        std::thread::sleep(Duration::from_millis(500));
+        self.coordinator = start_coordinator(&self.data, self.port, extra);
     }
 }

@@ -71,21 +71,14 @@ fn a_coordinator_killed_mid_job_resumes_and_counts_every_sample_once() {
     let dir = temp_dir("kill-coordinator");
     let s = settings(512, 32);
     let reference = render_reference(&dir, &s, 2);
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let data = dir.join("data");
-    let mut coordinator = start_coordinator(&data, port, &["--lease-timeout", "2"]);
-    let _workers: Vec<Proc> =
-        (0..2).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
-    let scene = upload(&url, &cornell_zip());
-    let id = create_job(&url, &scene, &s, 0);
+    let mut cluster = Cluster::start(&dir, 2, &["--lease-timeout", "2"]);
+    let url = cluster.url.clone();
+    let id = create_job(&url, &cluster.scene, &s, 0);
     let planned = 64 * 64 * 512;
     let before =
         wait_for(&url, &id, TIMEOUT, |st| st["samples_done"].as_u64().unwrap() >= planned / 4);
     assert_eq!(before["state"], "running");
-    coordinator.kill9();
-    std::thread::sleep(Duration::from_millis(500));
-    let _restarted = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    cluster.restart_coordinator(&["--lease-timeout", "2"]);
     let resumed = job_status(&url, &id);
     assert!(
         resumed["samples_done"].as_u64().unwrap() >= before["samples_done"].as_u64().unwrap(),

@@ -66,20 +66,14 @@ fn same_image_on_any_workers_and_after_a_kill(integrator: &str, tasks: f64) {
     // The coordinator kill -9'd a quarter of the way through and restarted on its data folder:
     // the merged tasks (light tasks among them) come back from its database, none is merged
     // twice, and the job ends with the same bits.
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let data = kill_dir.join("restart-data");
-    let mut coordinator = start_coordinator(&data, port, &["--lease-timeout", "2"]);
-    let _workers: Vec<Proc> =
-        (0..2).map(|i| start_worker(&url, 1, kill_dir.join(format!("w{i}.log")))).collect();
-    let scene = upload(&url, &cornell_zip());
-    let id = create_job(&url, &scene, &s, 0);
+    let restart_dir = temp_dir(&format!("{integrator}-restart"));
+    let mut cluster = Cluster::start(&restart_dir, 2, &["--lease-timeout", "2"]);
+    let url = cluster.url.clone();
+    let id = create_job(&url, &cluster.scene, &s, 0);
     let progress = |st: &Value| st["progress"].as_f64().unwrap_or(0.0);
     let before = wait_for(&url, &id, TIMEOUT, |st| progress(st) >= 0.25);
     assert_eq!(before["state"], "running", "{before:#}");
-    coordinator.kill9();
-    std::thread::sleep(Duration::from_millis(500));
-    let _restarted = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    cluster.restart_coordinator(&["--lease-timeout", "2"]);
     let resumed = job_status(&url, &id);
     assert!(progress(&resumed) >= progress(&before), "merged work was lost: {resumed:#}");
     let status = wait_done(&url, &id, TIMEOUT);
@@ -164,19 +158,12 @@ fn adaptive_bdpt_stops_its_tiles_with_the_same_bits_anywhere_and_a_calibrated_es
     assert!(counts.iter().any(|&n| n != counts[0]), "adaptive sampling did not adapt");
     assert!(counts.iter().all(|&n| (16..1024).contains(&n)), "a tile ran to its end");
 
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let data = dir.join("data");
-    let mut coordinator = start_coordinator(&data, port, &["--lease-timeout", "2"]);
-    let _workers: Vec<Proc> =
-        (0..2).map(|i| start_worker(&url, 1, dir.join(format!("w{i}.log")))).collect();
-    let scene = upload(&url, &cornell_zip());
-    let id = create_job(&url, &scene, &s, 0);
+    let mut cluster = Cluster::start(&dir, 2, &["--lease-timeout", "2"]);
+    let url = cluster.url.clone();
+    let id = create_job(&url, &cluster.scene, &s, 0);
     let before = wait_for(&url, &id, TIMEOUT, |st| st["samples_saved"].as_u64() > Some(0));
     assert_eq!(before["state"], "running", "{before:#}");
-    coordinator.kill9();
-    std::thread::sleep(Duration::from_millis(500));
-    let _restarted = start_coordinator(&data, port, &["--lease-timeout", "2"]);
+    cluster.restart_coordinator(&["--lease-timeout", "2"]);
     let status = wait_done(&url, &id, TIMEOUT);
     assert_same_image(&local, &fetch_exr(&url, &id, 0), "serve + restart vs render");
     let saved = status["samples_saved"].as_u64().unwrap();
