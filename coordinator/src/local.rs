@@ -208,9 +208,11 @@ pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
 /// one-thread workers would leave threads idle while so few such tasks run, and one such task
 /// would run on one thread; where they are many, one-thread workers render them side by side
 /// without the per-pass joins of threads within a task. A bidirectional camera task spreads its
-/// rows over the threads. Under adaptive sampling, where a frame's whole-frame tasks past its
-/// pilot come one at a time, one-thread workers render each on every thread (the third value,
-/// threads for a whole-frame task), the others waiting meanwhile.
+/// rows over the threads. Under adaptive sampling of one frame whose pilot is one task a tile
+/// (`samples_per_task` of at least `MIN_ADAPTIVE_SAMPLES`), where the whole-frame tasks come one
+/// at a time, one-thread workers render each on every thread (the third value, threads for a
+/// whole-frame task), the others rendering camera tasks, if any are left, or waiting; with more
+/// frames or a longer pilot several could run at once, each on every thread.
 fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize, usize) {
     let threads = threads.max(1);
     let frames = (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(1) as u128;
@@ -220,7 +222,11 @@ fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize, us
     };
     if whole_frame_tasks < 2 * threads as u128 {
         (1, threads, threads)
-    } else if whole_frame_tasks != u128::MAX && settings.target_rel_error.is_some() {
+    } else if whole_frame_tasks != u128::MAX
+        && settings.target_rel_error.is_some()
+        && frames == 1
+        && settings.samples_per_task >= crate::farm::job::MIN_ADAPTIVE_SAMPLES
+    {
         (threads, 1, threads)
     } else {
         (threads, 1, 1)
@@ -374,8 +380,9 @@ mod tests {
 
     /// One worker of every thread where a photon-mapping or bidirectional job has fewer
     /// whole-frame tasks than twice the threads (counted over its frames); one-thread workers
-    /// otherwise, and always for the path tracer, which under adaptive sampling render a
-    /// whole-frame task on every thread.
+    /// otherwise, and always for the path tracer; those of an adaptive photon-mapping or
+    /// bidirectional job of one frame and a one-task pilot render a whole-frame task on every
+    /// thread.
     #[test]
     fn few_whole_frame_tasks_render_on_one_worker_of_every_thread() {
         let job = |integrator: &str, spp: u32, frames: i64| RenderSettings {
@@ -394,6 +401,12 @@ mod tests {
             let adaptive =
                 RenderSettings { target_rel_error: Some(0.1), ..job(integrator, 8 * 64, 1) };
             assert_eq!(local_workers(&adaptive, 4), (4, 1, 4));
+            // Several whole-frame tasks at once (frames, or a pilot of several tasks a tile).
+            let frames =
+                RenderSettings { target_rel_error: Some(0.1), ..job(integrator, 8 * 64, 2) };
+            assert_eq!(local_workers(&frames, 4), (4, 1, 1));
+            let pilot = RenderSettings { samples_per_task: 8, ..adaptive };
+            assert_eq!(local_workers(&pilot, 4), (4, 1, 1));
         }
         assert_eq!(local_workers(&job("path", 64, 1), 4), (4, 1, 1));
         let adaptive = RenderSettings { target_rel_error: Some(0.1), ..job("path", 8 * 64, 1) };

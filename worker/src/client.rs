@@ -44,7 +44,7 @@ pub struct WorkerOptions {
     /// Render threads for a task over the whole frame (a light task, a photon-mapping task;
     /// the same bits on any count): more than `threads` where one-thread workers of one process
     /// share the machine and such tasks come one at a time (adaptive sampling), the other
-    /// workers then idle. Usually `threads`.
+    /// workers then rendering what else there is, or idle. Usually `threads`.
     pub whole_frame_threads: usize,
     /// Name shown in the workers list.
     pub name: String,

@@ -13,7 +13,7 @@
 //! with e_t the estimated relative MSE of tile t after n samples per pixel and v_t = e_t n its
 //! per-sample relative variance, the fewest samples reaching a mean error of T² give tile t
 //! n_t ∝ sqrt(v_t) (Lagrange), i.e. stop when e_t <= c² n with c = T² A / Σ a_t sqrt(v_t)
-//! (a_t tile areas, A their sum; with a 10% margin). After that, a tile's task `k` is decided
+//! (a_t tile areas, A their sum). After that, a tile's task `k` is decided
 //! from the fixed scale and that tile's tasks `0..k`, all merged. Every decision reads only
 //! completed data, so the image is the same whatever the timing and the number of workers.
 //! A photon-mapping frame is one tile, which stops once its own estimate reaches T² (its
@@ -28,8 +28,8 @@
 //! the sum's squared means *as the pilot merged them* (`Frame::pilot`, fixed and stored with
 //! the scale, so that a decision reads only the deciding tile's data and the image stays the
 //! same bits whatever the timing and after a restart). The light tile enters the Lagrange sum as
-//! a tile of the frame's area whose sample costs r = `bdpt.light_paths` camera samples (a light
-//! sample index traces that many light subpaths a pixel, each about a camera sample's work),
+//! a tile of the frame's area whose sample costs r = `bdpt.light_paths` camera samples (a pixel
+//! sample's light samples are that many light subpaths, each about a camera sample's work),
 //! but not in the area A the error is averaged over: with costs the fewest-work allocation is
 //! n_t ∝ sqrt(v_t / r_t), so c = T² A / Σ a_t sqrt(v_t r_t) and a tile stops when e_t <= r_t c² n.
 
@@ -642,7 +642,9 @@ impl Frame {
         };
         for t in camera {
             let (own, lit) = shares(&self.tiles[t].sums, &self.tiles[light].sums, width);
-            self.tiles[t].rel_mse = own;
+            // Nothing is known of a tile's error before its first task is in.
+            let known = !self.tiles[t].sums.pixels.is_empty();
+            self.tiles[t].rel_mse = if known { own } else { f64::INFINITY };
             self.tiles[t].light_share = lit;
         }
         let area = width as f64 * height as f64;

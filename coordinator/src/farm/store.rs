@@ -310,6 +310,13 @@ impl Store {
                 put_pending(&tx, job, frame, tile, k, acc)?;
             }
         }
+        if let Some(means) = job.pilot(frame) {
+            let blob = bincode::serde::encode_to_vec(means, bincode_config())?;
+            tx.prepare_cached(
+                "INSERT OR REPLACE INTO pilots (job, frame, means) VALUES (?1, ?2, ?3)",
+            )?
+            .execute(params![job.id, frame, blob])?;
+        }
         put_job_state(&tx, job, now)?;
         tx.commit()?;
         Ok(())
