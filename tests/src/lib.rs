@@ -320,6 +320,30 @@ pub fn metric(url: &str, name: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// Relative MSE of image `a` against `reference` (the benchmarks' metric): mean of
+/// (x - r)² / (r² + 0.01) over pixels and channels.
+pub fn rel_mse(a: &[u8], reference: &[u8]) -> f64 {
+    let rgb = |bytes: &[u8]| -> Vec<Vec<f64>> {
+        let ch = channels(bytes);
+        ["R", "G", "B"]
+            .iter()
+            .map(|name| {
+                let bits = &ch.iter().find(|(n, _)| n == name).expect("an RGB image").1;
+                bits.iter().map(|&b| f32::from_bits(b) as f64).collect()
+            })
+            .collect()
+    };
+    let (x, r) = (rgb(a), rgb(reference));
+    assert_eq!(x[0].len(), r[0].len(), "an image at the reference's resolution");
+    let mut sum = 0.0;
+    for c in 0..3 {
+        for (a, b) in x[c].iter().zip(&r[c]) {
+            sum += (a - b) * (a - b) / (b * b + 0.01);
+        }
+    }
+    sum / (3 * x[0].len()) as f64
+}
+
 /// A coordinator on a free loopback port with `workers` one-thread workers and the cornell box
 /// uploaded: what most farm tests start from. Everything is killed when it is dropped.
 pub struct Cluster {

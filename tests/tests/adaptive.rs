@@ -8,29 +8,10 @@ use std::time::Duration;
 use serde_json::{json, Value};
 use tests::*;
 
-/// Relative MSE against the reference (the benchmarks' metric): mean of (x - r)² / (r² + 0.01).
-fn rel_mse(image: &[u8]) -> f64 {
+/// Relative MSE against the cornell box's independent reference.
+fn rel_mse_to_reference(image: &[u8]) -> f64 {
     let reference = std::fs::read(repo().join("../shared/scenes/ref/cornell-box.exr")).unwrap();
-    let rgb = |bytes: &[u8]| -> Vec<Vec<f32>> {
-        let ch = channels(bytes);
-        ["R", "G", "B"]
-            .iter()
-            .map(|name| {
-                let bits = &ch.iter().find(|(n, _)| n == name).expect("an RGB image").1;
-                bits.iter().map(|&b| f32::from_bits(b)).collect()
-            })
-            .collect()
-    };
-    let (x, r) = (rgb(image), rgb(&reference));
-    assert_eq!(x[0].len(), r[0].len(), "render at the reference's resolution");
-    let mut sum = 0.0;
-    for c in 0..3 {
-        for (a, b) in x[c].iter().zip(&r[c]) {
-            let (a, b) = (*a as f64, *b as f64);
-            sum += (a - b) * (a - b) / (b * b + 0.01);
-        }
-    }
-    sum / (3 * x[0].len()) as f64
+    rel_mse(image, &reference)
 }
 
 fn settings(spp: u32, target: Option<f64>) -> Value {
@@ -48,7 +29,7 @@ fn adaptive_sampling_reaches_the_target_with_fewer_samples_than_uniform() {
     let counts = sample_counts(&adaptive);
     let total: u64 = counts.iter().map(|&n| n as u64).sum();
     let pixels = counts.len() as u64;
-    let err = rel_mse(&adaptive);
+    let err = rel_mse_to_reference(&adaptive);
     eprintln!(
         "adaptive: {total} samples ({:.1} spp on average), relMSE {err:.4e}",
         total as f64 / pixels as f64
@@ -63,7 +44,7 @@ fn adaptive_sampling_reaches_the_target_with_fewer_samples_than_uniform() {
     // Uniform sampling with at least as many samples does not reach the target.
     let uniform_spp = total.div_ceil(pixels) as u32;
     let uniform = render_reference(&dir, &settings(uniform_spp, None), 2);
-    let uniform_err = rel_mse(&uniform);
+    let uniform_err = rel_mse_to_reference(&uniform);
     eprintln!("uniform: {uniform_spp} spp, relMSE {uniform_err:.4e}");
     assert!(
         uniform_err > target * target,

@@ -118,29 +118,6 @@ fn adaptive_photon_mapping_stops_at_its_target_with_the_same_bits_anywhere() {
     assert_eq!(status["progress"], 1.0);
 }
 
-/// Relative MSE of image `a` against `reference` (the benchmarks' metric): mean of
-/// (x - r)² / (r² + 0.01) over pixels and channels.
-fn rel_mse(a: &[u8], reference: &[u8]) -> f64 {
-    let rgb = |bytes: &[u8]| -> Vec<Vec<f64>> {
-        let ch = channels(bytes);
-        ["R", "G", "B"]
-            .iter()
-            .map(|name| {
-                let bits = &ch.iter().find(|(n, _)| n == name).expect("an RGB image").1;
-                bits.iter().map(|&b| f32::from_bits(b) as f64).collect()
-            })
-            .collect()
-    };
-    let (x, r) = (rgb(a), rgb(reference));
-    let mut sum = 0.0;
-    for c in 0..3 {
-        for (a, b) in x[c].iter().zip(&r[c]) {
-            sum += (a - b) * (a - b) / (b * b + 0.01);
-        }
-    }
-    sum / (3 * x[0].len()) as f64
-}
-
 /// Bidirectional path tracing under adaptive sampling (`target_rel_error`): each camera tile
 /// and the light tile stop on their own counts, decided from the pilot's image and each tile's
 /// merged tasks only: the same bits on `coordinator render --workers 2` and on serve + 2 worker
