@@ -657,8 +657,14 @@ impl Frame {
 
     /// Recomputes every tile's estimated error.
     fn update_all_rel_mse(&mut self, width: u32, height: u32) {
-        for i in 0..self.tiles.len() {
-            self.update_rel_mse(i, width, height);
+        match self.tiles.iter().position(|t| t.light).filter(|_| self.pilot.is_none()) {
+            // The light tile's update is every camera tile's too.
+            Some(light) => self.update_rel_mse(light, width, height),
+            None => {
+                for i in 0..self.tiles.len() {
+                    self.update_rel_mse(i, width, height);
+                }
+            }
         }
     }
 }
