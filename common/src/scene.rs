@@ -525,11 +525,12 @@ impl Scene {
         &self,
         settings: &crate::settings::RenderSettings,
     ) -> Result<(), String> {
-        let name = settings.integrator.as_str();
-        if name == "path" {
+        use crate::settings::Integrator;
+        let name = settings.integrator;
+        if name == Integrator::Path {
             return Ok(());
         }
-        if name == "bdpt" && settings.light_paths() > 1 {
+        if name == Integrator::Bdpt && settings.light_paths() > 1 {
             // The camera the settings name (the first by default).
             let camera = match &settings.camera {
                 Some(wanted) => self.cameras.iter().find(|c| &c.name == wanted),

@@ -11,8 +11,6 @@ pub const MAX_RESOLUTION: u32 = 16384;
 pub const MAX_FRAMES: u64 = 100_000;
 /// Upper bound on samples per pixel accepted by `validate`.
 pub const MAX_SPP: u32 = 1 << 20;
-/// The light-transport algorithms a job may name in `integrator`.
-pub const INTEGRATORS: &[&str] = &["path", "bdpt", "sppm"];
 /// Upper bound on `sppm.photons_per_pass` accepted by `validate`.
 pub const MAX_PHOTONS_PER_PASS: u32 = 1 << 24;
 /// Upper bound on `bdpt.light_paths` accepted by `validate`.
@@ -33,13 +31,8 @@ pub struct RenderSettings {
     pub target_rel_error: Option<f64>,
     /// Adaptive stopping: wall-clock budget in seconds.
     pub time_limit_s: Option<f64>,
-    /// The light-transport algorithm, one of [`INTEGRATORS`]: "path", the unidirectional path
-    /// tracer with next-event estimation and multiple importance sampling; "bdpt", bidirectional
-    /// path tracing (camera and light subpaths, every connection weighted by MIS; its light
-    /// tracing runs as a light task per sample range over the whole frame); "sppm", stochastic
-    /// progressive photon mapping (each sample index a photon pass over the whole frame; see
-    /// [`Sppm`]).
-    pub integrator: String,
+    /// The light-transport algorithm (`"path"`, `"bdpt"` or `"sppm"`; see [`Integrator`]).
+    pub integrator: Integrator,
     /// Bidirectional path tracing's parameters (only with `"integrator": "bdpt"`; default: see
     /// [`Bdpt`]).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -78,7 +71,7 @@ impl Default for RenderSettings {
             spp: 256,
             target_rel_error: None,
             time_limit_s: None,
-            integrator: "path".into(),
+            integrator: Integrator::Path,
             bdpt: None,
             sppm: None,
             max_depth: 64,
@@ -92,6 +85,71 @@ impl Default for RenderSettings {
             tile_size: 32,
             samples_per_task: 64,
         }
+    }
+}
+
+/// The light-transport algorithm of a job, named in the settings' `integrator` key.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Integrator {
+    /// `"path"`: the unidirectional path tracer with next-event estimation and multiple
+    /// importance sampling.
+    #[default]
+    Path,
+    /// `"bdpt"`: bidirectional path tracing (camera and light subpaths, every connection
+    /// weighted by MIS; its light tracing runs as a light task per sample range over the whole
+    /// frame; see [`Bdpt`]).
+    Bdpt,
+    /// `"sppm"`: stochastic progressive photon mapping (each sample index a photon pass over the
+    /// whole frame; see [`Sppm`]).
+    Sppm,
+}
+
+impl Integrator {
+    /// Every integrator, in the order the documentation names them.
+    pub const ALL: [Integrator; 3] = [Integrator::Path, Integrator::Bdpt, Integrator::Sppm];
+
+    /// The name the settings give it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Integrator::Path => "path",
+            Integrator::Bdpt => "bdpt",
+            Integrator::Sppm => "sppm",
+        }
+    }
+
+    /// Whether a frame is also rendered by tasks over the whole frame (bidirectional path
+    /// tracing's light tasks, photon mapping's passes), besides or instead of tiles.
+    pub fn has_whole_frame_tasks(self) -> bool {
+        self != Integrator::Path
+    }
+}
+
+impl std::fmt::Display for Integrator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Integrator {
+    type Err = String;
+
+    /// The integrator of a name, or a message that names the key and the integrators there are.
+    fn from_str(name: &str) -> Result<Self, String> {
+        Integrator::ALL.into_iter().find(|i| i.name() == name).ok_or_else(|| {
+            let names: Vec<&str> = Integrator::ALL.iter().map(|i| i.name()).collect();
+            format!(
+                "integrator: {name:?} is not an integrator of this renderer (it has: {})",
+                names.join(", ")
+            )
+        })
+    }
+}
+
+impl<'de> Deserialize<'de> for Integrator {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        name.parse().map_err(serde::de::Error::custom)
     }
 }
 
@@ -313,21 +371,14 @@ impl RenderSettings {
 
     /// Checks every value and names the first key that is wrong.
     pub fn validate(&self) -> Result<(), SettingsError> {
-        if !INTEGRATORS.contains(&self.integrator.as_str()) {
-            return Err(err(
-                "integrator",
-                format!(
-                    "{:?} is not an integrator of this renderer (it has: {})",
-                    self.integrator,
-                    INTEGRATORS.join(", ")
-                ),
-            ));
-        }
         if let Some(b) = &self.bdpt {
-            if self.integrator != "bdpt" {
+            if self.integrator != Integrator::Bdpt {
                 return Err(err(
                     "bdpt",
-                    format!("applies to \"integrator\": \"bdpt\", not {:?}", self.integrator),
+                    format!(
+                        "applies to \"integrator\": \"bdpt\", not {:?}",
+                        self.integrator.name()
+                    ),
                 ));
             }
             if b.light_paths == 0 || b.light_paths > MAX_LIGHT_PATHS {
@@ -338,10 +389,13 @@ impl RenderSettings {
             }
         }
         if let Some(p) = &self.sppm {
-            if self.integrator != "sppm" {
+            if self.integrator != Integrator::Sppm {
                 return Err(err(
                     "sppm",
-                    format!("applies to \"integrator\": \"sppm\", not {:?}", self.integrator),
+                    format!(
+                        "applies to \"integrator\": \"sppm\", not {:?}",
+                        self.integrator.name()
+                    ),
                 ));
             }
             if let Some(r) = p.radius {
@@ -463,16 +517,17 @@ mod tests {
     fn the_integrator_is_named_and_an_unknown_one_is_refused_by_key() {
         for name in ["path", "bdpt", "sppm"] {
             let s = RenderSettings::from_json(&format!(r#"{{"integrator": "{name}"}}"#)).unwrap();
-            assert_eq!(s.integrator, name);
+            assert_eq!(s.integrator.name(), name);
+            assert_eq!(name.parse::<Integrator>(), Ok(s.integrator));
         }
-        assert_eq!(RenderSettings::default().integrator, "path");
+        assert_eq!(RenderSettings::default().integrator, Integrator::Path);
         for bad in ["photons", "", "Path"] {
             let e =
                 RenderSettings::from_json(&format!(r#"{{"integrator": "{bad}"}}"#)).unwrap_err();
             assert!(e.contains("integrator") && e.contains("it has: path, bdpt, sppm"), "{e}");
         }
         // Every integrator takes adaptive sampling.
-        for name in INTEGRATORS {
+        for name in Integrator::ALL {
             let json = format!(r#"{{"integrator": "{name}", "target_rel_error": 0.1}}"#);
             assert!(RenderSettings::from_json(&json).is_ok(), "{name}");
         }

@@ -216,9 +216,10 @@ pub(crate) fn http_error(what: &str, e: ureq::Error) -> anyhow::Error {
 fn local_workers(settings: &RenderSettings, threads: usize) -> (usize, usize, usize) {
     let threads = threads.max(1);
     let frames = (settings.frames.end as i128 - settings.frames.start as i128 + 1).max(1) as u128;
-    let whole_frame_tasks = match settings.integrator.as_str() {
-        "sppm" | "bdpt" => frames * settings.spp.div_ceil(settings.samples_per_task.max(1)) as u128,
-        _ => u128::MAX,
+    let whole_frame_tasks = if settings.integrator.has_whole_frame_tasks() {
+        frames * settings.spp.div_ceil(settings.samples_per_task.max(1)) as u128
+    } else {
+        u128::MAX
     };
     if whole_frame_tasks < 2 * threads as u128 {
         (1, threads, threads)
@@ -377,6 +378,7 @@ pub fn render_file_within(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use common::settings::Integrator;
 
     /// One worker of every thread where a photon-mapping or bidirectional job has fewer
     /// whole-frame tasks than twice the threads (counted over its frames); one-thread workers
@@ -385,14 +387,14 @@ mod tests {
     /// thread.
     #[test]
     fn few_whole_frame_tasks_render_on_one_worker_of_every_thread() {
-        let job = |integrator: &str, spp: u32, frames: i64| RenderSettings {
-            integrator: integrator.into(),
+        let job = |integrator: Integrator, spp: u32, frames: i64| RenderSettings {
+            integrator,
             spp,
             samples_per_task: 64,
             frames: common::settings::Frames { start: 1, end: frames, ..Default::default() },
             ..Default::default()
         };
-        for integrator in ["sppm", "bdpt"] {
+        for integrator in [Integrator::Sppm, Integrator::Bdpt] {
             assert_eq!(local_workers(&job(integrator, 64, 1), 4), (1, 4, 4));
             assert_eq!(local_workers(&job(integrator, 7 * 64, 1), 4), (1, 4, 4));
             assert_eq!(local_workers(&job(integrator, 8 * 64, 1), 4), (4, 1, 1));
@@ -408,8 +410,9 @@ mod tests {
             let pilot = RenderSettings { samples_per_task: 8, ..adaptive };
             assert_eq!(local_workers(&pilot, 4), (4, 1, 1));
         }
-        assert_eq!(local_workers(&job("path", 64, 1), 4), (4, 1, 1));
-        let adaptive = RenderSettings { target_rel_error: Some(0.1), ..job("path", 8 * 64, 1) };
+        assert_eq!(local_workers(&job(Integrator::Path, 64, 1), 4), (4, 1, 1));
+        let adaptive =
+            RenderSettings { target_rel_error: Some(0.1), ..job(Integrator::Path, 8 * 64, 1) };
         assert_eq!(local_workers(&adaptive, 4), (4, 1, 1));
     }
 }

@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use common::{
     budget::SceneBudget,
-    settings::{Environment, RenderSettings},
+    settings::{Environment, Integrator, RenderSettings},
 };
 use coordinator::{
     client::{healthcheck, submit, Remote},
@@ -66,7 +66,7 @@ struct SettingsArgs {
     /// The light-transport algorithm (`path`, `bdpt` or `sppm`); the same as `"integrator": NAME` in the
     /// settings.
     #[arg(long, value_name = "NAME")]
-    integrator: Option<String>,
+    integrator: Option<Integrator>,
     /// Stop issuing samples after this many seconds (the tasks in flight still merge); the same
     /// as `"time_limit_s"` in the settings.
     #[arg(long, value_name = "SECONDS")]
@@ -103,8 +103,8 @@ impl SettingsArgs {
         if let Some(name) = &self.variant {
             s.variant = Some(name.clone());
         }
-        if let Some(name) = &self.integrator {
-            s.integrator = name.clone();
+        if let Some(integrator) = self.integrator {
+            s.integrator = integrator;
         }
         if let Some(seconds) = self.time_limit {
             s.time_limit_s = Some(seconds);

@@ -15,7 +15,7 @@ use common::settings::RenderSettings;
 use glam::{UVec2, Vec2, Vec3};
 use worker::render::{
     geometry::Ray,
-    integrator::{li, Stats},
+    integrators::{path::li, Stats},
     sampler::Sampler,
     scene::{prepare, PreparedScene},
 };
@@ -67,7 +67,7 @@ fn main() -> anyhow::Result<()> {
     };
     let mut prepared = prepare(&scene, &settings)?;
     if std::env::var_os("HOTPATH_SCALAR").is_some() {
-        prepared.wavefront = None;
+        prepared.drop_wavefront();
     }
     let (w, h) = (settings.width, settings.height);
     let spp = spp();

@@ -25,7 +25,7 @@ use common::{
     error::ErrorKind,
     protocol::{FailReport, JoinRequest, JoinResponse, LeaseGrant, TaskKind, TaskResult},
     scene::Scene,
-    settings::Environment,
+    settings::{Environment, Integrator},
 };
 
 use crate::{
@@ -562,7 +562,8 @@ fn render_granted(
     cache: &SceneCache,
     g: Granted<'_>,
 ) -> Option<Outgoing> {
-    let whole_frame = g.grant.task.kind == TaskKind::Light || g.grant.settings.integrator == "sppm";
+    let whole_frame =
+        g.grant.task.kind == TaskKind::Light || g.grant.settings.integrator == Integrator::Sppm;
     let threads = if whole_frame { options.whole_frame_threads } else { options.threads };
     match render(link, &g.worker, &g.grant, threads, cache, g.renewing) {
         Ok(Some(result)) => Some(Outgoing { worker: g.worker, lease: g.grant.lease, result }),

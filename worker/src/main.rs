@@ -12,7 +12,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use common::settings::RenderSettings;
 use glam::UVec2;
-use worker::render::{integrator, sampler::Sampler, scene::prepare_frame};
+use worker::render::{integrators, sampler::Sampler, scene::prepare_frame};
 
 #[derive(Parser)]
 #[command(version, about = "Distributed path-tracing render farm: worker")]
@@ -133,7 +133,7 @@ fn main() -> Result<()> {
                 .with_context(|| format!("loading {}", scene.display()))?;
             let prepared = prepare_frame(&loaded, &settings, None, frame)?;
             let mut sampler = Sampler::new(settings.seed, frame);
-            let mut stats = integrator::Stats::default();
+            let mut stats = integrators::Stats::default();
             let traced = worker::render::sample(
                 &prepared,
                 &mut sampler,

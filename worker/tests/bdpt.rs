@@ -376,7 +376,7 @@ fn bdpt_with_the_light_tree_matches_the_path_tracer() {
     let scene = load_many_lights(64, "bdpt");
     let base =
         RenderSettings { width: 32, height: 32, spp: 64, max_depth: 4, ..Default::default() };
-    let bdpt = RenderSettings { integrator: "bdpt".into(), ..base.clone() };
+    let bdpt = RenderSettings { integrator: common::settings::Integrator::Bdpt, ..base.clone() };
     let prepared = prepare_frame(&scene, &bdpt, None, 0).unwrap();
     assert!(prepared.lights.uses_tree() && prepared.emission.is_some());
     let (camera, light) = render_bdpt(&scene, &base);
@@ -579,7 +579,8 @@ fn bdpt_with_the_camera_in_a_fog_bank_matches_the_path_tracer() {
 fn more_light_paths_with_an_orthographic_camera_are_refused() {
     let path = furnace_box("bdpt-orthographic", dielectric_material(1.5, 1.0, None));
     let scene = common::gltf::load_path(&path).unwrap();
-    let base = RenderSettings { integrator: "bdpt".into(), ..white_furnace(8, 4) };
+    let base =
+        RenderSettings { integrator: common::settings::Integrator::Bdpt, ..white_furnace(8, 4) };
     let four =
         RenderSettings { bdpt: Some(common::settings::Bdpt { light_paths: 4 }), ..base.clone() };
     let e = prepare_frame(&scene, &four, None, 0).err().expect("refused").to_string();
@@ -618,7 +619,7 @@ fn a_light_task_gives_the_same_bits_on_any_number_of_threads() {
         height: 24,
         spp: 7,
         max_depth: 5,
-        integrator: "bdpt".into(),
+        integrator: common::settings::Integrator::Bdpt,
         lens: cornell_dof_settings().lens,
         ..motion
     };

@@ -58,15 +58,15 @@ fn shipped_scenes_keep_the_mixture() {
         assert!(!prepared.lights.uses_tree(), "{}", path.display());
     }
     let cornell = prepare(&load("cornell-box.gltf"), &RenderSettings::default()).unwrap();
-    assert!(cornell.wavefront.is_some(), "the Cornell box stays on the wavefront");
+    assert!(cornell.wavefront().is_some(), "the Cornell box stays on the wavefront");
 }
 
 #[test]
 fn many_emitters_choose_by_the_tree_on_the_wavefront() {
     let few = prepare(&many_lights(TREE_MIN_EMITTERS - 1), &settings(8, 1)).unwrap();
-    assert!(!few.lights.uses_tree() && few.wavefront.is_some());
+    assert!(!few.lights.uses_tree() && few.wavefront().is_some());
     let many = prepare(&many_lights(TREE_MIN_EMITTERS), &settings(8, 1)).unwrap();
-    assert!(many.lights.uses_tree() && many.wavefront.is_some());
+    assert!(many.lights.uses_tree() && many.wavefront().is_some());
 }
 
 #[test]

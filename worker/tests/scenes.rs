@@ -13,10 +13,10 @@ use glam::Vec3;
 use serde_json::json;
 use support::*;
 use worker::render::{
+    integrators::wavefront,
     light::{Light, LightChoice},
     render_rows_scalar, render_task,
     scene::{prepare, prepare_with_light_choice, PreparedScene},
-    wavefront,
 };
 
 /// Reference noise of `ref/cornell-box.exr` per value (its `noise_rmse_est`, squared).
@@ -421,7 +421,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 bend(&mut wavefront);
                 bend(&mut scalar);
             }
-            assert!(wavefront.wavefront.is_some(), "{name}: the wavefront applies");
+            assert!(wavefront.wavefront().is_some(), "{name}: the wavefront applies");
             if *name == "punctual lights" {
                 let punctual = wavefront
                     .lights
@@ -431,7 +431,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 assert_eq!(punctual.count(), 3, "point, spot and directional lights");
             }
             assert_eq!(wavefront.environment.is_some(), json.contains("environment"));
-            scalar.wavefront = None;
+            scalar.drop_wavefront();
             let name =
                 format!("{name}{}, {choice:?}", if smooth { ", vertex normals" } else { "" });
             for (rect, samples) in [
@@ -447,7 +447,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 }
                 // Every lane count, emulated (so that 16 lanes are checked on any CPU), and on
                 // every other row as the second of two threads renders them.
-                let tables = wavefront.wavefront.as_ref().expect("tables");
+                let tables = wavefront.wavefront().expect("tables");
                 let (want, want_stats) = render_rows_scalar(&scalar, 11, &task, 1, 2);
                 for lanes in [4, 8, 16] {
                     let (got, stats) = wavefront::render_rows_portable(

@@ -228,8 +228,11 @@ fn sppm_with_the_light_tree_matches_the_path_tracer() {
     let scene = load_many_lights(64, "sppm");
     let base =
         RenderSettings { width: 32, height: 32, spp: 128, max_depth: 4, ..Default::default() };
-    let prepared =
-        prepare(&scene, &RenderSettings { integrator: "sppm".into(), ..base.clone() }).unwrap();
+    let prepared = prepare(
+        &scene,
+        &RenderSettings { integrator: common::settings::Integrator::Sppm, ..base.clone() },
+    )
+    .unwrap();
     assert!(prepared.lights.uses_tree() && prepared.emission.is_some());
     let film = render_sppm(&scene, &base, 64, 2);
     let reference = render(&scene, &RenderSettings { spp: 512, seed: 3, ..base.clone() });
@@ -290,7 +293,7 @@ fn sppm_motion_blur_matches_the_path_tracer() {
     });
     let prepared = prepare_frame(
         &scene,
-        &RenderSettings { integrator: "sppm".into(), ..base.clone() },
+        &RenderSettings { integrator: common::settings::Integrator::Sppm, ..base.clone() },
         None,
         0,
     )

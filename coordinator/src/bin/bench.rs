@@ -688,18 +688,16 @@ fn integrator_curves(
             // A photon-mapping task is a range of passes over the whole frame: ranges small
             // enough to keep every worker busy. So are the light tasks of many light paths (each
             // a range of pixel samples over the whole frame, that many light paths a sample).
-            let samples_per_task = if integrator == "sppm" || bdpt.is_some() {
-                spp.div_ceil(4 * threads as u32).max(1)
-            } else {
-                base.samples_per_task
-            };
-            let settings = RenderSettings {
-                spp,
-                samples_per_task,
-                integrator: integrator.into(),
-                bdpt,
-                ..base.clone()
-            };
+            let integrator: common::settings::Integrator =
+                integrator.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+            let samples_per_task =
+                if integrator == common::settings::Integrator::Sppm || bdpt.is_some() {
+                    spp.div_ceil(4 * threads as u32).max(1)
+                } else {
+                    base.samples_per_task
+                };
+            let settings =
+                RenderSettings { spp, samples_per_task, integrator, bdpt, ..base.clone() };
             let out = dir.join(format!("{}-{spp}.exr", name.replace(':', "-")));
             let wall = Instant::now();
             let report = render_file(scene, &settings, threads, &out, &|_| {})?;

@@ -41,7 +41,7 @@ use std::collections::BTreeMap;
 use common::{
     film::{ErrorEstimate, Rect, TileAccum},
     protocol::{SampleRange, TaskKind, TaskSpec},
-    settings::RenderSettings,
+    settings::{Integrator, RenderSettings},
 };
 use serde::Serialize;
 
@@ -234,13 +234,13 @@ impl Job {
         let whole = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
         // Photon mapping renders a pass over the whole frame at once (its photons land anywhere):
         // one tile, the frame, whose task `k` is the passes of sample range `k`.
-        let mut rects = if settings.integrator == "sppm" {
+        let mut rects = if settings.integrator == Integrator::Sppm {
             vec![whole]
         } else {
             tiles(settings.width, settings.height, settings.tile_size)
         };
         // Bidirectional path tracing adds a light tile per frame, the whole frame, last.
-        let light = settings.integrator == "bdpt";
+        let light = settings.integrator == Integrator::Bdpt;
         if light {
             rects.push(whole);
         }
@@ -498,7 +498,7 @@ impl Job {
         // Photon mapping's frame is one tile whose passes' variance grows as the radius shrinks,
         // so the pilot's variance per sample, which the scale assumes, understates the later
         // passes': its tile stops when its own estimate reaches the target.
-        let photon_passes = self.settings.integrator == "sppm";
+        let photon_passes = self.settings.integrator == Integrator::Sppm;
         for t in &mut frame.tiles {
             let n = (t.prefix * spt).min(spp) as f64;
             let done =

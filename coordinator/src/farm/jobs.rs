@@ -5,7 +5,7 @@ use std::{collections::BTreeMap, path::PathBuf};
 
 use common::{
     film::{Rect, TileAccum},
-    settings::RenderSettings,
+    settings::{Integrator, RenderSettings},
 };
 
 use super::store::TileReader;
@@ -209,7 +209,7 @@ impl Farm {
             tiles: job.frames[f].tiles.iter().filter(|t| !t.light).map(|t| t.sums.rect).collect(),
             light_tile: job.light_tile(),
             // Photon mapping's one tile is the whole frame.
-            tile_rows: if s.integrator == "sppm" { s.height } else { s.tile_size },
+            tile_rows: if s.integrator == Integrator::Sppm { s.height } else { s.tile_size },
             stored: job.frames[f].evicted,
             info: FrameInfo {
                 settings_json: serde_json::to_string(s).unwrap_or_default(),

@@ -6,7 +6,7 @@
 use common::{
     budget::SceneBudget,
     bundle::{Bundle, Format},
-    settings::{Environment, RenderSettings},
+    settings::{Environment, Integrator, RenderSettings},
 };
 use serde::Serialize;
 use sha2::{Digest, Sha256};
@@ -116,7 +116,7 @@ pub fn validate_job_scene(
             )));
         }
     }
-    if settings.integrator != "path" {
+    if settings.integrator != Integrator::Path {
         let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
         scene
             .check_integrator(settings)

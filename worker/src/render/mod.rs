@@ -7,11 +7,10 @@
 //! `wavefront` -> this module (`render_task`).
 
 pub mod accel;
-pub mod bdpt;
 pub mod bsdf;
 pub mod camera;
 pub mod geometry;
-pub mod integrator;
+pub mod integrators;
 mod lanes;
 pub mod light;
 pub mod material;
@@ -22,9 +21,7 @@ pub mod sampler;
 pub mod sampling;
 pub mod scene;
 pub mod spectrum;
-pub mod sppm;
 pub mod texture;
-pub mod wavefront;
 pub mod wavefront_tables;
 
 #[cfg(test)]
@@ -36,7 +33,12 @@ use common::{
 };
 use glam::{UVec2, Vec2};
 
-use self::{integrator::Stats, motion::Pose, sampler::Sampler, scene::PreparedScene};
+use self::{
+    integrators::{bdpt, path, sppm, wavefront, Stats},
+    motion::Pose,
+    sampler::Sampler,
+    scene::{PreparedScene, Transport},
+};
 
 /// Renders `task` with `seed` on the calling thread.
 pub fn render_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> TaskResult {
@@ -51,14 +53,19 @@ pub fn render_task_threads(
     task: &TaskSpec,
     threads: usize,
 ) -> TaskResult {
-    if let Some(params) = &scene.sppm {
-        let (tile, stats) = sppm::render_task(scene, params, seed, task, threads);
-        return TaskResult { spec: *task, tile, rays: stats.rays };
-    }
-    if task.kind == TaskKind::Light {
-        // A sample index's film per thread, added in sample order: the same bits on any count.
-        let (tile, stats) = bdpt::render_light_task(scene, seed, task, threads);
-        return TaskResult { spec: *task, tile, rays: stats.rays };
+    // The one place that dispatches on the integrator.
+    match (&scene.transport, task.kind) {
+        (Transport::Sppm(params), _) => {
+            let (tile, stats) = sppm::render_task(scene, params, seed, task, threads);
+            return TaskResult { spec: *task, tile, rays: stats.rays };
+        }
+        (_, TaskKind::Light) => {
+            // Light tracing (bidirectional jobs' light tasks). A sample index's film per thread,
+            // added in sample order: the same bits on any count.
+            let (tile, stats) = bdpt::render_light_task(scene, seed, task, threads);
+            return TaskResult { spec: *task, tile, rays: stats.rays };
+        }
+        (Transport::Path { .. } | Transport::Bdpt, TaskKind::Camera) => {}
     }
     let rect = task.rect;
     let threads = threads.clamp(1, rect.height.max(1) as usize);
@@ -89,15 +96,16 @@ fn render_rows(
     first: u32,
     step: u32,
 ) -> (TileAccum, Stats) {
-    if scene.bdpt {
-        return bdpt::render_rows(scene, seed, task, first, step);
-    }
-    if let Some(tables) = &scene.wavefront {
-        if let Some(done) = wavefront::render_rows(scene, tables, seed, task, first, step) {
-            return done;
+    match &scene.transport {
+        Transport::Bdpt => bdpt::render_rows(scene, seed, task, first, step),
+        Transport::Path { wavefront: Some(tables) } => {
+            wavefront::render_rows(scene, tables, seed, task, first, step)
+                .unwrap_or_else(|| render_rows_scalar(scene, seed, task, first, step))
+        }
+        Transport::Path { wavefront: None } | Transport::Sppm(_) => {
+            render_rows_scalar(scene, seed, task, first, step)
         }
     }
-    render_rows_scalar(scene, seed, task, first, step)
 }
 
 /// Renders rows `first, first + step, ...` of the task's tile one path at a time.
@@ -169,7 +177,7 @@ pub fn sample<'a>(
     let lens = if scene.camera.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
     let Some(m) = &scene.motion else {
         let ray = scene.camera.generate_ray(film, lens);
-        let radiance = integrator::li(scene, ray, sampler, stats, None);
+        let radiance = path::li(scene, ray, sampler, stats, None);
         return Sample { film, time: None, radiance };
     };
     let time = m.time(sampler.next_1d());
@@ -179,6 +187,6 @@ pub fn sample<'a>(
     };
     let pose = pose.get_or_insert_with(|| Pose::new(m, time));
     pose.set_time(time);
-    let radiance = integrator::li(scene, ray, sampler, stats, Some(pose));
+    let radiance = path::li(scene, ray, sampler, stats, Some(pose));
     Sample { film, time: Some(time), radiance }
 }

@@ -10,7 +10,7 @@ use std::{sync::Arc, time::Instant};
 use common::{
     envmap::EnvMap,
     scene::{AlphaMode, Material, Projection, PunctualKind, Scene, Texture},
-    settings::{Environment, RenderSettings},
+    settings::{Environment, Integrator, RenderSettings},
 };
 use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 
@@ -175,13 +175,11 @@ pub struct PreparedScene {
     pub max_depth: u32,
     /// Seconds spent building the BVH.
     pub build_seconds: f64,
-    /// Bidirectional path tracing (`"integrator": "bdpt"`) instead of the path tracer.
-    pub bdpt: bool,
+    /// The light-transport algorithm the settings name, with what it prepared.
+    pub transport: Transport,
     /// Light subpaths light-traced per pixel sample (`bdpt.light_paths`): the light-tracing
     /// strategy's sample count in bidirectional path tracing's MIS weights.
     pub light_paths: u32,
-    /// Photon mapping (`"integrator": "sppm"`) instead of the path tracer, with its parameters.
-    pub sppm: Option<SppmParams>,
     /// The choice of the light a photon or a light subpath leaves, blind to any point (the power
     /// mixture), for photon mapping, and for bidirectional path tracing where `lights` chooses
     /// by the tree (`None` otherwise: `lights` is that mixture).
@@ -200,9 +198,40 @@ pub struct PreparedScene {
     /// as the lights' are, from where the camera is at the frame's time, which it is taken to
     /// keep through the shutter and across a thin lens; among the volumes that stay put).
     pub camera_media: MediumStack,
-    /// What the wavefront renderer needs, when the scene is one it renders (`None`: every path
-    /// is traced by `integrator::li`).
-    pub wavefront: Option<super::wavefront_tables::Tables>,
+}
+
+/// The light-transport algorithm of a prepared scene (the settings' `integrator`) with what it
+/// needs of the scene: one value, so that no two of them can apply at once.
+#[derive(Clone, Debug)]
+pub enum Transport {
+    /// The path tracer, with the wavefront's tables when the scene is one the wavefront renders
+    /// (`None`: every path is traced by the scalar path tracer).
+    Path {
+        /// What the wavefront renderer reads of the scene.
+        wavefront: Option<super::wavefront_tables::Tables>,
+    },
+    /// Bidirectional path tracing.
+    Bdpt,
+    /// Stochastic progressive photon mapping, with its parameters.
+    Sppm(SppmParams),
+}
+
+impl PreparedScene {
+    /// The wavefront's tables, when the scene is rendered by the path tracer on the wavefront.
+    pub fn wavefront(&self) -> Option<&super::wavefront_tables::Tables> {
+        match &self.transport {
+            Transport::Path { wavefront } => wavefront.as_ref(),
+            _ => None,
+        }
+    }
+
+    /// Drops the wavefront's tables: every path is then traced by the scalar path tracer (for
+    /// comparisons and profiles).
+    pub fn drop_wavefront(&mut self) {
+        if let Transport::Path { wavefront } = &mut self.transport {
+            *wavefront = None;
+        }
+    }
 }
 
 /// Stochastic progressive photon mapping's parameters for a prepared scene.
@@ -629,22 +658,32 @@ fn prepare_inner(
         AlphaMode::Blend => m.base_color.w < 1.0 || varies(m),
         AlphaMode::Opaque => false,
     });
-    let bdpt = settings.integrator == "bdpt";
-    let sppm = (settings.integrator == "sppm")
-        .then(|| SppmParams::new(settings, &camera, &accel, scene_radius));
+    let transport = match settings.integrator {
+        Integrator::Path => Transport::Path { wavefront: None },
+        Integrator::Bdpt => Transport::Bdpt,
+        Integrator::Sppm => {
+            Transport::Sppm(SppmParams::new(settings, &camera, &accel, scene_radius))
+        }
+    };
+    let sppm = matches!(transport, Transport::Sppm(_));
+    let bdpt = matches!(transport, Transport::Bdpt);
     let lights = LightSampler::with_choice(lights, &emitters, scene_radius, choice);
     // Light subpaths and photons leave a light chosen blind to any point (the power mixture);
     // light samples from a shaded point choose as the path tracer does (by the tree, in scenes
     // of many emitters). Bidirectional path tracing needs the mixture only where the two differ.
-    let emission = (sppm.is_some() || (bdpt && lights.uses_tree()))
+    let emission = (sppm || (bdpt && lights.uses_tree()))
         .then(|| PowerMixture::new(&lights.lights, &emitters, scene_radius));
-    let wavefront = super::wavefront_tables::Tables::new(
-        &scene.materials,
-        &scene.textures,
-        &lights,
-        motion.is_some() || alpha_tested || !colors.is_empty(),
-    )
-    .filter(|_| !bdpt && sppm.is_none());
+    let transport = match transport {
+        Transport::Path { .. } => Transport::Path {
+            wavefront: super::wavefront_tables::Tables::new(
+                &scene.materials,
+                &scene.textures,
+                &lights,
+                motion.is_some() || alpha_tested || !colors.is_empty(),
+            ),
+        },
+        other => other,
+    };
     let mut prepared = PreparedScene {
         origin,
         camera,
@@ -668,28 +707,26 @@ fn prepare_inner(
         max_depth: settings.max_depth,
         build_seconds,
         motion,
-        bdpt,
+        transport,
         light_paths: settings.light_paths(),
-        sppm,
         emission,
         sphere,
         light_media: Vec::new(),
         camera_media: MediumStack::default(),
         moving_emitters: None,
-        wavefront,
     };
-    if prepared.sppm.is_some() {
+    if sppm {
         prepared.moving_emitters = MovingEmitters::new(&prepared, scene_radius);
     }
     if prepared.materials.iter().any(|m| m.bounds_medium()) {
-        if bdpt || prepared.sppm.is_some() {
+        if bdpt || sppm {
             prepared.light_media = light_media(&prepared);
         }
         // The camera sits at the origin of the camera-relative world (an orthographic camera's
         // rays start across its film plane: taken to lie in the same volumes as its centre).
         prepared.camera_media = media_at(&prepared, Vec3::ZERO, askew(), NONE, None);
         if prepared.camera_media.current().is_some() {
-            prepared.wavefront = None;
+            prepared.drop_wavefront();
         }
     }
     Ok(prepared)

@@ -573,7 +573,8 @@ pub fn render_sppm_batches(
     batch: u32,
     threads: usize,
 ) -> Vec<Film> {
-    let settings = RenderSettings { integrator: "sppm".into(), ..settings.clone() };
+    let settings =
+        RenderSettings { integrator: common::settings::Integrator::Sppm, ..settings.clone() };
     let prepared = prepare_frame(scene, &settings, None, 0).expect("prepare");
     let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     (0..settings.spp.div_ceil(batch))
@@ -916,7 +917,8 @@ pub fn render_bdpt_with(
     settings: &RenderSettings,
     map: Option<&common::envmap::EnvMap>,
 ) -> (Film, Film) {
-    let settings = RenderSettings { integrator: "bdpt".into(), ..settings.clone() };
+    let settings =
+        RenderSettings { integrator: common::settings::Integrator::Bdpt, ..settings.clone() };
     let prepared = prepare_frame(scene, &settings, map, 0).expect("prepare");
     let camera = render_prepared(&prepared, &settings);
     let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
@@ -955,7 +957,8 @@ pub fn render_sppm_with(
     threads: usize,
     map: Option<&common::envmap::EnvMap>,
 ) -> Film {
-    let settings = RenderSettings { integrator: "sppm".into(), ..settings.clone() };
+    let settings =
+        RenderSettings { integrator: common::settings::Integrator::Sppm, ..settings.clone() };
     let prepared = prepare_frame(scene, &settings, map, 0).expect("prepare");
     let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     let mut film = Film::new(settings.width, settings.height);

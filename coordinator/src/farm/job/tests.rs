@@ -65,7 +65,7 @@ fn a_light_tile_takes_its_light_paths_in_longer_tasks() {
         tile_size: 32,
         spp: 100,
         samples_per_task: 32,
-        integrator: "bdpt".into(),
+        integrator: Integrator::Bdpt,
         bdpt: Some(common::settings::Bdpt { light_paths: 3 }),
         ..Default::default()
     };
@@ -199,7 +199,7 @@ fn an_adaptive_photon_mapping_frame_stops_when_its_own_estimate_reaches_the_targ
         height: 16,
         spp: 4096,
         samples_per_task: 16,
-        integrator: "sppm".into(),
+        integrator: Integrator::Sppm,
         target_rel_error: Some(target),
         ..Default::default()
     };
@@ -320,7 +320,7 @@ fn an_adaptive_bidirectional_frame_stops_each_tile_on_its_part_of_the_error() {
         tile_size: 32,
         spp: 1024,
         samples_per_task: 4,
-        integrator: "bdpt".into(),
+        integrator: Integrator::Bdpt,
         target_rel_error: Some(target),
         ..Default::default()
     };
@@ -417,7 +417,7 @@ fn an_adaptive_bidirectional_frame_weighs_the_light_tiles_cost() {
             tile_size: 32,
             spp: 1024,
             samples_per_task: 16,
-            integrator: "bdpt".into(),
+            integrator: Integrator::Bdpt,
             bdpt: Some(common::settings::Bdpt { light_paths }),
             target_rel_error: Some(0.02),
             ..Default::default()

@@ -87,6 +87,19 @@ impl Light {
         }
     }
 
+    /// Density per unit solid angle at a receiver with which `sample_li` chooses direction `wi`
+    /// (unit, toward the light), the light's point lying at distance² `dist2` along it (ignored
+    /// for lights at infinity); the choice of light excluded. Zero for delta lights, which no
+    /// direction sampled otherwise finds.
+    #[inline]
+    pub fn pdf_li(&self, wi: Vec3, dist2: f32) -> f32 {
+        match self {
+            Light::Triangle(l) => l.pdf_li(wi, dist2),
+            Light::Environment(env) => env.pdf(wi),
+            Light::Point(_) | Light::Spot(_) | Light::Directional(_) => 0.0,
+        }
+    }
+
     /// Power estimate used to choose between lights (luminance of emitted flux).
     pub fn power(&self, scene_radius: f32) -> f32 {
         let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722)).max(0.0);

@@ -59,16 +59,21 @@ use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{DVec3, IVec3, UVec2, Vec2, Vec3};
 
 use super::{
+    super::{
+        geometry::{offset_ray_origin, Ray},
+        light::{Light, ShadingContext, TriangleLight},
+        sampler::{mix64, Sampler},
+        scene::{PreparedScene, SppmParams, NONE},
+    },
     bdpt::{
-        cross_after, frame_start, leave_light, leave_still_light, roulette, sample_light, scatter,
+        cross_after, frame_start, leave_light, leave_still_light, sample_light, scatter,
         spectral_weight, surface_vertex, At, FrameSequences, FrameStart, Kind, SharedNumbers,
         Vertex, LIGHT_DIMENSION,
     },
-    geometry::{offset_ray_origin, Ray},
-    integrator::{power_heuristic, same_side, Stats},
-    light::{ChooseLight, Light, ShadingContext, TriangleLight},
-    sampler::{mix64, Sampler},
-    scene::{PreparedScene, SppmParams, NONE},
+    shared::{
+        environment_hit, hit_weight, mis_pdf, power_heuristic, roulette, same_side, Stats,
+        UNWEIGHTED,
+    },
 };
 
 /// Photons traced as one unit of work; their sums are added in this unit's order.
@@ -300,9 +305,9 @@ fn camera_path(
     let mut ray = at.camera.generate_ray(film, lens);
     let mut beta = Vec3::ONE;
     let mut seen = Vec3::ZERO;
-    // The density of the BSDF sample that made `ray` (0: a camera ray, whose emitter counts
-    // whole) and the point it left.
-    let mut prev_pdf = 0.0f32;
+    // The density of the BSDF sample that made `ray` (`UNWEIGHTED` for a camera ray, whose
+    // emitter counts whole) and the point it left.
+    let mut prev_pdf = UNWEIGHTED;
     let mut prev_ctx = ShadingContext::default();
     // The volumes the path is inside, at first those the camera lies inside.
     let mut media = scene.camera_media;
@@ -311,6 +316,8 @@ fn camera_path(
     let mut tinted = false;
     // The path's free-flight densities per channel over their mean (`Vertex::ratios`).
     let mut ratios = Vec3::ONE;
+    // The product of eta² over the refractions crossed (`shared::roulette`).
+    let mut eta_scale = 1.0f32;
     for depth in 0..=scene.max_depth {
         // In a scene with scattering media each segment takes a number for its free flight.
         let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
@@ -319,7 +326,7 @@ fn camera_path(
         let Some((mut v, unlit)) = next else {
             // The environment, straight from the camera only where the settings show it.
             if depth > 0 || scene.environment_visible {
-                let l = beta * environment_seen(scene, ray.dir, &prev_ctx, prev_pdf);
+                let l = environment_hit(scene, beta, ray.dir.normalize(), &prev_ctx, prev_pdf);
                 seen += at.tint(l, tinted);
             }
             break;
@@ -336,10 +343,13 @@ fn camera_path(
             }
             sampler.skip(4); // The light sample and the lobe, as at a surface.
             let wi = scatter(scene, &media, &v, sampler.next_2d());
-            if !beta.is_finite() || beta == Vec3::ZERO || !roulette(sampler, &mut beta, depth + 1) {
+            if !beta.is_finite()
+                || beta == Vec3::ZERO
+                || !roulette(sampler, depth + 1, &mut beta, eta_scale)
+            {
                 break;
             }
-            prev_pdf = 0.0;
+            prev_pdf = UNWEIGHTED;
             ray = Ray::interior(v.p, wi);
             continue;
         }
@@ -382,7 +392,7 @@ fn camera_path(
             if let Some((bs, wi)) = next {
                 let weight = beta * bs.f * (bs.wi.z.abs() / bs.pdf);
                 let ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
-                let pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
+                let pdf = mis_pdf(&bs);
                 let mut media = media;
                 cross_after(&v, wi, bs.wi, &mut media);
                 // Its free flight: where it scatters, no light arrives unscattered.
@@ -410,9 +420,7 @@ fn camera_path(
                     Some((hit, None)) if hit.moving_le != Vec3::ZERO => {
                         seen += at.tint(through * hit.moving_le, tinted);
                     }
-                    None => {
-                        seen += at.tint(through * environment_seen(scene, wi, &ctx, pdf), tinted)
-                    }
+                    None => seen += at.tint(environment_hit(scene, through, wi, &ctx, pdf), tinted),
                     _ => {}
                 }
             }
@@ -423,10 +431,13 @@ fn camera_path(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
-        if !roulette(sampler, &mut beta, depth + 1) {
+        if bs.lobe.enters_far_side() {
+            eta_scale *= bs.eta * bs.eta;
+        }
+        if !roulette(sampler, depth + 1, &mut beta, eta_scale) {
             break;
         }
-        prev_pdf = if bs.lobe.is_delta() { 0.0 } else { bs.pdf };
+        prev_pdf = mis_pdf(&bs);
         prev_ctx = ctx;
         cross_after(&v, wi, bs.wi, &mut media);
         ray = Ray::new(offset_ray_origin(v.p, v.p_error, v.ng, wi), wi);
@@ -434,33 +445,11 @@ fn camera_path(
     (seen, None)
 }
 
-/// The multiple-importance weight of emitter vertex `hit` found by a BSDF sample of density
-/// `pdf` (per solid angle) from the shading point `from`, against sampling the light from there;
-/// 1 when `pdf` is 0 (a camera ray or a delta lobe, which no light sample could make).
+/// The multiple-importance weight of emitter vertex `hit` found by a direction sampled with
+/// density `pdf` (per solid angle, or `UNWEIGHTED`) from the shading point `from`, against
+/// sampling the light from there (`shared::hit_weight`).
 fn emitter_weight(scene: &PreparedScene, hit: &Vertex, from: &ShadingContext, pdf: f32) -> f32 {
-    if pdf == 0.0 {
-        return 1.0;
-    }
-    let Light::Triangle(l) = &scene.lights.lights[hit.light as usize] else { return 1.0 };
-    let cos = hit.ng.dot(hit.wo).abs();
-    let pmf = scene.lights.pmf(from, hit.light);
-    let light_pdf = pmf / l.area * hit.p.distance_squared(from.p) / cos;
-    power_heuristic(pdf, light_pdf)
-}
-
-/// Radiance of the environment along direction `dir` found by a BSDF sample of density `pdf`
-/// (per solid angle; 0 for a camera ray or a delta lobe, which count whole) from `from`,
-/// weighted against sampling the environment there; zero without one.
-fn environment_seen(scene: &PreparedScene, dir: Vec3, from: &ShadingContext, pdf: f32) -> Vec3 {
-    let (Some(env), Some(index)) = (&scene.environment, scene.lights.environment) else {
-        return Vec3::ZERO;
-    };
-    let weight = if pdf == 0.0 {
-        1.0
-    } else {
-        power_heuristic(pdf, scene.lights.pmf(from, index) * env.pdf(dir.normalize()))
-    };
-    env.radiance(dir.normalize()) * weight
+    hit_weight(scene, hit.light, from, -hit.wo, hit.p.distance_squared(from.p), pdf)
 }
 
 /// The grid cell of edge `radius` that holds `p`.

@@ -62,24 +62,26 @@ use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
 
 use super::{
-    bsdf::{Bsdf, Dielectric},
-    camera::PlacedCamera,
-    geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
-    integrator::{
-        same_side, shading_frame, Stats, MAX_FALSE_INTERFACES, RR_MIN_DEPTH, RR_SURVIVAL_SCALE,
+    super::{
+        bsdf::{Bsdf, Dielectric},
+        camera::PlacedCamera,
+        geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
+        light::{spot_falloff, ChooseLight, Light, ShadingContext},
+        material,
+        media::{self, transmittance, Crossing, MediumStack},
+        motion::Pose,
+        sampler::{Sampler, FRAME_DIMENSIONS},
+        sampling::{
+            sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
+            uniform_sphere_pdf,
+        },
+        scene::{PreparedScene, NONE, UNSAMPLED},
+        spectrum,
+    },
+    shared::{
+        light_radiance, roulette, same_side, shading_frame, Stats, MAX_FALSE_INTERFACES,
         SHADOW_T_MAX,
     },
-    light::{spot_falloff, ChooseLight, Light, ShadingContext},
-    material,
-    media::{self, transmittance, Crossing, MediumStack},
-    motion::Pose,
-    sampler::{Sampler, FRAME_DIMENSIONS},
-    sampling::{
-        sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
-        uniform_sphere_pdf,
-    },
-    scene::{PreparedScene, NONE, UNSAMPLED},
-    spectrum,
 };
 
 /// The sampler dimension a light subpath starts at (the camera subpath's come first and never
@@ -519,6 +521,9 @@ fn walk(
     let mut bounces = 0u32;
     // The subpath's free-flight densities per channel over their mean (`Vertex::ratios`).
     let mut ratios = Vec3::ONE;
+    // The product of eta² over the refractions a camera subpath crossed, which its radiance
+    // took as 1 / eta² (a light subpath's flux takes no such scale): the roulette looks past it.
+    let mut eta_scale = 1.0f32;
     while bounces < max_vertices {
         // In a scene with scattering media each segment takes a number for its free flight.
         let u_flight = if scene.scattering_media { sampler.next_1d() } else { 0.0 };
@@ -572,7 +577,10 @@ fn walk(
             let wi = scatter(scene, &media, &path[n - 1], sampler.next_2d());
             // Neither side's density enters a weight (as after a delta lobe).
             path[n - 2].pdf_rev = 0.0;
-            if !beta.is_finite() || beta == Vec3::ZERO || !roulette(sampler, &mut beta, bounces) {
+            if !beta.is_finite()
+                || beta == Vec3::ZERO
+                || !roulette(sampler, bounces, &mut beta, eta_scale)
+            {
                 break;
             }
             pdf = 0.0;
@@ -635,32 +643,18 @@ fn walk(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
+        if mode == Mode::Radiance && bs.lobe.enters_far_side() {
+            eta_scale *= bs.eta * bs.eta;
+        }
         // Russian roulette as in the path tracer (unbiased; the MIS weights leave it out, which
         // keeps them a partition of unity).
-        if !roulette(sampler, &mut beta, bounces) {
+        if !roulette(sampler, bounces, &mut beta, eta_scale) {
             break;
         }
         pdf = pdf_fwd;
         cross_after(&path[n - 1], wi, bs.wi, &mut media);
         ray = Ray::new(offset_ray_origin(p, path[n - 1].p_error, ng, wi), wi);
     }
-}
-
-/// Russian roulette after `bounces` bounces, as the path tracer plays it: past `RR_MIN_DEPTH`
-/// the path survives with probability min(1, `RR_SURVIVAL_SCALE` x its largest throughput
-/// channel) and its throughput grows by its inverse; before it the number is skipped. False when
-/// the path ends.
-pub(super) fn roulette(sampler: &mut Sampler, beta: &mut Vec3, bounces: u32) -> bool {
-    if bounces <= RR_MIN_DEPTH {
-        sampler.skip(1);
-        return true;
-    }
-    let q = (1.0 - beta.max_element() * RR_SURVIVAL_SCALE).max(0.0);
-    if sampler.next_1d() < q {
-        return false;
-    }
-    *beta /= 1.0 - q;
-    true
 }
 
 /// What `ray` meets first, as a vertex reached with throughput `beta` (its densities left for
@@ -1295,7 +1289,7 @@ fn camera_strategies(scene: &PreparedScene, at: &At<'_>, paths: &Paths, stats: &
 }
 
 /// The s = 1 strategy at camera vertex `pt`: a light sampled from it with its stored numbers
-/// (chosen as the scene's light choice does at `ctx`), the unoccluded contribution, the light's
+/// (chosen as the scene's light choice does at `ctx`, `pt`'s point and shading normal), the unoccluded contribution, the light's
 /// vertex (its `pdf_fwd` that choice's density) and the sample's density per solid angle (the
 /// light's choice included; infinite for a point or spot light).
 pub(super) fn sample_light(
@@ -1307,22 +1301,9 @@ pub(super) fn sample_light(
 ) -> Option<(Vec3, Vertex, f32)> {
     pt.bsdf?;
     let [u_choice, ux, uy] = pt.u_light;
-    let (idx, pmf, _) = scene.lights.choose(ctx, u_choice)?;
+    let (idx, pmf, ls) = super::shared::sample_light(scene, ctx, u_choice, |_| Vec2::new(ux, uy))?;
     let light = &scene.lights.lights[idx as usize];
-    let ls = light.sample_li(pt.p, Vec2::new(ux, uy))?;
-    let mut li = match light {
-        Light::Triangle(l) if l.textured => {
-            let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
-            let sp = scene.surface_point(l.prim, ls.barycentrics);
-            material::emission_toward(&scene.textures, m, &sp, ls.normal, ls.wi)
-        }
-        _ => ls.li,
-    };
-    if scene.alpha_tested {
-        if let Light::Triangle(l) = light {
-            li *= scene.coverage(l.prim, ls.barycentrics);
-        }
-    }
+    let li = light_radiance(scene, light, &ls);
     let mut v = match ls.point {
         Some(point) => Vertex::new(Kind::Light, point, Vec3::ZERO),
         None => {
@@ -1368,7 +1349,7 @@ pub fn render_rows(
     let mut sampler = Sampler::new(seed, task.frame);
     let mut paths = Paths::default();
     let mut pose = None;
-    let tile = super::render_rows_with(task, first, step, |pixel, s| {
+    let tile = super::super::render_rows_with(task, first, step, |pixel, s| {
         let (film, lens, shared) = start_sample(scene, &mut sampler, pixel, s);
         let at = At::sample(scene, shared, &mut pose);
         let (camera, light) = (&mut paths.camera, &mut paths.light);

@@ -22,67 +22,24 @@ use common::scene::Volume;
 use glam::{Vec2, Vec3};
 
 use super::{
-    bsdf::{Bsdf, Layered},
-    geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
-    light::{ChooseLight, Light, ShadingContext},
-    material,
-    media::{self, free_flight, transmittance, Crossing},
-    motion::Pose,
-    sampler::Sampler,
-    sampling::sample_henyey_greenstein,
-    scene::{PreparedScene, NONE, UNSAMPLED},
-    spectrum,
+    super::{
+        bsdf::{Bsdf, Layered},
+        geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
+        light::{Light, ShadingContext},
+        material,
+        media::{self, free_flight, transmittance, Crossing},
+        motion::Pose,
+        sampler::Sampler,
+        sampling::sample_henyey_greenstein,
+        scene::{PreparedScene, NONE, UNSAMPLED},
+        spectrum,
+    },
+    shared::{
+        environment_hit, hit_weight, light_radiance, mis_pdf, perturb_normal, power_heuristic,
+        roulette, same_side, sample_light, shading_frame, Stats, MAX_FALSE_INTERFACES,
+        SHADOW_T_MAX, UNWEIGHTED,
+    },
 };
-
-/// Counters kept per task (never logged per ray).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Stats {
-    /// Rays traced: camera, bounce and shadow rays.
-    pub rays: u64,
-}
-
-/// Russian roulette: after `RR_MIN_DEPTH` bounces a path goes on with probability
-/// min(1, `RR_SURVIVAL_SCALE` x its largest throughput channel), so that only paths whose
-/// throughput fell below 1 / `RR_SURVIVAL_SCALE` are ever ended, and a survivor's weight grows by
-/// at most that factor. Unbiased for any choice; the choice trades variance against rays.
-/// Measured on the Cornell box (relative MSE at 64 spp x instructions at 4 spp, both
-/// deterministic): the usual scale of 1 (pbrt, Mitsuba) after 4 bounces gave 2.947e-3 x 3.19 G;
-/// a scale of 3 after 2 bounces 2.457e-3 x 3.22 G (16% more efficient, 14-20% from 4 to 256 spp);
-/// scales of 2, 4 and 5 and depths of 1 and 3 did no better.
-pub(crate) const RR_MIN_DEPTH: u32 = 2;
-pub(crate) const RR_SURVIVAL_SCALE: f32 = 3.0;
-
-/// How many false interfaces (volume boundaries with the same medium on both sides) a path
-/// passes before it is ended: far more than any sensible nesting, few enough that a pathological
-/// mesh cannot hold a path.
-pub(crate) const MAX_FALSE_INTERFACES: u32 = 256;
-
-/// 1 - ShadowEpsilon: shadow rays toward a point stop just short of it.
-pub(crate) const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
-
-#[inline]
-pub(crate) fn power_heuristic(a: f32, b: f32) -> f32 {
-    let (a2, b2) = (a * a, b * b);
-    if a2.is_infinite() {
-        return 1.0;
-    }
-    if a2 + b2 == 0.0 {
-        return 0.0;
-    }
-    a2 / (a2 + b2)
-}
-
-/// Whether a direction with shading-frame z `cos_s` and geometric cosine `cos_g` (both relative
-/// to wo's side) lies on one side of both surfaces: wo's side, or the far side for a BSDF that
-/// transmits. A direction between the two (a bent shading normal) carries no light.
-#[inline]
-pub(crate) fn same_side(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
-    if cos_s > 0.0 {
-        cos_g > 0.0
-    } else {
-        transmits && cos_s < 0.0 && cos_g < 0.0
-    }
-}
 
 /// Radiance arriving at the camera along `ray`.
 /// `pose` places what moves at the sample's time (`None`: nothing moves).
@@ -96,9 +53,9 @@ pub fn li(
     let mut radiance = Vec3::ZERO;
     let mut beta = Vec3::ONE;
     let mut depth = 0u32;
-    // Density of the BSDF sample that produced `ray` (0 for camera rays: no MIS on them;
-    // infinite after a delta lobe, whose direction no light sample could have chosen).
-    let mut prev_bsdf_pdf = 0.0f32;
+    // Density of the BSDF sample that produced `ray` (`UNWEIGHTED` for camera rays and after a
+    // delta lobe or a scattering, whose directions no light sample could have chosen).
+    let mut prev_bsdf_pdf = UNWEIGHTED;
     // Where that BSDF sample was taken (its point and shading normal): the light choice's
     // probability there is what light sampling would have given the light it hits.
     let mut prev_ctx = ShadingContext::default();
@@ -163,7 +120,7 @@ pub fn li(
             sampler.skip(3); // The light sample and the lobe choice.
             let wi = Frame::from_z(dir)
                 .to_world(sample_henyey_greenstein(v.anisotropy, sampler.next_2d()));
-            prev_bsdf_pdf = f32::INFINITY;
+            prev_bsdf_pdf = UNWEIGHTED;
             ray = Ray::interior(p, wi);
             depth += 1;
             if !roulette(sampler, depth, &mut beta, eta_scale) {
@@ -172,20 +129,9 @@ pub fn li(
             continue;
         }
         let Some(hit) = hit else {
-            if let (Some(env), Some(env_idx)) = (&scene.environment, lights.environment) {
-                let weight = if depth == 0 {
-                    if scene.environment_visible {
-                        1.0
-                    } else {
-                        0.0
-                    }
-                } else {
-                    let light_pdf = lights.pmf(&prev_ctx, env_idx) * env.pdf(ray.dir);
-                    power_heuristic(prev_bsdf_pdf, light_pdf)
-                };
-                if weight > 0.0 {
-                    radiance += beta * env.radiance(ray.dir) * weight;
-                }
+            // Camera rays see the environment only where the settings show it.
+            if depth > 0 || scene.environment_visible {
+                radiance += environment_hit(scene, beta, ray.dir, &prev_ctx, prev_bsdf_pdf);
             }
             break;
         };
@@ -243,14 +189,9 @@ pub fn li(
             if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
                 if light.emits_toward(wo) {
                     let le = material::emission_toward(&scene.textures, material, &sp, ng, wo);
-                    let weight = if depth == 0 {
-                        1.0
-                    } else {
-                        let dist2 = hit.t * hit.t * ray.dir.length_squared();
-                        let light_pdf =
-                            lights.pmf(&prev_ctx, tri.light) * light.pdf_li(ray.dir, dist2);
-                        power_heuristic(prev_bsdf_pdf, light_pdf)
-                    };
+                    let dist2 = hit.t * hit.t * ray.dir.length_squared();
+                    let weight =
+                        hit_weight(scene, tri.light, &prev_ctx, ray.dir, dist2, prev_bsdf_pdf);
                     radiance += beta * le * weight;
                 }
             }
@@ -318,72 +259,50 @@ pub fn li(
         // same order whatever happens; a path that ends skips the rest.
         let u_light = sampler.next_2d();
         let ctx = ShadingContext { p, n: ns };
-        if let Some((light_idx, choice_pdf, u_x)) = lights.choose(&ctx, u_light.x) {
+        if let Some((light_idx, choice_pdf, ls)) =
+            sample_light(scene, &ctx, u_light.x, |u_x| Vec2::new(u_x, u_light.y))
+        {
             let light = &lights.lights[light_idx as usize];
-            if let Some(ls) = light.sample_li(p, Vec2::new(u_x, u_light.y)) {
-                let wi_local = frame.to_local(ls.wi);
-                if same_side(wi_local.z, ls.wi.dot(ng), transmits) {
-                    let f = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
-                    if f != Vec3::ZERO {
-                        let origin = offset_ray_origin(p, p_error, ng, ls.wi);
-                        let (shadow, t_max) = match ls.point {
-                            Some(q) => {
-                                let target =
-                                    offset_ray_origin(q, ls.point_error, ls.normal, -ls.wi);
-                                (Ray::new(origin, target - origin), SHADOW_T_MAX)
-                            }
-                            None => (Ray::new(origin, ls.wi), f32::INFINITY),
-                        };
-                        stats.rays += 1;
-                        let blocked = scene.occluded(&shadow, t_max, pose);
-                        if !blocked {
-                            let mut li = match light {
-                                Light::Triangle(l) if l.textured => {
-                                    let m = &scene.materials
-                                        [scene.shading[l.prim as usize].material as usize];
-                                    let sp = scene.surface_point(l.prim, ls.barycentrics);
-                                    material::emission_toward(
-                                        &scene.textures,
-                                        m,
-                                        &sp,
-                                        ls.normal,
-                                        ls.wi,
-                                    )
-                                }
-                                _ => ls.li,
-                            };
-                            if scene.alpha_tested {
-                                // An emitter that is only partly there (MASK, BLEND) is hit by
-                                // sampled paths that often: light sampling counts it so.
-                                if let Light::Triangle(l) = light {
-                                    li *= scene.coverage(l.prim, ls.barycentrics);
-                                }
-                            }
-                            // The shadow ray travels in the far side's volume when it
-                            // crosses into a medium, else in the path's.
-                            let through = if wi_local.z < 0.0 && boundary {
-                                if front {
-                                    Some(tri.material)
-                                } else {
-                                    beyond
-                                }
-                            } else {
-                                medium
-                            };
-                            if let Some(v) =
-                                through.and_then(|m| scene.materials[m as usize].volume.as_ref())
-                            {
-                                let distance = ls.point.map_or(f32::INFINITY, |q| (q - p).length());
-                                li *= transmittance(v, distance);
-                            }
-                            let light_pdf = ls.pdf * choice_pdf;
-                            let weight = if ls.is_delta {
-                                1.0
-                            } else {
-                                power_heuristic(light_pdf, bsdf.pdf(wo_local, wi_local))
-                            };
-                            radiance += beta * f * li * (weight / light_pdf);
+            let wi_local = frame.to_local(ls.wi);
+            if same_side(wi_local.z, ls.wi.dot(ng), transmits) {
+                let f = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
+                if f != Vec3::ZERO {
+                    let origin = offset_ray_origin(p, p_error, ng, ls.wi);
+                    let (shadow, t_max) = match ls.point {
+                        Some(q) => {
+                            let target = offset_ray_origin(q, ls.point_error, ls.normal, -ls.wi);
+                            (Ray::new(origin, target - origin), SHADOW_T_MAX)
                         }
+                        None => (Ray::new(origin, ls.wi), f32::INFINITY),
+                    };
+                    stats.rays += 1;
+                    let blocked = scene.occluded(&shadow, t_max, pose);
+                    if !blocked {
+                        let mut li = light_radiance(scene, light, &ls);
+                        // The shadow ray travels in the far side's volume when it crosses into
+                        // a medium, else in the path's.
+                        let through = if wi_local.z < 0.0 && boundary {
+                            if front {
+                                Some(tri.material)
+                            } else {
+                                beyond
+                            }
+                        } else {
+                            medium
+                        };
+                        if let Some(v) =
+                            through.and_then(|m| scene.materials[m as usize].volume.as_ref())
+                        {
+                            let distance = ls.point.map_or(f32::INFINITY, |q| (q - p).length());
+                            li *= transmittance(v, distance);
+                        }
+                        let light_pdf = ls.pdf * choice_pdf;
+                        let weight = if ls.is_delta {
+                            1.0
+                        } else {
+                            power_heuristic(light_pdf, bsdf.pdf(wo_local, wi_local))
+                        };
+                        radiance += beta * f * li * (weight / light_pdf);
                     }
                 }
             }
@@ -408,7 +327,7 @@ pub fn li(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
-        prev_bsdf_pdf = if bs.lobe.is_delta() { f32::INFINITY } else { bs.pdf };
+        prev_bsdf_pdf = mis_pdf(&bs);
         prev_ctx = ctx;
         if bs.lobe.enters_far_side() {
             eta_scale *= bs.eta * bs.eta;
@@ -426,133 +345,4 @@ pub fn li(
         }
     }
     radiance
-}
-
-/// Russian roulette once paths have a few bounces; its number is skipped before. Whether the
-/// path goes on (its throughput `beta` divided by the survival probability).
-#[inline]
-fn roulette(sampler: &mut Sampler, depth: u32, beta: &mut Vec3, eta_scale: f32) -> bool {
-    if depth <= RR_MIN_DEPTH {
-        sampler.skip(1);
-        return true;
-    }
-    let u_rr = sampler.next_1d();
-    let q = (1.0 - (*beta * eta_scale).max_element() * RR_SURVIVAL_SCALE).max(0.0);
-    if u_rr < q {
-        return false;
-    }
-    *beta /= 1.0 - q;
-    true
-}
-
-/// The shading frame at barycentrics `b` of triangle `prim` (vertices `tri`) whose geometric
-/// normal `ng` has been put on the side the surface is seen from: the interpolated vertex
-/// normal (on `ng`'s side), bent by the normal map, with +x along the direction of anisotropy
-/// for an anisotropic material. Also the normal before the normal map (a clear coat's, unless
-/// it has its own map).
-#[inline]
-pub(crate) fn shading_frame(
-    scene: &PreparedScene,
-    prim: u32,
-    tri: [Vec3; 3],
-    b: [f32; 3],
-    ng: Vec3,
-    sp: &material::SurfacePoint,
-    pose: Option<&Pose<'_>>,
-) -> (Frame, Vec3) {
-    let shading = scene.shading[prim as usize];
-    let material = &scene.materials[shading.material as usize];
-    let mut ns = if shading.smooth {
-        let [a, bb, c] = shading.vertices;
-        let n = scene.vertex_normal(a, prim, pose) * b[0]
-            + scene.vertex_normal(bb, prim, pose) * b[1]
-            + scene.vertex_normal(c, prim, pose) * b[2];
-        match n.try_normalize() {
-            Some(n) if n.dot(ng) > 0.0 => n,
-            Some(n) if n.dot(ng) < 0.0 => -n,
-            _ => ng,
-        }
-    } else {
-        ng
-    };
-    let ns_surface = ns;
-    if let Some(tangent_normal) = material::normal_map(&scene.textures, material, sp) {
-        ns = perturb_normal(scene, prim, tri, ns, tangent_normal).unwrap_or(ns);
-    }
-    let anisotropy =
-        if shading.extended { material::anisotropy(&scene.textures, material, sp) } else { None };
-    let frame = match anisotropy {
-        Some((_, direction)) => match mesh_tangent_basis(scene, prim, b, ns, pose)
-            .or_else(|| tangent_basis(scene, prim, tri, ns))
-        {
-            Some((t, bt)) => Frame::from_z_and_tangent(ns, t * direction.x + bt * direction.y),
-            None => Frame::from_z(ns),
-        },
-        None => Frame::from_z(ns),
-    };
-    (frame, ns_surface)
-}
-
-/// Applies a tangent-space normal from a normal map in the frame of [`tangent_basis`].
-fn perturb_normal(
-    scene: &PreparedScene,
-    prim: u32,
-    tri: [Vec3; 3],
-    ns: Vec3,
-    tangent_normal: Vec3,
-) -> Option<Vec3> {
-    let (t, bt) = tangent_basis(scene, prim, tri, ns)?;
-    let n =
-        (t * tangent_normal.x + bt * tangent_normal.y + ns * tangent_normal.z).try_normalize()?;
-    (n.dot(ns) > 0.0).then_some(n)
-}
-
-/// The tangent and bitangent at barycentrics `b` of triangle `prim` from the mesh's TANGENT
-/// attribute (kept for anisotropic materials): the interpolated tangent orthogonalised against
-/// `ns`, and the bitangent cross(ns, tangent) times the sign in `w`, as glTF defines it. `None`
-/// where the mesh has no tangents (or they are degenerate).
-fn mesh_tangent_basis(
-    scene: &PreparedScene,
-    prim: u32,
-    b: [f32; 3],
-    ns: Vec3,
-    pose: Option<&Pose<'_>>,
-) -> Option<(Vec3, Vec3)> {
-    if scene.tangents.is_empty() {
-        return None;
-    }
-    let [i0, i1, i2] = scene.shading[prim as usize].vertices;
-    let [t0, t1, t2] = [i0, i1, i2].map(|v| scene.vertex_tangent(v, prim, pose));
-    if t0.w == 0.0 {
-        return None; // A mesh without tangents.
-    }
-    let t = t0.truncate() * b[0] + t1.truncate() * b[1] + t2.truncate() * b[2];
-    let t = (t - ns * ns.dot(t)).try_normalize()?;
-    Some((t, ns.cross(t) * t0.w.signum()))
-}
-
-/// The tangent and bitangent of texture space at a point of triangle `prim` with shading normal
-/// `ns`: from the triangle's texture-coordinate derivatives (dp/du, dp/dv), orthogonalised
-/// against `ns`. `None` without texture coordinates or where they are degenerate. Normal maps
-/// use these; anisotropy uses the mesh's TANGENT attribute first.
-fn tangent_basis(
-    scene: &PreparedScene,
-    prim: u32,
-    [p0, p1, p2]: [Vec3; 3],
-    ns: Vec3,
-) -> Option<(Vec3, Vec3)> {
-    let uvs = scene.uvs.first().filter(|uv| !uv.is_empty())?;
-    let [i0, i1, i2] = scene.shading[prim as usize].vertices.map(|v| v as usize);
-    let (duv1, duv2) = (uvs[i1] - uvs[i0], uvs[i2] - uvs[i0]);
-    let det = duv1.x * duv2.y - duv1.y * duv2.x;
-    if det.abs() < 1e-12 {
-        return None;
-    }
-    let dpdu = ((p1 - p0) * duv2.y - (p2 - p0) * duv1.y) / det;
-    let dpdv = ((p2 - p0) * duv1.x - (p1 - p0) * duv2.x) / det;
-    let t = (dpdu - ns * ns.dot(dpdu)).try_normalize()?;
-    // glTF's v runs down the image, so the bitangent points along -dp/dv.
-    let handedness = if ns.cross(t).dot(dpdv) < 0.0 { 1.0 } else { -1.0 };
-    let bt = ns.cross(t) * handedness;
-    Some((t, bt))
 }

@@ -1,4 +1,4 @@
-//! The wavefront renderer: the same path tracer as `integrator::li`, run on 8 (AVX2) or 16
+//! The wavefront renderer: the same path tracer as `path::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
 //! For the scenes `wavefront_tables::Tables::new` accepts: diffuse materials without textures or
@@ -14,7 +14,7 @@
 //! shading (hit point, frame, MIS weights, light and BSDF sampling, ray origins, roulette) is
 //! vector code transcribed from the scalar routines with the same operations in the same order,
 //! so every lane computes the scalar path's bits, and samples reach the film in the scalar
-//! order: the images are bit for bit those of `integrator::li` on every CPU (a test compares
+//! order: the images are bit for bit those of `path::li` on every CPU (a test compares
 //! them).
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
@@ -26,13 +26,15 @@ use glam::{UVec2, Vec2, Vec3};
 use pulp::{Arch, Simd, WithSimd};
 
 use super::{
-    geometry::{gamma, Ray},
-    integrator::{power_heuristic, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX},
-    lanes::{F, M, U, V3},
-    light::{ChooseLight, ShadingContext},
-    sampler::{LaneSampler, Sampler},
-    scene::{PreparedScene, NONE},
-    wavefront_tables::Tables,
+    super::{
+        geometry::{gamma, Ray},
+        lanes::{F, M, U, V3},
+        light::{ChooseLight, ShadingContext},
+        sampler::{LaneSampler, Sampler},
+        scene::{PreparedScene, NONE},
+        wavefront_tables::Tables,
+    },
+    shared::{environment_hit, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX, UNWEIGHTED},
 };
 
 /// The most lanes a vector has (AVX-512's 16 f32s).
@@ -202,7 +204,7 @@ impl Stream {
     }
 }
 
-/// `integrator::power_heuristic`, lane by lane.
+/// `shared::power_heuristic`, lane by lane.
 #[inline(always)]
 fn power_heuristic_lanes<S: Simd>(s: S, a: F<S>, b: F<S>) -> F<S> {
     let (a2, b2) = (a * a, b * b);
@@ -299,7 +301,7 @@ struct Paths<S: Simd> {
     radiance: V3<S>,
     prev_bsdf_pdf: F<S>,
     /// The previous vertex's point and shading normal, where a light's probability depends on
-    /// them (`integrator::li`'s `prev_ctx`): kept only under the light tree.
+    /// them (`path::li`'s `prev_ctx`): kept only under the light tree.
     prev_p: V3<S>,
     prev_n: V3<S>,
     depth: [u32; MAX_LANES],
@@ -396,7 +398,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 paths.dir.set_lane(i, ray.dir);
                 paths.beta.set_lane(i, Vec3::ONE);
                 paths.radiance.set_lane(i, Vec3::ZERO);
-                paths.prev_bsdf_pdf.set_lane(i, 0.0);
+                paths.prev_bsdf_pdf.set_lane(i, UNWEIGHTED);
                 paths.depth[i] = 0;
                 paths.item[i] = k;
                 paths.alive[i] = true;
@@ -414,29 +416,16 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 // `Tables::new` accepts): the BVH alone, its traversal compiled into this kernel
                 // for its instruction set (12% off a sample of the Cornell box on Zen 4).
                 let Some(hit) = scene.accel.intersect_inlined(&ray, f32::INFINITY) else {
-                    // What the escaping ray sees (`integrator::li`'s miss, one lane).
-                    if let (Some(env), Some(env_idx)) =
-                        (&scene.environment, scene.lights.environment)
-                    {
-                        let weight = if paths.depth[i] == 0 {
-                            if scene.environment_visible {
-                                1.0
-                            } else {
-                                0.0
-                            }
-                        } else {
-                            let choice = match mixture {
-                                Some(m) => m.probability(env_idx),
-                                None => scene.lights.pmf(&paths.prev_ctx(i), env_idx),
-                            };
-                            let light_pdf = choice * env.pdf(ray.dir);
-                            power_heuristic(paths.prev_bsdf_pdf.lane(i), light_pdf)
-                        };
-                        if weight > 0.0 {
-                            let radiance = paths.radiance.lane(i)
-                                + paths.beta.lane(i) * env.radiance(ray.dir) * weight;
-                            paths.radiance.set_lane(i, radiance);
-                        }
+                    // What the escaping ray sees (the path tracer's miss, one lane).
+                    if paths.depth[i] > 0 || scene.environment_visible {
+                        let l = environment_hit(
+                            scene,
+                            paths.beta.lane(i),
+                            ray.dir,
+                            &paths.prev_ctx(i),
+                            paths.prev_bsdf_pdf.lane(i),
+                        );
+                        paths.radiance.set_lane(i, paths.radiance.lane(i) + l);
                     }
                     paths.alive[i] = false;
                     stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
@@ -519,7 +508,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let going = livem & ng_ok & !wo_z.le(zero);
         going.to_bools(&mut cont);
 
-        // The bounce's numbers, in `integrator::li`'s dimensions: the light's pair, the lobe's
+        // The bounce's numbers, in `path::li`'s dimensions: the light's pair, the lobe's
         // number (a diffuse BSDF has one lobe: not drawn), the direction's pair, roulette's
         // number (drawn where roulette plays).
         let (u_light_x, u_light_y) = paths.draws.draw_2d(0);
