@@ -307,3 +307,189 @@ fn tangent_basis(
     let bt = ns.cross(t) * handedness;
     Some((t, bt))
 }
+
+#[cfg(test)]
+mod tests {
+    use common::{
+        gltf::{load_path, load_slice, NoFiles},
+        settings::{Environment, RenderSettings},
+    };
+    use glam::{UVec2, Vec2, Vec3};
+
+    use super::*;
+    use crate::render::{
+        bsdf::Lobe,
+        light::ShadingContext,
+        sampler::Sampler,
+        scene::{prepare, PreparedScene},
+    };
+
+    #[test]
+    fn the_power_heuristic_sums_to_one_over_two_strategies_and_a_delta_takes_all() {
+        // Densities whose squares are normal numbers (below 1e-19 they vanish, as in pbrt).
+        let values = [1e-18f32, 1e-6, 0.01, 0.3, 1.0, 2.5, 40.0, 1e6, 1e18];
+        for a in values {
+            for b in values {
+                let sum = power_heuristic(a, b) + power_heuristic(b, a);
+                assert!((sum - 1.0).abs() <= 2.0 * f32::EPSILON, "{a} {b}: {sum}");
+            }
+            assert_eq!(power_heuristic(UNWEIGHTED, a), 1.0);
+            assert_eq!(power_heuristic(a, UNWEIGHTED), 0.0);
+        }
+        assert_eq!(power_heuristic(0.0, 0.0), 0.0);
+    }
+
+    #[test]
+    fn a_delta_lobe_takes_the_whole_weight() {
+        let sample = |lobe| BsdfSample { f: Vec3::ONE, wi: Vec3::Z, pdf: 0.7, lobe, eta: 1.0 };
+        for lobe in [Lobe::SpecularReflection, Lobe::SpecularTransmission] {
+            assert_eq!(mis_pdf(&sample(lobe)), UNWEIGHTED);
+        }
+        for lobe in [Lobe::Diffuse, Lobe::Glossy, Lobe::Transmission, Lobe::GlossyTransmission] {
+            assert_eq!(mis_pdf(&sample(lobe)), 0.7);
+        }
+        let scene = cornell(None);
+        let (light, _) = first_emitter(&scene);
+        let ctx = ShadingContext { p: Vec3::ZERO, n: Vec3::Y };
+        assert_eq!(hit_weight(&scene, light, &ctx, Vec3::Y, 1.0, UNWEIGHTED), 1.0);
+    }
+
+    fn cornell(environment: Option<Environment>) -> PreparedScene {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/cornell-box.gltf");
+        let scene = load_path(std::path::Path::new(path)).expect("the shipped Cornell box");
+        let settings = RenderSettings { width: 16, height: 16, environment, ..Default::default() };
+        prepare(&scene, &settings).expect("prepared")
+    }
+
+    fn first_emitter(scene: &PreparedScene) -> (u32, Vec3) {
+        let i = scene.lights.lights.iter().position(|l| matches!(l, Light::Triangle(_)));
+        let i = i.expect("an emitter") as u32;
+        let Light::Triangle(l) = &scene.lights.lights[i as usize] else { unreachable!() };
+        (i, l.normal)
+    }
+
+    /// Shading contexts where camera rays through a grid of pixels first hit the scene.
+    fn contexts(scene: &PreparedScene, size: u32) -> Vec<ShadingContext> {
+        let mut out = Vec::new();
+        for y in 0..4 {
+            for x in 0..4 {
+                let film = Vec2::new(
+                    (x as f32 + 0.5) * size as f32 / 4.0,
+                    (y as f32 + 0.5) * size as f32 / 4.0,
+                );
+                let ray = scene.camera.generate_ray(film, Vec2::ZERO);
+                let Some(hit) = scene.intersect(&ray, f32::INFINITY, None) else { continue };
+                let ([p0, p1, p2], _) = scene.triangle(hit.prim, None);
+                let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+                let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+                let ng = (p1 - p0).cross(p2 - p0).normalize();
+                let n = if ng.dot(ray.dir) < 0.0 { ng } else { -ng };
+                out.push(ShadingContext { p, n });
+            }
+        }
+        out
+    }
+
+    /// For every light sample taken from a shading point, the light-sampling weight and the
+    /// weight `hit_weight` gives the same direction found by a (cosine) BSDF sample add to one:
+    /// the densities the two strategies are weighed by are the same on both sides.
+    fn check_partition(scene: &PreparedScene, size: u32) -> usize {
+        let mut checked = 0;
+        let mut sampler = Sampler::new(7, 0);
+        for (k, ctx) in contexts(scene, size).iter().enumerate() {
+            for s in 0..64 {
+                sampler.start_pixel_sample(UVec2::new(k as u32, 0), s);
+                let u = sampler.next_2d();
+                let Some((light, choice, ls)) =
+                    sample_light(scene, ctx, u.x, |u_x| Vec2::new(u_x, u.y))
+                else {
+                    continue;
+                };
+                let cos = ctx.n.dot(ls.wi);
+                if ls.is_delta || cos <= 0.0 || ls.pdf <= 0.0 {
+                    continue;
+                }
+                let bsdf_pdf = cos * std::f32::consts::FRAC_1_PI;
+                let dist2 = ls.point.map_or(0.0, |q| (q - ctx.p).length_squared());
+                let by_light = power_heuristic(ls.pdf * choice, bsdf_pdf);
+                let by_bsdf = hit_weight(scene, light, ctx, ls.wi, dist2, bsdf_pdf);
+                assert!(
+                    (by_light + by_bsdf - 1.0).abs() < 1e-3,
+                    "light {light} from {ctx:?}: {by_light} + {by_bsdf}"
+                );
+                checked += 1;
+            }
+        }
+        checked
+    }
+
+    #[test]
+    fn light_sampling_and_hit_weights_partition_unity() {
+        // The Cornell box's emitter (the mixture), then with a uniform sky through its open side.
+        assert!(check_partition(&cornell(None), 16) > 500);
+        let sky = Environment::Color { color: [0.5, 0.6, 0.7] };
+        assert!(check_partition(&cornell(Some(sky)), 16) > 500);
+        // 64 small lamps, chosen by the light tree from the shading point.
+        let json = crate::test_scenes::many_lights_gltf(64);
+        let scene = load_slice(json.as_bytes(), &NoFiles).expect("the many-lights scene");
+        let settings = RenderSettings { width: 16, height: 16, ..Default::default() };
+        let many =
+            prepare_with_light_choice(&scene, &settings, crate::render::light::LightChoice::Tree);
+        assert!(many.lights.uses_tree());
+        assert!(check_partition(&many, 16) > 500);
+    }
+
+    fn prepare_with_light_choice(
+        scene: &common::scene::Scene,
+        settings: &RenderSettings,
+        choice: crate::render::light::LightChoice,
+    ) -> PreparedScene {
+        crate::render::scene::prepare_with_light_choice(scene, settings, choice).expect("prepared")
+    }
+
+    /// Roulette keeps the expectation: the mean of what survives, weighted, is the throughput
+    /// it was given, whatever eta² scale it looks past; before `RR_MIN_DEPTH` every path goes
+    /// on unchanged, its number skipped.
+    #[test]
+    fn roulette_keeps_the_expectation() {
+        let n = 1u32 << 14;
+        for eta_scale in [1.0f32, 2.25, 1.0 / 2.25] {
+            for beta0 in [Vec3::new(0.05, 0.1, 0.02), Vec3::splat(0.3), Vec3::new(0.01, 0.0, 0.2)] {
+                let mut sampler = Sampler::new(3, 0);
+                let (mut sum, mut sum2, mut ended) = (Vec3::ZERO, Vec3::ZERO, 0);
+                for s in 0..n {
+                    sampler.start_pixel_sample(UVec2::new(5, 9), s);
+                    let mut beta = beta0;
+                    let v = if roulette(&mut sampler, RR_MIN_DEPTH + 1, &mut beta, eta_scale) {
+                        beta
+                    } else {
+                        ended += 1;
+                        Vec3::ZERO
+                    };
+                    sum += v;
+                    sum2 += v * v;
+                }
+                let mean = sum / n as f32;
+                let var = (sum2 / n as f32 - mean * mean) / n as f32;
+                let tolerance = var.max(Vec3::splat(0.0)).powf(0.5) * 5.0 + Vec3::splat(1e-6);
+                assert!(
+                    (mean - beta0).abs().cmple(tolerance).all(),
+                    "eta² {eta_scale}, beta {beta0}: mean {mean}, tolerance {tolerance}"
+                );
+                let survive = ((beta0 * eta_scale).max_element() * RR_SURVIVAL_SCALE).min(1.0);
+                if survive < 1.0 {
+                    assert!(ended > 0, "eta² {eta_scale}, beta {beta0}: no path ended");
+                }
+            }
+        }
+        // Before the minimum depth: unchanged, and one number skipped.
+        let (mut a, mut b) = (Sampler::new(3, 0), Sampler::new(3, 0));
+        a.start_pixel_sample(UVec2::ZERO, 0);
+        b.start_pixel_sample(UVec2::ZERO, 0);
+        let mut beta = Vec3::splat(1e-3);
+        assert!(roulette(&mut a, RR_MIN_DEPTH, &mut beta, 1.0));
+        assert_eq!(beta, Vec3::splat(1e-3));
+        b.skip(1);
+        assert_eq!(a.next_1d(), b.next_1d());
+    }
+}
