@@ -7,6 +7,8 @@
 
 use glam::Vec3;
 
+use super::lanes::{Real, V3};
+
 /// A ray `origin + t * dir` for `t` in `[0, t_max)`.
 #[derive(Clone, Copy, Debug)]
 pub struct Ray {
@@ -48,12 +50,8 @@ impl Frame {
     /// A frame around unit vector `n` (Duff et al. 2017, branchless).
     #[inline]
     pub fn from_z(n: Vec3) -> Self {
-        let sign = 1.0f32.copysign(n.z);
-        let a = -1.0 / (sign + n.z);
-        let b = n.x * n.y * a;
-        let x = Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
-        let y = Vec3::new(b, sign + n.y * n.y * a, -n.y);
-        Frame { x, y, z: n }
+        let (x, y) = generic::frame_from_z(n.into());
+        Frame { x: x.into(), y: y.into(), z: n }
     }
 
     /// A frame from a normal and an approximate tangent (Gram-Schmidt); falls back to `from_z`
@@ -93,7 +91,7 @@ pub fn gamma(n: i32) -> f32 {
 /// `b` (pbrt-v4 `Triangle::InteractionFromIntersection`).
 #[inline]
 pub fn interpolation_error(p: [Vec3; 3], b: [f32; 3]) -> Vec3 {
-    ((b[0] * p[0]).abs() + (b[1] * p[1]).abs() + (b[2] * p[2]).abs()) * gamma(7)
+    generic::interpolation_error(p.map(V3::from), b).into()
 }
 
 /// Moves surface point `p`, known within `p_error` per axis, off the surface along normal `n` to
@@ -102,30 +100,66 @@ pub fn interpolation_error(p: [Vec3; 3], b: [f32; 3]) -> Vec3 {
 /// `OffsetRayOrigin`).
 #[inline]
 pub fn offset_ray_origin(p: Vec3, p_error: Vec3, n: Vec3, w: Vec3) -> Vec3 {
-    let d = n.abs().dot(p_error);
-    let mut offset = d * n;
-    if w.dot(n) < 0.0 {
-        offset = -offset;
-    }
-    let po = p + offset;
-    Vec3::new(step_away(po.x, offset.x), step_away(po.y, offset.y), step_away(po.z, offset.z))
+    generic::offset_ray_origin(p.into(), p_error.into(), n.into(), w.into()).into()
 }
 
-/// One float step from `v` in the direction of `o`'s sign (none when `o` is zero).
-///
-/// Written with selects, not branches: the sign of an offset is as likely one way as the other,
-/// and a mispredicted branch here cost more than the arithmetic (three per ray origin).
-#[inline(always)]
-fn step_away(v: f32, o: f32) -> f32 {
-    let bits = v.to_bits();
-    // Moving away from zero adds one to the magnitude's bits; toward zero subtracts one.
-    let away = (v >= 0.0) == (o > 0.0);
-    let stepped = if away { bits.wrapping_add(1) } else { bits.wrapping_sub(1) };
-    // From zero the step is the smallest subnormal on `o`'s side.
-    let from_zero = if o > 0.0 { 1 } else { 0x8000_0001 };
-    let stepped = if v == 0.0 { from_zero } else { stepped };
-    let keep = o == 0.0 || !v.is_finite();
-    f32::from_bits(if keep { bits } else { stepped })
+/// The routines above written once over `Real`: for one path (`f32`, through the `Vec3`
+/// functions above) and for a vector of paths (the wavefront).
+pub(crate) mod generic {
+    use super::{gamma, Real, V3};
+
+    /// `Frame::from_z`'s tangent and bitangent of unit normal `n`.
+    #[inline(always)]
+    pub(crate) fn frame_from_z<R: Real>(n: V3<R>) -> (V3<R>, V3<R>) {
+        let one = n.z.konst(1.0);
+        let sign = one.copysign(n.z);
+        let a = n.z.konst(-1.0) / (sign + n.z);
+        let b = n.x * n.y * a;
+        let x = V3::new(one + sign * n.x * n.x * a, sign * b, -sign * n.x);
+        let y = V3::new(b, sign + n.y * n.y * a, -n.y);
+        (x, y)
+    }
+
+    /// `super::interpolation_error`.
+    #[inline(always)]
+    pub(crate) fn interpolation_error<R: Real>(p: [V3<R>; 3], b: [R; 3]) -> V3<R> {
+        (p[0].scale(b[0]).abs() + p[1].scale(b[1]).abs() + p[2].scale(b[2]).abs())
+            .scale(b[0].konst(gamma(7)))
+    }
+
+    /// `super::offset_ray_origin`.
+    #[inline(always)]
+    pub(crate) fn offset_ray_origin<R: Real>(
+        p: V3<R>,
+        p_error: V3<R>,
+        n: V3<R>,
+        w: V3<R>,
+    ) -> V3<R> {
+        let d = n.abs().dot(p_error);
+        let offset = n.scale(d);
+        let offset = V3::select(w.dot(n).lt(d.konst(0.0)), -offset, offset);
+        let po = p + offset;
+        V3::new(step_away(po.x, offset.x), step_away(po.y, offset.y), step_away(po.z, offset.z))
+    }
+
+    /// One float step from `v` in the direction of `o`'s sign (none when `o` is zero).
+    ///
+    /// Written with selects, not branches: the sign of an offset is as likely one way as the
+    /// other, and a mispredicted branch here cost more than the arithmetic (three per ray origin).
+    #[inline(always)]
+    pub(crate) fn step_away<R: Real>(v: R, o: R) -> R {
+        let zero = v.konst(0.0);
+        let bits = v.to_bits();
+        let one = v.konst_bits(1);
+        // Moving away from zero adds one to the magnitude's bits; toward zero subtracts one.
+        let away = !(v.ge(zero) ^ o.gt(zero));
+        let stepped = R::select_bits(away, R::bits_add(bits, one), R::bits_sub(bits, one));
+        // From zero the step is the smallest subnormal on `o`'s side.
+        let from_zero = R::select_bits(o.gt(zero), one, v.konst_bits(0x8000_0001));
+        let stepped = R::select_bits(v.eq(zero), from_zero, stepped);
+        let keep = o.eq(zero) | !v.is_finite();
+        R::from_bits(R::select_bits(keep, bits, stepped))
+    }
 }
 
 /// The smallest float greater than `v`.
@@ -206,8 +240,8 @@ mod tests {
             (f32::MAX, 1.0, f32::INFINITY),
         ];
         for (v, o, want) in cases {
-            assert_eq!(step_away(v, o).to_bits(), want.to_bits(), "step_away({v}, {o})");
+            assert_eq!(generic::step_away(v, o).to_bits(), want.to_bits(), "step_away({v}, {o})");
         }
-        assert!(step_away(f32::NAN, 1.0).is_nan());
+        assert!(generic::step_away(f32::NAN, 1.0).is_nan());
     }
 }

@@ -1,9 +1,13 @@
-//! Lane-wise f32 arithmetic for the wavefront renderer: thin wrappers over `pulp`'s vectors
-//! (8 lanes under AVX2, 16 under AVX-512) with the operators of scalar code.
+//! The number types path logic is written over, once for one path and for 8 or 16 at a time.
 //!
-//! Every operation is the IEEE operation of the scalar code it replaces, lane by lane (no fused
-//! multiply-add, no approximate reciprocal), and `V3`'s methods associate exactly as glam's
-//! `Vec3` does, so a kernel transcribed from scalar code gives the same bits in every lane.
+//! `Real` is what a routine of the path kernel needs of its numbers: `f32` with `bool` masks
+//! for one path (the scalar renderers), `F<S>` with `M<S>` masks for a vector of paths (thin
+//! wrappers over `pulp`'s vectors: 8 lanes under AVX2, 16 under AVX-512). A routine written
+//! generic over `Real` (and `V3<R>`, a 3-vector of them) is the single source of both: the
+//! scalar renderers call it on `f32`, the wavefront on vectors. Every operation is the IEEE
+//! operation lane by lane (no fused multiply-add, no approximate reciprocal), selects are
+//! evaluated both ways and masked, and `V3`'s methods associate exactly as glam's `Vec3` does,
+//! so every lane computes the bits the scalar instance computes.
 
 use std::ops::{Add, BitAnd, BitOr, BitXor, Div, Mul, Neg, Not, Sub};
 
@@ -332,7 +336,7 @@ impl<S: Simd> M<S> {
 
     /// Lane by lane `if self { a } else { b }` on vectors.
     #[inline(always)]
-    pub(crate) fn select3(self, a: V3<S>, b: V3<S>) -> V3<S> {
+    pub(crate) fn select3(self, a: V3<F<S>>, b: V3<F<S>>) -> V3<F<S>> {
         V3 { x: self.select(a.x, b.x), y: self.select(a.y, b.y), z: self.select(a.z, b.z) }
     }
 }
@@ -374,24 +378,315 @@ impl<S: Simd> Not for M<S> {
     }
 }
 
-/// Three lanes of f32s: a `Vec3` per lane.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct V3<S: Simd> {
-    /// x of every lane.
-    pub(crate) x: F<S>,
-    /// y of every lane.
-    pub(crate) y: F<S>,
-    /// z of every lane.
-    pub(crate) z: F<S>,
+/// Numbers a routine of the path kernel is written over: `f32` (one path) or `F<S>` (a vector
+/// of paths). Constants come from a value of the same type (`konst`), which carries the
+/// instruction set of a vector.
+pub(crate) trait Real:
+    Copy
+    + std::fmt::Debug
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// One condition per lane.
+    type Mask: Copy
+        + BitAnd<Output = Self::Mask>
+        + BitOr<Output = Self::Mask>
+        + BitXor<Output = Self::Mask>
+        + Not<Output = Self::Mask>;
+    /// One bit pattern per lane.
+    type Bits: Copy;
+
+    /// `x` in every lane, of `self`'s type.
+    fn konst(self, x: f32) -> Self;
+    /// `f32::abs`.
+    fn abs(self) -> Self;
+    /// `f32::sqrt`.
+    fn sqrt(self) -> Self;
+    /// `if self > 0 { self } else { 0 }` (NaN gives 0).
+    fn max0(self) -> Self;
+    /// glam's `max`: `if self > o { self } else { o }`.
+    fn glam_max(self, o: Self) -> Self;
+    /// `f32::copysign`.
+    fn copysign(self, sign: Self) -> Self;
+    /// `f32::is_finite`.
+    fn is_finite(self) -> Self::Mask;
+    /// `self < o`.
+    fn lt(self, o: Self) -> Self::Mask;
+    /// `self > o`.
+    fn gt(self, o: Self) -> Self::Mask;
+    /// `self >= o`.
+    fn ge(self, o: Self) -> Self::Mask;
+    /// `self == o`.
+    fn eq(self, o: Self) -> Self::Mask;
+    /// Lane by lane `if m { a } else { b }`, free of branches.
+    fn select(m: Self::Mask, a: Self, b: Self) -> Self;
+    /// The bits.
+    fn to_bits(self) -> Self::Bits;
+    /// The number of bits `b`.
+    fn from_bits(b: Self::Bits) -> Self;
+    /// `x` in every lane, as bits of `self`'s type.
+    fn konst_bits(self, x: u32) -> Self::Bits;
+    /// Wrapping `a + b` of bit patterns.
+    fn bits_add(a: Self::Bits, b: Self::Bits) -> Self::Bits;
+    /// Wrapping `a - b` of bit patterns.
+    fn bits_sub(a: Self::Bits, b: Self::Bits) -> Self::Bits;
+    /// Lane by lane `if m { a } else { b }` on bit patterns.
+    fn select_bits(m: Self::Mask, a: Self::Bits, b: Self::Bits) -> Self::Bits;
 }
 
-impl<S: Simd> V3<S> {
+impl Real for f32 {
+    type Mask = bool;
+    type Bits = u32;
+
+    #[inline(always)]
+    fn konst(self, x: f32) -> Self {
+        x
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        f32::abs(self)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
+    }
+    #[inline(always)]
+    fn max0(self) -> Self {
+        Real::select(self > 0.0, self, 0.0)
+    }
+    #[inline(always)]
+    fn glam_max(self, o: Self) -> Self {
+        Real::select(self > o, self, o)
+    }
+    #[inline(always)]
+    fn copysign(self, sign: Self) -> Self {
+        f32::copysign(self, sign)
+    }
+    #[inline(always)]
+    fn is_finite(self) -> bool {
+        f32::is_finite(self)
+    }
+    #[inline(always)]
+    fn lt(self, o: Self) -> bool {
+        self < o
+    }
+    #[inline(always)]
+    fn gt(self, o: Self) -> bool {
+        self > o
+    }
+    #[inline(always)]
+    fn ge(self, o: Self) -> bool {
+        self >= o
+    }
+    #[inline(always)]
+    fn eq(self, o: Self) -> bool {
+        self == o
+    }
+    /// By bit masks: the compiler keeps it free of branches (a select is often a coin flip).
+    #[inline(always)]
+    fn select(m: bool, a: Self, b: Self) -> Self {
+        let mask = (m as u32).wrapping_neg();
+        f32::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask))
+    }
+    #[inline(always)]
+    fn to_bits(self) -> u32 {
+        f32::to_bits(self)
+    }
+    #[inline(always)]
+    fn from_bits(b: u32) -> Self {
+        f32::from_bits(b)
+    }
+    #[inline(always)]
+    fn konst_bits(self, x: u32) -> u32 {
+        x
+    }
+    #[inline(always)]
+    fn bits_add(a: u32, b: u32) -> u32 {
+        a.wrapping_add(b)
+    }
+    #[inline(always)]
+    fn bits_sub(a: u32, b: u32) -> u32 {
+        a.wrapping_sub(b)
+    }
+    #[inline(always)]
+    fn select_bits(m: bool, a: u32, b: u32) -> u32 {
+        let mask = (m as u32).wrapping_neg();
+        (a & mask) | (b & !mask)
+    }
+}
+
+impl<S: Simd> Real for F<S> {
+    type Mask = M<S>;
+    type Bits = U<S>;
+
+    #[inline(always)]
+    fn konst(self, x: f32) -> Self {
+        F::splat(self.s, x)
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        F::abs(self)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F::sqrt(self)
+    }
+    #[inline(always)]
+    fn max0(self) -> Self {
+        F::max0(self)
+    }
+    #[inline(always)]
+    fn glam_max(self, o: Self) -> Self {
+        F::glam_max(self, o)
+    }
+    #[inline(always)]
+    fn copysign(self, sign: Self) -> Self {
+        F::copysign(self, sign)
+    }
+    #[inline(always)]
+    fn is_finite(self) -> M<S> {
+        F::is_finite(self)
+    }
+    #[inline(always)]
+    fn lt(self, o: Self) -> M<S> {
+        F::lt(self, o)
+    }
+    #[inline(always)]
+    fn gt(self, o: Self) -> M<S> {
+        F::gt(self, o)
+    }
+    #[inline(always)]
+    fn ge(self, o: Self) -> M<S> {
+        F::ge(self, o)
+    }
+    #[inline(always)]
+    fn eq(self, o: Self) -> M<S> {
+        F::eq(self, o)
+    }
+    #[inline(always)]
+    fn select(m: M<S>, a: Self, b: Self) -> Self {
+        m.select(a, b)
+    }
+    #[inline(always)]
+    fn to_bits(self) -> U<S> {
+        F::to_bits(self)
+    }
+    #[inline(always)]
+    fn from_bits(b: U<S>) -> Self {
+        b.to_f32()
+    }
+    #[inline(always)]
+    fn konst_bits(self, x: u32) -> U<S> {
+        U::splat(self.s, x)
+    }
+    #[inline(always)]
+    fn bits_add(a: U<S>, b: U<S>) -> U<S> {
+        a.wrapping_add(b)
+    }
+    #[inline(always)]
+    fn bits_sub(a: U<S>, b: U<S>) -> U<S> {
+        a.wrapping_sub(b)
+    }
+    #[inline(always)]
+    fn select_bits(m: M<S>, a: U<S>, b: U<S>) -> U<S> {
+        m.select_u(a, b)
+    }
+}
+
+/// A 3-vector of `Real`s: a `Vec3` per lane.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct V3<R> {
+    /// x of every lane.
+    pub(crate) x: R,
+    /// y of every lane.
+    pub(crate) y: R,
+    /// z of every lane.
+    pub(crate) z: R,
+}
+
+impl<R: Real> V3<R> {
     /// A vector from its components.
     #[inline(always)]
-    pub(crate) fn new(x: F<S>, y: F<S>, z: F<S>) -> Self {
+    pub(crate) fn new(x: R, y: R, z: R) -> Self {
         V3 { x, y, z }
     }
 
+    /// Lane by lane `if m { a } else { b }`.
+    #[inline(always)]
+    pub(crate) fn select(m: R::Mask, a: Self, b: Self) -> Self {
+        V3 { x: R::select(m, a.x, b.x), y: R::select(m, a.y, b.y), z: R::select(m, a.z, b.z) }
+    }
+
+    /// `Vec3::dot`: `(x * x') + (y * y') + (z * z')`.
+    #[inline(always)]
+    pub(crate) fn dot(self, o: Self) -> R {
+        (self.x * o.x) + (self.y * o.y) + (self.z * o.z)
+    }
+
+    /// `Vec3::cross`.
+    #[inline(always)]
+    pub(crate) fn cross(self, o: Self) -> Self {
+        V3 {
+            x: self.y * o.z - o.y * self.z,
+            y: self.z * o.x - o.z * self.x,
+            z: self.x * o.y - o.x * self.y,
+        }
+    }
+
+    /// `Vec3::length_squared`.
+    #[inline(always)]
+    pub(crate) fn length_squared(self) -> R {
+        self.dot(self)
+    }
+
+    /// `Vec3::abs`.
+    #[inline(always)]
+    pub(crate) fn abs(self) -> Self {
+        V3 { x: self.x.abs(), y: self.y.abs(), z: self.z.abs() }
+    }
+
+    /// `Vec3 * f32`.
+    #[inline(always)]
+    pub(crate) fn scale(self, k: R) -> Self {
+        V3 { x: self.x * k, y: self.y * k, z: self.z * k }
+    }
+
+    /// `Vec3 / f32`.
+    #[inline(always)]
+    pub(crate) fn div(self, k: R) -> Self {
+        V3 { x: self.x / k, y: self.y / k, z: self.z / k }
+    }
+
+    /// `Vec3 * Vec3`, component by component.
+    #[inline(always)]
+    pub(crate) fn mul(self, o: Self) -> Self {
+        V3 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
+    }
+
+    /// glam's `max_element`.
+    #[inline(always)]
+    pub(crate) fn max_element(self) -> R {
+        self.x.glam_max(self.y).glam_max(self.z)
+    }
+
+    /// `v == Vec3::ZERO`.
+    #[inline(always)]
+    pub(crate) fn is_zero(self) -> R::Mask {
+        let zero = self.x.konst(0.0);
+        self.x.eq(zero) & self.y.eq(zero) & self.z.eq(zero)
+    }
+
+    /// `Vec3::is_finite`.
+    #[inline(always)]
+    pub(crate) fn is_finite(self) -> R::Mask {
+        self.x.is_finite() & self.y.is_finite() & self.z.is_finite()
+    }
+}
+
+impl<S: Simd> V3<F<S>> {
     /// Every lane `v`.
     #[inline(always)]
     pub(crate) fn splat(s: S, v: glam::Vec3) -> Self {
@@ -411,91 +706,40 @@ impl<S: Simd> V3<S> {
         self.y.set_lane(i, v.y);
         self.z.set_lane(i, v.z);
     }
+}
 
-    /// `Vec3::dot`: `(x * x') + (y * y') + (z * z')`.
+impl From<glam::Vec3> for V3<f32> {
     #[inline(always)]
-    pub(crate) fn dot(self, o: Self) -> F<S> {
-        (self.x * o.x) + (self.y * o.y) + (self.z * o.z)
-    }
-
-    /// `Vec3::cross`.
-    #[inline(always)]
-    pub(crate) fn cross(self, o: Self) -> Self {
-        V3 {
-            x: self.y * o.z - o.y * self.z,
-            y: self.z * o.x - o.z * self.x,
-            z: self.x * o.y - o.x * self.y,
-        }
-    }
-
-    /// `Vec3::length_squared`.
-    #[inline(always)]
-    pub(crate) fn length_squared(self) -> F<S> {
-        self.dot(self)
-    }
-
-    /// `Vec3::abs`.
-    #[inline(always)]
-    pub(crate) fn abs(self) -> Self {
-        V3 { x: self.x.abs(), y: self.y.abs(), z: self.z.abs() }
-    }
-
-    /// `Vec3 * f32`.
-    #[inline(always)]
-    pub(crate) fn scale(self, k: F<S>) -> Self {
-        V3 { x: self.x * k, y: self.y * k, z: self.z * k }
-    }
-
-    /// `Vec3 / f32`.
-    #[inline(always)]
-    pub(crate) fn div(self, k: F<S>) -> Self {
-        V3 { x: self.x / k, y: self.y / k, z: self.z / k }
-    }
-
-    /// `Vec3 * Vec3`, component by component.
-    #[inline(always)]
-    pub(crate) fn mul(self, o: Self) -> Self {
-        V3 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
-    }
-
-    /// glam's `max_element`.
-    #[inline(always)]
-    pub(crate) fn max_element(self) -> F<S> {
-        self.x.glam_max(self.y).glam_max(self.z)
-    }
-
-    /// `v == Vec3::ZERO`.
-    #[inline(always)]
-    pub(crate) fn is_zero(self) -> M<S> {
-        let zero = F::splat(self.x.s, 0.0);
-        self.x.eq(zero) & self.y.eq(zero) & self.z.eq(zero)
-    }
-
-    /// `Vec3::is_finite`.
-    #[inline(always)]
-    pub(crate) fn is_finite(self) -> M<S> {
-        self.x.is_finite() & self.y.is_finite() & self.z.is_finite()
+    fn from(v: glam::Vec3) -> Self {
+        V3 { x: v.x, y: v.y, z: v.z }
     }
 }
 
-impl<S: Simd> Add for V3<S> {
-    type Output = V3<S>;
+impl From<V3<f32>> for glam::Vec3 {
+    #[inline(always)]
+    fn from(v: V3<f32>) -> Self {
+        glam::Vec3::new(v.x, v.y, v.z)
+    }
+}
+
+impl<R: Real> Add for V3<R> {
+    type Output = V3<R>;
     #[inline(always)]
     fn add(self, o: Self) -> Self {
         V3 { x: self.x + o.x, y: self.y + o.y, z: self.z + o.z }
     }
 }
 
-impl<S: Simd> Sub for V3<S> {
-    type Output = V3<S>;
+impl<R: Real> Sub for V3<R> {
+    type Output = V3<R>;
     #[inline(always)]
     fn sub(self, o: Self) -> Self {
         V3 { x: self.x - o.x, y: self.y - o.y, z: self.z - o.z }
     }
 }
 
-impl<S: Simd> Neg for V3<S> {
-    type Output = V3<S>;
+impl<R: Real> Neg for V3<R> {
+    type Output = V3<R>;
     #[inline(always)]
     fn neg(self) -> Self {
         V3 { x: -self.x, y: -self.y, z: -self.z }

@@ -3,31 +3,17 @@
 //! Stateless: every routine takes its uniform numbers as arguments and never a sampler, so that
 //! the chi-square tests can drive them with any point set.
 
-use std::f32::consts::{FRAC_1_PI, FRAC_PI_4, PI};
+use std::f32::consts::{FRAC_1_PI, PI};
 
 use glam::{Vec2, Vec3};
+
+use super::lanes::{Real, V3};
 
 /// Uniform point on the unit disk (Shirley-Chiu concentric mapping: keeps stratification).
 #[inline]
 pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
-    let o = 2.0 * u - Vec2::ONE;
-    if o.x == 0.0 && o.y == 0.0 {
-        return Vec2::ZERO;
-    }
-    // The angle is pi/4 times a ratio in [-1, 1] (plus pi/2 on the other two quadrants, which
-    // swaps sine and cosine), so a polynomial on [-pi/4, pi/4] serves and no library call is made.
-    // The quadrant pair is chosen with bit masks, not a branch (it is a coin flip per sample).
-    let x_major = o.x.abs() > o.y.abs();
-    let (num, den) = (select(x_major, o.y, o.x), select(x_major, o.x, o.y));
-    let (sin, cos) = sin_cos_quarter(FRAC_PI_4 * (num / den));
-    den * Vec2::new(select(x_major, cos, sin), select(x_major, sin, cos))
-}
-
-/// `a` if `c`, else `b`, by bit masks: the compiler keeps it free of branches.
-#[inline(always)]
-fn select(c: bool, a: f32, b: f32) -> f32 {
-    let mask = (c as u32).wrapping_neg();
-    f32::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask))
+    let (x, y) = generic::sample_uniform_disk_concentric(u.x, u.y);
+    Vec2::new(x, y)
 }
 
 /// sin x and cos x for |x| <= pi/4: Taylor polynomials through x^9 and x^10, whose truncation
@@ -35,16 +21,58 @@ fn select(c: bool, a: f32, b: f32) -> f32 {
 /// additions: the same bits on every machine, unlike a math library.
 #[inline]
 pub fn sin_cos_quarter(x: f32) -> (f32, f32) {
-    let x2 = x * x;
-    let sin = x
-        * (1.0
-            + x2 * (-1.0 / 6.0
-                + x2 * (1.0 / 120.0 + x2 * (-1.0 / 5040.0 + x2 * (1.0 / 362_880.0)))));
-    let cos = 1.0
-        + x2 * (-0.5
-            + x2 * (1.0 / 24.0
-                + x2 * (-1.0 / 720.0 + x2 * (1.0 / 40_320.0 + x2 * (-1.0 / 3_628_800.0)))));
-    (sin, cos)
+    generic::sin_cos_quarter(x)
+}
+
+/// The warps above written once over `Real`: for one sample (`f32`, through the functions
+/// above) and for a vector of them (the wavefront).
+pub(crate) mod generic {
+    use std::f32::consts::FRAC_PI_4;
+
+    use super::{Real, V3};
+
+    /// `super::sample_uniform_disk_concentric` of `(ux, uy)`.
+    #[inline(always)]
+    pub(crate) fn sample_uniform_disk_concentric<R: Real>(ux: R, uy: R) -> (R, R) {
+        let (zero, one, two) = (ux.konst(0.0), ux.konst(1.0), ux.konst(2.0));
+        let (ox, oy) = (two * ux - one, two * uy - one);
+        let at_centre = ox.eq(zero) & oy.eq(zero);
+        // The angle is pi/4 times a ratio in [-1, 1] (plus pi/2 on the other two quadrants,
+        // which swaps sine and cosine), so a polynomial on [-pi/4, pi/4] serves and no library
+        // call is made. The quadrant pair is chosen by selects, not a branch (it is a coin flip
+        // per sample).
+        let x_major = ox.abs().gt(oy.abs());
+        let (num, den) = (R::select(x_major, oy, ox), R::select(x_major, ox, oy));
+        let (sin, cos) = sin_cos_quarter(ux.konst(FRAC_PI_4) * (num / den));
+        let dx = R::select(at_centre, zero, den * R::select(x_major, cos, sin));
+        let dy = R::select(at_centre, zero, den * R::select(x_major, sin, cos));
+        (dx, dy)
+    }
+
+    /// `super::sin_cos_quarter`.
+    #[inline(always)]
+    pub(crate) fn sin_cos_quarter<R: Real>(x: R) -> (R, R) {
+        let c = |v: f32| x.konst(v);
+        let x2 = x * x;
+        let sin = x
+            * (c(1.0)
+                + x2 * (c(-1.0 / 6.0)
+                    + x2 * (c(1.0 / 120.0) + x2 * (c(-1.0 / 5040.0) + x2 * c(1.0 / 362_880.0)))));
+        let cos = c(1.0)
+            + x2 * (c(-0.5)
+                + x2 * (c(1.0 / 24.0)
+                    + x2 * (c(-1.0 / 720.0)
+                        + x2 * (c(1.0 / 40_320.0) + x2 * c(-1.0 / 3_628_800.0)))));
+        (sin, cos)
+    }
+
+    /// `super::sample_cosine_hemisphere` of `(ux, uy)`.
+    #[inline(always)]
+    pub(crate) fn sample_cosine_hemisphere<R: Real>(ux: R, uy: R) -> V3<R> {
+        let (dx, dy) = sample_uniform_disk_concentric(ux, uy);
+        let z = (ux.konst(1.0) - (dx * dx + dy * dy)).max0().sqrt();
+        V3::new(dx, dy, z)
+    }
 }
 
 /// Density of `sample_uniform_disk_concentric` per unit area.
@@ -56,9 +84,7 @@ pub fn uniform_disk_pdf() -> f32 {
 /// Cosine-weighted direction on the hemisphere around +z.
 #[inline]
 pub fn sample_cosine_hemisphere(u: Vec2) -> Vec3 {
-    let d = sample_uniform_disk_concentric(u);
-    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
-    Vec3::new(d.x, d.y, z)
+    generic::sample_cosine_hemisphere(u.x, u.y).into()
 }
 
 /// Density of `sample_cosine_hemisphere` per solid angle.

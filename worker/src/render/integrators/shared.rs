@@ -15,6 +15,7 @@ use glam::{Vec2, Vec3};
 use super::super::{
     bsdf::BsdfSample,
     geometry::Frame,
+    lanes::V3,
     light::{ChooseLight, Light, LightSample, ShadingContext},
     material,
     motion::Pose,
@@ -53,14 +54,7 @@ pub(crate) const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
 /// could make: a delta lobe, or `UNWEIGHTED`) takes the whole weight.
 #[inline]
 pub(crate) fn power_heuristic(a: f32, b: f32) -> f32 {
-    let (a2, b2) = (a * a, b * b);
-    if a2.is_infinite() {
-        return 1.0;
-    }
-    if a2 + b2 == 0.0 {
-        return 0.0;
-    }
-    a2 / (a2 + b2)
+    generic::power_heuristic(a, b)
 }
 
 /// Whether a direction with shading-frame z `cos_s` and geometric cosine `cos_g` (both relative
@@ -188,12 +182,38 @@ pub(crate) fn roulette(sampler: &mut Sampler, depth: u32, beta: &mut Vec3, eta_s
         return true;
     }
     let u_rr = sampler.next_1d();
-    let q = (1.0 - (*beta * eta_scale).max_element() * RR_SURVIVAL_SCALE).max(0.0);
+    let q = generic::roulette_end(V3::from(*beta), eta_scale);
     if u_rr < q {
         return false;
     }
     *beta /= 1.0 - q;
     true
+}
+
+/// The arithmetic above written once over `Real`: for one path (`f32`) and for a vector of
+/// paths (the wavefront).
+pub(crate) mod generic {
+    use super::{
+        super::super::lanes::{Real, V3},
+        RR_SURVIVAL_SCALE,
+    };
+
+    /// `super::power_heuristic`.
+    #[inline(always)]
+    pub(crate) fn power_heuristic<R: Real>(a: R, b: R) -> R {
+        let (a2, b2) = (a * a, b * b);
+        let (zero, sum) = (a.konst(0.0), a2 + b2);
+        let w = R::select(sum.eq(zero), zero, a2 / sum);
+        R::select(a2.eq(a.konst(f32::INFINITY)), a.konst(1.0), w)
+    }
+
+    /// Russian roulette's probability of ending a path of throughput `beta` that crossed
+    /// refractions of eta² product `eta_scale` (`super::roulette`).
+    #[inline(always)]
+    pub(crate) fn roulette_end<R: Real>(beta: V3<R>, eta_scale: R) -> R {
+        let one = eta_scale.konst(1.0);
+        (one - beta.scale(eta_scale).max_element() * eta_scale.konst(RR_SURVIVAL_SCALE)).max0()
+    }
 }
 
 /// The shading frame at barycentrics `b` of triangle `prim` (vertices `tri`) whose geometric

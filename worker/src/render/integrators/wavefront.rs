@@ -19,7 +19,7 @@
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
-use std::f32::consts::{FRAC_1_PI, FRAC_PI_4};
+use std::f32::consts::FRAC_1_PI;
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
@@ -27,14 +27,22 @@ use pulp::{Arch, Simd, WithSimd};
 
 use super::{
     super::{
-        geometry::{gamma, Ray},
-        lanes::{F, M, U, V3},
+        geometry::{
+            generic::{frame_from_z, interpolation_error, offset_ray_origin},
+            Ray,
+        },
+        lanes::{F, M, V3},
         light::{ChooseLight, ShadingContext},
         sampler::{LaneSampler, Sampler},
+        sampling::generic::sample_cosine_hemisphere,
         scene::{PreparedScene, NONE},
         wavefront_tables::Tables,
     },
-    shared::{environment_hit, Stats, RR_MIN_DEPTH, RR_SURVIVAL_SCALE, SHADOW_T_MAX, UNWEIGHTED},
+    shared::{
+        environment_hit,
+        generic::{power_heuristic, roulette_end},
+        Stats, RR_MIN_DEPTH, SHADOW_T_MAX, UNWEIGHTED,
+    },
 };
 
 /// The most lanes a vector has (AVX-512's 16 f32s).
@@ -204,106 +212,17 @@ impl Stream {
     }
 }
 
-/// `shared::power_heuristic`, lane by lane.
-#[inline(always)]
-fn power_heuristic_lanes<S: Simd>(s: S, a: F<S>, b: F<S>) -> F<S> {
-    let (a2, b2) = (a * a, b * b);
-    let sum = a2 + b2;
-    let w = sum.eq(F::splat(s, 0.0)).select(F::splat(s, 0.0), a2 / sum);
-    a2.eq(F::splat(s, f32::INFINITY)).select(F::splat(s, 1.0), w)
-}
-
-/// `geometry::step_away`, lane by lane.
-#[inline(always)]
-fn step_away<S: Simd>(s: S, v: F<S>, o: F<S>) -> F<S> {
-    let zero = F::splat(s, 0.0);
-    let bits = v.to_bits();
-    let one = U::splat(s, 1);
-    let away = !(v.ge(zero) ^ o.gt(zero));
-    let stepped = away.select_u(bits.wrapping_add(one), bits.wrapping_sub(one));
-    let from_zero = o.gt(zero).select_u(one, U::splat(s, 0x8000_0001));
-    let stepped = v.eq(zero).select_u(from_zero, stepped);
-    let keep = o.eq(zero) | !v.is_finite();
-    keep.select_u(bits, stepped).to_f32()
-}
-
-/// `geometry::offset_ray_origin`, lane by lane.
-#[inline(always)]
-fn offset_ray_origin<S: Simd>(s: S, p: V3<S>, p_error: V3<S>, n: V3<S>, w: V3<S>) -> V3<S> {
-    let d = n.abs().dot(p_error);
-    let offset = n.scale(d);
-    let offset = w.dot(n).lt(F::splat(s, 0.0)).select3(-offset, offset);
-    let po = p + offset;
-    V3::new(
-        step_away(s, po.x, offset.x),
-        step_away(s, po.y, offset.y),
-        step_away(s, po.z, offset.z),
-    )
-}
-
-/// `geometry::interpolation_error`, lane by lane.
-#[inline(always)]
-fn interpolation_error<S: Simd>(s: S, p: [V3<S>; 3], b: [F<S>; 3]) -> V3<S> {
-    (p[0].scale(b[0]).abs() + p[1].scale(b[1]).abs() + p[2].scale(b[2]).abs())
-        .scale(F::splat(s, gamma(7)))
-}
-
-/// `Frame::from_z`, lane by lane: tangent and bitangent of unit normal `n`.
-#[inline(always)]
-fn frame_from_z<S: Simd>(s: S, n: V3<S>) -> (V3<S>, V3<S>) {
-    let one = F::splat(s, 1.0);
-    let sign = one.copysign(n.z);
-    let a = F::splat(s, -1.0) / (sign + n.z);
-    let b = n.x * n.y * a;
-    let x = V3::new(one + sign * n.x * n.x * a, sign * b, -sign * n.x);
-    let y = V3::new(b, sign + n.y * n.y * a, -n.y);
-    (x, y)
-}
-
-/// `sampling::sin_cos_quarter`, lane by lane.
-#[inline(always)]
-fn sin_cos_quarter<S: Simd>(s: S, x: F<S>) -> (F<S>, F<S>) {
-    let c = |v: f32| F::splat(s, v);
-    let x2 = x * x;
-    let sin = x
-        * (c(1.0)
-            + x2 * (c(-1.0 / 6.0)
-                + x2 * (c(1.0 / 120.0) + x2 * (c(-1.0 / 5040.0) + x2 * c(1.0 / 362_880.0)))));
-    let cos = c(1.0)
-        + x2 * (c(-0.5)
-            + x2 * (c(1.0 / 24.0)
-                + x2 * (c(-1.0 / 720.0) + x2 * (c(1.0 / 40_320.0) + x2 * c(-1.0 / 3_628_800.0)))));
-    (sin, cos)
-}
-
-/// `sampling::sample_cosine_hemisphere`, lane by lane.
-#[inline(always)]
-fn sample_cosine_hemisphere<S: Simd>(s: S, ux: F<S>, uy: F<S>) -> V3<S> {
-    let zero = F::splat(s, 0.0);
-    let one = F::splat(s, 1.0);
-    let two = F::splat(s, 2.0);
-    let (ox, oy) = (two * ux - one, two * uy - one);
-    let at_centre = ox.eq(zero) & oy.eq(zero);
-    let x_major = ox.abs().gt(oy.abs());
-    let (num, den) = (x_major.select(oy, ox), x_major.select(ox, oy));
-    let (sin, cos) = sin_cos_quarter(s, F::splat(s, FRAC_PI_4) * (num / den));
-    let dx = at_centre.select(zero, den * x_major.select(cos, sin));
-    let dy = at_centre.select(zero, den * x_major.select(sin, cos));
-    let z = (one - (dx * dx + dy * dy)).max0().sqrt();
-    V3::new(dx, dy, z)
-}
-
 /// The per-lane state of the paths in flight.
 struct Paths<S: Simd> {
-    origin: V3<S>,
-    dir: V3<S>,
-    beta: V3<S>,
-    radiance: V3<S>,
+    origin: V3<F<S>>,
+    dir: V3<F<S>>,
+    beta: V3<F<S>>,
+    radiance: V3<F<S>>,
     prev_bsdf_pdf: F<S>,
     /// The previous vertex's point and shading normal, where a light's probability depends on
     /// them (`path::li`'s `prev_ctx`): kept only under the light tree.
-    prev_p: V3<S>,
-    prev_n: V3<S>,
+    prev_p: V3<F<S>>,
+    prev_n: V3<F<S>>,
     depth: [u32; MAX_LANES],
     item: [u64; MAX_LANES],
     alive: [bool; MAX_LANES],
@@ -478,7 +397,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let livem = M::from_bools(s, &live);
         let b0 = (one - b1) - b2;
         let p = tri[0].scale(b0) + tri[1].scale(b1) + tri[2].scale(b2);
-        let p_error = interpolation_error(s, tri, [b0, b1, b2]);
+        let p_error = interpolation_error(tri, [b0, b1, b2]);
         let c = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
         let rcp = one / c.length_squared().sqrt();
         let ng_ok = rcp.is_finite() & rcp.gt(zero);
@@ -490,7 +409,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let cos_light = l_normal.dot(dir).abs();
         let pdf_li = cos_light.eq(zero).select(zero, dist2 / (cos_light * l_area));
         let weight = M::from_bools(s, &first_bounce)
-            .select(one, power_heuristic_lanes(s, paths.prev_bsdf_pdf, l_prob * pdf_li));
+            .select(one, power_heuristic(paths.prev_bsdf_pdf, l_prob * pdf_li));
         let add = livem & ng_ok & M::from_bools(s, &hit_light) & emits;
         paths.radiance =
             add.select3(paths.radiance + paths.beta.mul(le).scale(weight), paths.radiance);
@@ -503,7 +422,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let use_n = M::from_bools(s, &smooth) & n_rcp.is_finite() & n_rcp.gt(zero);
         let ns = (use_n & n_dot.gt(zero)).select3(n, ng);
         let ns = (use_n & n_dot.lt(zero)).select3(-n, ns);
-        let (fx, fy) = frame_from_z(s, ns);
+        let (fx, fy) = frame_from_z(ns);
         let wo_z = wo.dot(ns);
         let going = livem & ng_ok & !wo_z.le(zero);
         going.to_bools(&mut cont);
@@ -585,7 +504,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let li = (M::from_bools(s, &nee_two_sided) | ln.dot(-wi).gt(zero)).select3(lem, z3);
         let light_pdf = d2 / (cos_l.abs() * la);
         let sampled = d2.gt(zero) & !(li.is_zero() | cos_l.eq(zero)) & light_pdf.is_finite();
-        let point_error = interpolation_error(s, lp, [sb0, sb1, sb2]);
+        let point_error = interpolation_error(lp, [sb0, sb1, sb2]);
         // The lanes that sampled another kind of light take its sample.
         let other = M::from_bools(s, &other_light);
         let sampled = other.select_m(M::from_bools(s, &other_ok), sampled);
@@ -606,8 +525,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             & wi.dot(ng).gt(zero)
             & !f.is_zero();
         shadowm.to_bools(&mut shadow);
-        let s_origin = offset_ray_origin(s, p, p_error, ng, wi);
-        let s_target = offset_ray_origin(s, point, point_error, ln, -wi);
+        let s_origin = offset_ray_origin(p, p_error, ng, wi);
+        let s_target = offset_ray_origin(point, point_error, ln, -wi);
         // Toward a point, a segment stopping short of it; toward infinity, a ray along wi.
         let s_dir = infinite.select3(wi, s_target - s_origin);
         let mut far = [false; MAX_LANES];
@@ -623,12 +542,12 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             }
         }
         let nee_pdf = light_pdf * choice_pdf;
-        let w = is_delta.select(one, power_heuristic_lanes(s, nee_pdf, wi_z.max0() * inv_pi));
+        let w = is_delta.select(one, power_heuristic(nee_pdf, wi_z.max0() * inv_pi));
         let nee = paths.radiance + paths.beta.mul(f).mul(li).scale(w / nee_pdf);
         paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
 
         // BSDF sampling, the next ray, Russian roulette.
-        let local = sample_cosine_hemisphere(s, ub_x, ub_y);
+        let local = sample_cosine_hemisphere(ub_x, ub_y);
         let pdf = local.z.max0() * inv_pi;
         let wi = fx.scale(local.x) + fy.scale(local.y) + ns.scale(local.z);
         let beta = paths.beta.mul(albedo.scale(inv_pi).scale(local.z.abs() / pdf));
@@ -638,8 +557,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             & wi.dot(ng).gt(zero)
             & beta.is_finite()
             & !beta.is_zero();
-        let origin = offset_ray_origin(s, p, p_error, ng, wi);
-        let q = (one - beta.max_element() * F::splat(s, RR_SURVIVAL_SCALE)).max0();
+        let origin = offset_ray_origin(p, p_error, ng, wi);
+        let q = roulette_end(beta, one);
         let rr = M::from_bools(s, &roulette);
         let ended = rr & u_rr.lt(q);
         let beta = rr.select3(beta.div(one - q), beta);
