@@ -407,6 +407,8 @@ pub(crate) trait Real:
     fn sqrt(self) -> Self;
     /// `if self > 0 { self } else { 0 }` (NaN gives 0).
     fn max0(self) -> Self;
+    /// `if self < o { self } else { o }` (`f32::min` for operands that are not NaN).
+    fn min(self, o: Self) -> Self;
     /// glam's `max`: `if self > o { self } else { o }`.
     fn glam_max(self, o: Self) -> Self;
     /// `f32::copysign`.
@@ -415,6 +417,8 @@ pub(crate) trait Real:
     fn is_finite(self) -> Self::Mask;
     /// `self < o`.
     fn lt(self, o: Self) -> Self::Mask;
+    /// `self <= o`.
+    fn le(self, o: Self) -> Self::Mask;
     /// `self > o`.
     fn gt(self, o: Self) -> Self::Mask;
     /// `self >= o`.
@@ -458,6 +462,10 @@ impl Real for f32 {
         Real::select(self > 0.0, self, 0.0)
     }
     #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        f32::min(self, o)
+    }
+    #[inline(always)]
     fn glam_max(self, o: Self) -> Self {
         Real::select(self > o, self, o)
     }
@@ -472,6 +480,10 @@ impl Real for f32 {
     #[inline(always)]
     fn lt(self, o: Self) -> bool {
         self < o
+    }
+    #[inline(always)]
+    fn le(self, o: Self) -> bool {
+        self <= o
     }
     #[inline(always)]
     fn gt(self, o: Self) -> bool {
@@ -539,6 +551,10 @@ impl<S: Simd> Real for F<S> {
         F::max0(self)
     }
     #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        F::min(self, o)
+    }
+    #[inline(always)]
     fn glam_max(self, o: Self) -> Self {
         F::glam_max(self, o)
     }
@@ -553,6 +569,10 @@ impl<S: Simd> Real for F<S> {
     #[inline(always)]
     fn lt(self, o: Self) -> M<S> {
         F::lt(self, o)
+    }
+    #[inline(always)]
+    fn le(self, o: Self) -> M<S> {
+        F::le(self, o)
     }
     #[inline(always)]
     fn gt(self, o: Self) -> M<S> {

@@ -49,6 +49,13 @@ pub(crate) mod generic {
         (dx, dy)
     }
 
+    /// `super::sample_uniform_triangle` of `(ux, uy)`.
+    #[inline(always)]
+    pub(crate) fn sample_uniform_triangle<R: Real>(ux: R, uy: R) -> (R, R) {
+        let m = ux.min(uy) / ux.konst(2.0);
+        (ux - m, uy - m)
+    }
+
     /// `super::sin_cos_quarter`.
     #[inline(always)]
     pub(crate) fn sin_cos_quarter<R: Real>(x: R) -> (R, R) {
@@ -146,8 +153,7 @@ pub fn sample_uniform_triangle(u: Vec2) -> (f32, f32) {
     // x (the inputs are the sampler's multiples of 2^-24 or those stretched by
     // `choose_remapped`, never subnormal), so subtracting half the smaller number from both
     // gives the same bits.
-    let m = u.x.min(u.y) / 2.0;
-    (u.x - m, u.y - m)
+    generic::sample_uniform_triangle(u.x, u.y)
 }
 
 /// The Henyey-Greenstein phase function: the density, per solid angle, of scattering by an angle

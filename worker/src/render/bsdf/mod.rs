@@ -7,7 +7,7 @@
 //! angle; `sample` takes its uniform numbers as arguments.
 
 mod dielectric;
-mod diffuse;
+pub(crate) mod diffuse;
 mod layered;
 mod metal_rough;
 mod sheen;

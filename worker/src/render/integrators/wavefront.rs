@@ -19,22 +19,23 @@
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
-use std::f32::consts::FRAC_1_PI;
-
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
 use pulp::{Arch, Simd, WithSimd};
 
 use super::{
     super::{
+        bsdf::diffuse::generic as lambert,
         geometry::{
             generic::{frame_from_z, interpolation_error, offset_ray_origin},
             Ray,
         },
         lanes::{F, M, V3},
-        light::{ChooseLight, ShadingContext},
+        light::{
+            generic::{pdf_li as triangle_pdf_li, sample_li as triangle_sample_li, TriangleSample},
+            ChooseLight, ShadingContext,
+        },
         sampler::{LaneSampler, Sampler},
-        sampling::generic::sample_cosine_hemisphere,
         scene::{PreparedScene, NONE},
         wavefront_tables::Tables,
     },
@@ -251,7 +252,6 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let mut stream = Stream::new(task, first, step);
     let zero = F::splat(s, 0.0);
     let one = F::splat(s, 1.0);
-    let inv_pi = F::splat(s, FRAC_1_PI);
     let z3 = V3::splat(s, Vec3::ZERO);
     let sampler = Sampler::new(seed, task.frame);
     let mut paths = Paths {
@@ -406,8 +406,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let wo = -dir;
         let emits = M::from_bools(s, &l_two_sided) | l_normal.dot(wo).gt(zero);
         let dist2 = (t * t) * dir.length_squared();
-        let cos_light = l_normal.dot(dir).abs();
-        let pdf_li = cos_light.eq(zero).select(zero, dist2 / (cos_light * l_area));
+        let pdf_li = triangle_pdf_li(l_normal, l_area, dir, dist2);
         let weight = M::from_bools(s, &first_bounce)
             .select(one, power_heuristic(paths.prev_bsdf_pdf, l_prob * pdf_li));
         let add = livem & ng_ok & M::from_bools(s, &hit_light) & emits;
@@ -493,18 +492,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.draws.advance(contm, 4);
 
         // Next-event estimation: `TriangleLight::sample_li`, then the shadow ray.
-        let m = ul_x.min(ul_y) / F::splat(s, 2.0);
-        let (sb0, sb1) = (ul_x - m, ul_y - m);
-        let sb2 = (one - sb0) - sb1;
-        let point = lp[0].scale(sb0) + lp[1].scale(sb1) + lp[2].scale(sb2);
-        let to_light = point - p;
-        let d2 = to_light.length_squared();
-        let wi = to_light.div(d2.sqrt());
-        let cos_l = ln.dot(-wi);
-        let li = (M::from_bools(s, &nee_two_sided) | ln.dot(-wi).gt(zero)).select3(lem, z3);
-        let light_pdf = d2 / (cos_l.abs() * la);
-        let sampled = d2.gt(zero) & !(li.is_zero() | cos_l.eq(zero)) & light_pdf.is_finite();
-        let point_error = interpolation_error(lp, [sb0, sb1, sb2]);
+        let two_sided = M::from_bools(s, &nee_two_sided);
+        let ts = triangle_sample_li(lp, ln, la, lem, two_sided, p, (ul_x, ul_y));
+        let TriangleSample { wi, li, pdf: light_pdf, ok: sampled, point, point_error, .. } = ts;
         // The lanes that sampled another kind of light take its sample.
         let other = M::from_bools(s, &other_light);
         let sampled = other.select_m(M::from_bools(s, &other_ok), sampled);
@@ -517,7 +507,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let infinite = other & M::from_bools(s, &at_infinity);
         let is_delta = other & M::from_bools(s, &delta);
         let wi_z = wi.dot(ns);
-        let f = albedo.scale(inv_pi).scale(wi_z.abs());
+        let f = lambert::eval(albedo, wo_z, wi_z).scale(wi_z.abs());
         let shadowm = contm
             & M::from_bools(s, &has_light)
             & sampled
@@ -542,17 +532,16 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             }
         }
         let nee_pdf = light_pdf * choice_pdf;
-        let w = is_delta.select(one, power_heuristic(nee_pdf, wi_z.max0() * inv_pi));
+        let w = is_delta.select(one, power_heuristic(nee_pdf, lambert::pdf(wo_z, wi_z)));
         let nee = paths.radiance + paths.beta.mul(f).mul(li).scale(w / nee_pdf);
         paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
 
         // BSDF sampling, the next ray, Russian roulette.
-        let local = sample_cosine_hemisphere(ub_x, ub_y);
-        let pdf = local.z.max0() * inv_pi;
+        let (local, f, pdf, sampled) = lambert::sample(albedo, wo_z, (ub_x, ub_y));
         let wi = fx.scale(local.x) + fy.scale(local.y) + ns.scale(local.z);
-        let beta = paths.beta.mul(albedo.scale(inv_pi).scale(local.z.abs() / pdf));
+        let beta = paths.beta.mul(f.scale(local.z.abs() / pdf));
         let ok = contm
-            & !pdf.le(zero)
+            & sampled
             & local.z.gt(zero)
             & wi.dot(ng).gt(zero)
             & beta.is_finite()

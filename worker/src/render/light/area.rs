@@ -5,7 +5,8 @@ use glam::{Vec2, Vec3};
 
 use super::LightSample;
 use crate::render::{
-    geometry::{interpolation_error, Frame},
+    geometry::Frame,
+    lanes::V3,
     sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_triangle},
 };
 
@@ -69,32 +70,23 @@ impl TriangleLight {
     /// Samples a point uniformly over the area.
     #[inline]
     pub fn sample_li(&self, receiver: Vec3, u: Vec2) -> Option<LightSample> {
-        let (b0, b1) = sample_uniform_triangle(u);
-        let b = [b0, b1, 1.0 - b0 - b1];
-        let point = self.p[0] * b[0] + self.p[1] * b[1] + self.p[2] * b[2];
-        let to_light = point - receiver;
-        let dist2 = to_light.length_squared();
-        if !(dist2 > 0.0) {
-            return None;
-        }
-        let wi = to_light / dist2.sqrt();
-        let cos_light = self.normal.dot(-wi);
-        let li = self.radiance(-wi);
-        if li == Vec3::ZERO || cos_light == 0.0 {
-            return None;
-        }
-        let pdf = dist2 / (cos_light.abs() * self.area);
-        if !pdf.is_finite() {
-            return None;
-        }
-        Some(LightSample {
-            li,
-            wi,
-            point: Some(point),
+        let t = generic::sample_li(
+            self.p.map(V3::from),
+            self.normal.into(),
+            self.area,
+            self.emission.into(),
+            self.two_sided,
+            receiver.into(),
+            (u.x, u.y),
+        );
+        t.ok.then(|| LightSample {
+            li: t.li.into(),
+            wi: t.wi.into(),
+            point: Some(t.point.into()),
             normal: self.normal,
-            point_error: interpolation_error(self.p, b),
-            barycentrics: b,
-            pdf,
+            point_error: t.point_error.into(),
+            barycentrics: t.b,
+            pdf: t.pdf,
             is_delta: false,
         })
     }
@@ -140,10 +132,69 @@ impl TriangleLight {
     /// Density of `sample_li` at a point on the light seen along `wi` at distance² `dist2`.
     #[inline]
     pub fn pdf_li(&self, wi: Vec3, dist2: f32) -> f32 {
-        let cos_light = self.normal.dot(wi).abs();
-        if cos_light == 0.0 {
-            return 0.0;
-        }
-        dist2 / (cos_light * self.area)
+        generic::pdf_li(self.normal.into(), self.area, wi.into(), dist2)
+    }
+}
+
+/// `TriangleLight::sample_li` and `pdf_li` written once over `Real`: for one receiver (`f32`) and for a
+/// vector of them (the wavefront).
+pub(crate) mod generic {
+    use super::super::super::{
+        geometry::generic::interpolation_error,
+        lanes::{Real, V3},
+        sampling::generic::sample_uniform_triangle,
+    };
+
+    /// A point sampled on an emitting triangle for a receiver.
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct TriangleSample<R: Real> {
+        /// Radiance arriving (the emission, or zero from behind a one-sided light).
+        pub(crate) li: V3<R>,
+        /// Unit direction from the receiver toward the point.
+        pub(crate) wi: V3<R>,
+        /// The point and its rounding-error bound.
+        pub(crate) point: V3<R>,
+        pub(crate) point_error: V3<R>,
+        /// Its barycentrics.
+        pub(crate) b: [R; 3],
+        /// Density per solid angle at the receiver.
+        pub(crate) pdf: R,
+        /// Whether the sample carries light (a point at a distance, seen from its emitting side,
+        /// of finite density).
+        pub(crate) ok: R::Mask,
+    }
+
+    /// `TriangleLight::pdf_li` of a triangle of unit normal `normal` and area `area`.
+    #[inline(always)]
+    pub(crate) fn pdf_li<R: Real>(normal: V3<R>, area: R, wi: V3<R>, dist2: R) -> R {
+        let zero = area.konst(0.0);
+        let cos_light = normal.dot(wi).abs();
+        R::select(cos_light.eq(zero), zero, dist2 / (cos_light * area))
+    }
+
+    /// A point uniformly over triangle `p` (unit normal `normal`, area `area`, radiance
+    /// `emission` from the front face, or both when `two_sided`) seen from `receiver`.
+    #[inline(always)]
+    pub(crate) fn sample_li<R: Real>(
+        p: [V3<R>; 3],
+        normal: V3<R>,
+        area: R,
+        emission: V3<R>,
+        two_sided: R::Mask,
+        receiver: V3<R>,
+        u: (R, R),
+    ) -> TriangleSample<R> {
+        let zero = area.konst(0.0);
+        let (b0, b1) = sample_uniform_triangle(u.0, u.1);
+        let b = [b0, b1, (area.konst(1.0) - b0) - b1];
+        let point = p[0].scale(b[0]) + p[1].scale(b[1]) + p[2].scale(b[2]);
+        let to_light = point - receiver;
+        let dist2 = to_light.length_squared();
+        let wi = to_light.div(dist2.sqrt());
+        let cos_light = normal.dot(-wi);
+        let li = V3::select(two_sided | cos_light.gt(zero), emission, V3::new(zero, zero, zero));
+        let pdf = dist2 / (cos_light.abs() * area);
+        let ok = dist2.gt(zero) & !(li.is_zero() | cos_light.eq(zero)) & pdf.is_finite();
+        TriangleSample { li, wi, point, point_error: interpolation_error(p, b), b, pdf, ok }
     }
 }

@@ -15,6 +15,7 @@ mod mixture;
 mod punctual;
 mod tree;
 
+pub(crate) use area::generic;
 pub use area::TriangleLight;
 pub use environment::{Environment, MapEnvironment};
 pub use mixture::{PowerMixture, EMITTER_SHARE};
