@@ -674,14 +674,28 @@ fn prepare_inner(
     let emission = (sppm || (bdpt && lights.uses_tree()))
         .then(|| PowerMixture::new(&lights.lights, &emitters, scene_radius));
     let transport = match transport {
-        Transport::Path { .. } => Transport::Path {
-            wavefront: super::wavefront_tables::Tables::new(
+        Transport::Path { .. } => {
+            let scalar_only = if motion.is_some() {
+                Some("something moves within the shutter")
+            } else if alpha_tested {
+                Some("an alpha-tested material")
+            } else if !colors.is_empty() {
+                Some("vertex colours")
+            } else {
+                None
+            };
+            let tables = super::wavefront_tables::Tables::new(
                 &scene.materials,
                 &scene.textures,
                 &lights,
-                motion.is_some() || alpha_tested || !colors.is_empty(),
-            ),
-        },
+                scalar_only,
+            );
+            if let Err(why) = &tables {
+                // Once per prepared scene: which kernel renders it, and why.
+                tracing::info!("the path tracer runs scalar on this scene: {why}");
+            }
+            Transport::Path { wavefront: tables.ok() }
+        }
         other => other,
     };
     let mut prepared = PreparedScene {

@@ -39,43 +39,28 @@ pub struct Tables {
 }
 
 impl Tables {
-    /// The tables of a scene being prepared, or `None` when it needs something only the
-    /// scalar renderer does (`scalar_only`: something moves within the shutter, is
-    /// alpha-tested or has vertex colours; or a material is textured, glossy, unlit, or has a
-    /// clear coat, a sheen, anisotropy or iridescence).
+    /// The tables of a scene being prepared, or why the wavefront does not take it (the scalar
+    /// renderer then renders it, with the same estimator): `scalar_only` names what the scene
+    /// as a whole needs of the scalar renderer (something moving within the shutter, an alpha
+    /// test, vertex colours), and every material must be one the wavefront takes
+    /// (`wavefront_albedo`, an allow-list) and every emitter untextured.
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
         light_sampler: &LightSampler,
-        scalar_only: bool,
-    ) -> Option<Tables> {
+        scalar_only: Option<&str>,
+    ) -> Result<Tables, String> {
         let mixture = light_sampler.mixture();
-        if scalar_only {
-            return None;
+        if let Some(why) = scalar_only {
+            return Err(why.to_string());
         }
         let mut albedo = Vec::with_capacity(materials.len());
         let mut emission = Vec::with_capacity(materials.len());
         for m in materials {
-            if m.base_color_texture.is_some()
-                || m.metallic_roughness_texture.is_some()
-                || m.normal_texture.is_some()
-                || m.emissive_texture.is_some()
-                || m.transmission_texture.is_some()
-                || m.diffuse_transmission_texture.is_some()
-                || m.diffuse_transmission_color_texture.is_some()
-                || m.unlit
-                || m.clearcoat.is_some()
-                || m.sheen.is_some()
-                || m.anisotropy.is_some()
-                || m.iridescence.is_some()
-            {
-                return None;
-            }
+            let a = wavefront_albedo(textures, m)
+                .map_err(|why| format!("material '{}' has {why}", m.name))?;
+            albedo.push(a);
             // Without textures or vertex colours every point of the material is this one.
-            match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
-                Bsdf::Diffuse(d) => albedo.push(d.albedo),
-                Bsdf::MetalRough(_) | Bsdf::Dielectric(_) | Bsdf::Layered(_) => return None,
-            }
             emission.push(material::emission(textures, m, &SurfacePoint::PLAIN));
         }
         let mut lights = Vec::with_capacity(light_sampler.lights.len());
@@ -85,7 +70,7 @@ impl Tables {
                 continue;
             };
             if l.textured {
-                return None;
+                return Err("an emitter is textured".into());
             }
             lights.push(Some(LightRec {
                 p: l.p,
@@ -96,6 +81,108 @@ impl Tables {
                 probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        Some(Tables { albedo, emission, lights })
+        Ok(Tables { albedo, emission, lights })
+    }
+}
+
+/// The Lambert albedo of a material the wavefront takes, or what it has that the wavefront does
+/// not. An allow-list: every field of `Material` is named here (a field added to it does not
+/// compile until it is decided), the textures and extensions the wavefront does not read send the
+/// scene to the scalar renderer, and the factors must make the glTF BSDF a Lambertian one.
+fn wavefront_albedo(textures: &[Texture], m: &Material) -> Result<Vec3, &'static str> {
+    let Material {
+        // What the wavefront reads, through the BSDF and the emission below.
+        name: _,
+        base_color: _,
+        emissive: _,
+        double_sided: _,
+        // What decides that the BSDF is Lambertian (checked below).
+        metallic: _,
+        roughness: _,
+        specular: _,
+        specular_color: _,
+        ior: _,
+        transmission: _,
+        diffuse_transmission: _,
+        diffuse_transmission_color: _,
+        dispersion: _,
+        // Alpha tests send the whole scene to the scalar renderer (`scalar_only`).
+        alpha_mode: _,
+        base_color_texture,
+        metallic_roughness_texture,
+        normal_texture,
+        emissive_texture,
+        transmission_texture,
+        diffuse_transmission_texture,
+        diffuse_transmission_color_texture,
+        volume,
+        clearcoat,
+        sheen,
+        anisotropy,
+        iridescence,
+        unlit,
+    } = m;
+    let textured = base_color_texture.is_some()
+        || metallic_roughness_texture.is_some()
+        || normal_texture.is_some()
+        || emissive_texture.is_some()
+        || transmission_texture.is_some()
+        || diffuse_transmission_texture.is_some()
+        || diffuse_transmission_color_texture.is_some();
+    if textured {
+        return Err("a texture");
+    }
+    if volume.is_some() && m.bounds_medium() {
+        return Err("a volume");
+    }
+    if clearcoat.is_some() || sheen.is_some() || anisotropy.is_some() || iridescence.is_some() {
+        return Err("a layer (clear coat, sheen, anisotropy or iridescence)");
+    }
+    if *unlit {
+        return Err("KHR_materials_unlit");
+    }
+    match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
+        Bsdf::Diffuse(d) => Ok(d.albedo),
+        Bsdf::MetalRough(_) | Bsdf::Layered(_) => Err("a glossy lobe (metal-rough)"),
+        Bsdf::Dielectric(_) => Err("a refractive boundary"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use common::scene::{Material, TextureRef};
+
+    use super::*;
+
+    fn lambert() -> Material {
+        Material { metallic: 0.0, specular: 0.0, ..Material::default() }
+    }
+
+    /// Only untextured Lambertian materials pass; every texture slot, layer and unlit sends the
+    /// scene to the scalar renderer (with the reason), so that none renders untextured.
+    #[test]
+    fn the_wavefront_takes_only_what_it_renders() {
+        assert!(wavefront_albedo(&[], &lambert()).is_ok());
+        let texture = Some(TextureRef { texture: 0, tex_coord: 0, transform: None });
+        let textured = [
+            Material { base_color_texture: texture, ..lambert() },
+            Material { metallic_roughness_texture: texture, ..lambert() },
+            Material { normal_texture: texture.map(|t| (t, 1.0)), ..lambert() },
+            Material { emissive_texture: texture, ..lambert() },
+            Material { transmission_texture: texture, ..lambert() },
+            Material { diffuse_transmission_texture: texture, ..lambert() },
+            Material { diffuse_transmission_color_texture: texture, ..lambert() },
+        ];
+        for m in &textured {
+            assert_eq!(wavefront_albedo(&[], m), Err("a texture"), "{m:?}");
+        }
+        assert_eq!(wavefront_albedo(&[], &Material::default()), Err("a glossy lobe (metal-rough)"));
+        let unlit = Material { unlit: true, ..lambert() };
+        assert_eq!(wavefront_albedo(&[], &unlit), Err("KHR_materials_unlit"));
+        let m = Material { name: "shiny".into(), ..Material::default() };
+        let why = Tables::new(&[lambert(), m], &[], &LightSampler::default(), None).unwrap_err();
+        assert_eq!(why, "material 'shiny' has a glossy lobe (metal-rough)");
+        let why = Tables::new(&[lambert()], &[], &LightSampler::default(), Some("vertex colours"));
+        assert_eq!(why.unwrap_err(), "vertex colours");
     }
 }

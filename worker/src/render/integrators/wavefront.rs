@@ -1,7 +1,8 @@
 //! The wavefront renderer: the same path tracer as `path::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
-//! For the scenes `wavefront_tables::Tables::new` accepts: diffuse materials without textures or
+//! For the scenes `wavefront_tables::Tables::new` accepts (an allow-list; the others render on
+//! the scalar path tracer, and `prepare` logs why once): diffuse materials without textures or
 //! vertex colours, untextured emitters, any lights and environment, chosen by the mixture or the
 //! light tree, nothing moving, nothing alpha-tested (the Cornell box and the furnaces among
 //! them). Each lane holds one path; a lane whose path ends takes the task's next sample at once
@@ -12,8 +13,9 @@
 //! scalar, one lane at a time, through the scalar renderer's own calls. The numbers each bounce
 //! draws come from `LaneSampler`, the sampler's integer arithmetic in all lanes at once, and the
 //! shading (hit point, frame, MIS weights, light and BSDF sampling, ray origins, roulette) is
-//! vector code transcribed from the scalar routines with the same operations in the same order,
-//! so every lane computes the scalar path's bits, and samples reach the film in the scalar
+//! the scalar renderer's own routines instantiated on vectors (`lanes::Real`: the `generic`
+//! modules of `geometry`, `sampling`, `bsdf::diffuse`, `light` and `shared`), so every lane
+//! computes the scalar path's bits, and samples reach the film in the scalar
 //! order: the images are bit for bit those of `path::li` on every CPU (a test compares
 //! them).
 //!
