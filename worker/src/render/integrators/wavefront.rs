@@ -338,7 +338,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 // for its instruction set (12% off a sample of the Cornell box on Zen 4).
                 let Some(hit) = scene.accel.intersect_inlined(&ray, f32::INFINITY) else {
                     // What the escaping ray sees (the path tracer's miss, one lane).
-                    if paths.depth[i] > 0 || scene.environment_visible {
+                    let seen = paths.depth[i] > 0 || scene.environment_visible;
+                    if seen && scene.environment.is_some() {
                         let l = environment_hit(
                             scene,
                             paths.beta.lane(i),
