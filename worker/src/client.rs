@@ -184,6 +184,7 @@ impl SceneCache {
             triangles = scene.triangle_count(),
             seconds = start.elapsed().as_secs_f64(),
             frame = grant.task.frame,
+            kernel = crate::render::kernel(&prepared),
             "scene prepared"
         );
         let prepared = Arc::new(prepared);

@@ -38,6 +38,7 @@ fn furnace_mean(name: &str, scene: &common::scene::Scene) -> f64 {
     (settings.width, settings.height, settings.spp) = (24, 24, 128);
     let prepared = prepare(scene, &settings).expect("prepare");
     assert!(prepared.wavefront().is_none(), "{name}: layered materials take the scalar path");
+    assert_eq!(worker::render::kernel(&prepared), "path, scalar", "{name}");
     let film = render_prepared(&prepared, &settings);
     let (mut sum, mut n) = (0.0, 0);
     for (i, p) in film.pixels.iter().enumerate() {

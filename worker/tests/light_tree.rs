@@ -59,6 +59,13 @@ fn shipped_scenes_keep_the_mixture() {
     }
     let cornell = prepare(&load("cornell-box.gltf"), &RenderSettings::default()).unwrap();
     assert!(cornell.wavefront().is_some(), "the Cornell box stays on the wavefront");
+    // The kernel the worker's log names: the wavefront's lanes on this CPU.
+    let kernel = worker::render::kernel(&cornell);
+    match worker::render::integrators::wavefront::lanes() {
+        16 => assert_eq!(kernel, "path, AVX-512 x16"),
+        8 => assert_eq!(kernel, "path, AVX2 x8"),
+        _ => assert_eq!(kernel, "path, scalar"),
+    }
 }
 
 #[test]

@@ -40,6 +40,22 @@ use self::{
     scene::{PreparedScene, Transport},
 };
 
+/// The kernel that renders the camera tasks of `scene` on this CPU: the integrator, and for the
+/// path tracer whether it runs on the SIMD wavefront (`"path, AVX2 x8"`, `"path, AVX-512 x16"`)
+/// or one path at a time (`"path, scalar"`; `prepare` logs why).
+pub fn kernel(scene: &PreparedScene) -> &'static str {
+    match &scene.transport {
+        Transport::Path { wavefront: Some(_) } => match wavefront::lanes() {
+            16 => "path, AVX-512 x16",
+            8 => "path, AVX2 x8",
+            _ => "path, scalar",
+        },
+        Transport::Path { wavefront: None } => "path, scalar",
+        Transport::Bdpt => "bdpt, scalar",
+        Transport::Sppm(_) => "sppm, scalar",
+    }
+}
+
 /// Renders `task` with `seed` on the calling thread.
 pub fn render_task(scene: &PreparedScene, seed: u64, task: &TaskSpec) -> TaskResult {
     render_task_threads(scene, seed, task, 1)
