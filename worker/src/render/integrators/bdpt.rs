@@ -68,7 +68,7 @@ use super::{
         geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
         light::{spot_falloff, ChooseLight, Light, ShadingContext},
         material,
-        media::{self, transmittance, Crossing, MediumStack},
+        media::{self, transmittance, MediumStack},
         motion::Pose,
         sampler::{Sampler, FRAME_DIMENSIONS},
         sampling::{
@@ -79,8 +79,8 @@ use super::{
         spectrum,
     },
     shared::{
-        light_radiance, roulette, same_side, shading_frame, Stats, MAX_FALSE_INTERFACES,
-        SHADOW_T_MAX,
+        hit_error, light_radiance, meet_surface, roulette, same_side, shading_frame, Meeting,
+        Stats, SHADOW_T_MAX,
     },
 };
 
@@ -720,29 +720,18 @@ pub(super) fn surface_vertex(
         let front = winding.dot(wo) > 0.0;
         let ng = if front { winding } else { -winding };
         let material = &scene.materials[tri.material as usize];
-        let mut p_error = interpolation_error([p0, p1, p2], b);
-        if moved {
-            // The vertices went through a transform: a few more roundings of their size.
-            p_error += (p0.abs().max(p1.abs()).max(p2.abs())) * (8.0 * f32::EPSILON);
-        }
-        // A volume's boundary (as the path tracer crosses it, `media`): a false interface is
-        // passed unchanged, a real one is between the current medium and the one beyond.
-        let boundary = tri.extended && material.volume.is_some() && material.bounds_medium();
-        let mut beyond = media.current();
-        if boundary {
-            match media.crossing(tri.material, front) {
-                Crossing::Real { beyond: m } => beyond = m,
-                Crossing::False => {
-                    media.cross(tri.material, front);
-                    passed += 1;
-                    if passed > MAX_FALSE_INTERFACES {
-                        return None;
-                    }
+        let p_error = hit_error([p0, p1, p2], b, moved);
+        // A volume's boundary, as the path tracer meets it: a false interface is passed
+        // unchanged, a real one is between the current medium and the one beyond.
+        let (boundary, beyond) =
+            match meet_surface(scene, tri.material, tri.extended, front, media, &mut passed) {
+                Meeting::Surface { boundary, beyond } => (boundary, beyond),
+                Meeting::Passed => {
                     ray = Ray::new(offset_ray_origin(p, p_error, winding, ray.dir), ray.dir);
                     continue;
                 }
-            }
-        }
+                Meeting::Stuck => return None,
+            };
         let sp = scene.surface_point(hit.prim, b);
         let mut v = Vertex::new(Kind::Surface, p, *beta);
         v.ratios = *ratios;

@@ -24,10 +24,10 @@ use glam::{Vec2, Vec3};
 use super::{
     super::{
         bsdf::{Bsdf, Layered},
-        geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
+        geometry::{offset_ray_origin, Frame, Ray},
         light::{Light, ShadingContext},
         material,
-        media::{self, free_flight, transmittance, Crossing},
+        media::{self, free_flight, transmittance},
         motion::Pose,
         sampler::Sampler,
         sampling::sample_henyey_greenstein,
@@ -35,9 +35,9 @@ use super::{
         spectrum,
     },
     shared::{
-        environment_hit, hit_weight, light_radiance, mis_pdf, perturb_normal, power_heuristic,
-        roulette, same_side, sample_light, shading_frame, Stats, MAX_FALSE_INTERFACES,
-        SHADOW_T_MAX, UNWEIGHTED,
+        environment_hit, hit_error, hit_weight, light_radiance, meet_surface, mis_pdf,
+        perturb_normal, power_heuristic, roulette, same_side, sample_light, shading_frame, Meeting,
+        Stats, SHADOW_T_MAX, UNWEIGHTED,
     },
 };
 
@@ -139,11 +139,7 @@ pub fn li(
         let ([p0, p1, p2], moved) = scene.triangle(hit.prim, pose);
         let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
         let p = p0 * b[0] + p1 * b[1] + p2 * b[2];
-        let mut p_error = interpolation_error([p0, p1, p2], b);
-        if moved {
-            // The vertices went through a transform: a few more roundings of their size.
-            p_error += (p0.abs().max(p1.abs()).max(p2.abs())) * (8.0 * f32::EPSILON);
-        }
+        let p_error = hit_error([p0, p1, p2], b, moved);
         let Some(ng) = (p1 - p0).cross(p2 - p0).try_normalize() else {
             break; // A degenerate triangle that the test still reported: nothing to shade.
         };
@@ -151,26 +147,16 @@ pub fn li(
         let material = &scene.materials[tri.material as usize];
         // The front face is the one the winding makes counter-clockwise.
         let front = ng.dot(wo) > 0.0;
-        // A volume's boundary is crossed through its front face into it, through its back face
-        // out of it; where the medium is the same on both sides light passes unchanged.
-        // (`tri.extended` first: a material without volumes, layers or unlit costs this test.)
         let extended = tri.extended;
-        let boundary = extended && material.volume.is_some() && material.bounds_medium();
-        let mut beyond = None;
-        if boundary {
-            match media.crossing(tri.material, front) {
-                Crossing::Real { beyond: b } => beyond = b,
-                Crossing::False => {
-                    media.cross(tri.material, front);
-                    passed += 1;
-                    if passed > MAX_FALSE_INTERFACES {
-                        break;
-                    }
+        let (boundary, beyond) =
+            match meet_surface(scene, tri.material, extended, front, &mut media, &mut passed) {
+                Meeting::Surface { boundary, beyond } => (boundary, beyond),
+                Meeting::Passed => {
                     ray = Ray::new(offset_ray_origin(p, p_error, ng, ray.dir), ray.dir);
                     continue;
                 }
-            }
-        }
+                Meeting::Stuck => break,
+            };
         let sp = scene.surface_point(hit.prim, b);
         if extended && material.unlit {
             // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on from it.

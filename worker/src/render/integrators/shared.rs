@@ -14,10 +14,11 @@ use glam::{Vec2, Vec3};
 
 use super::super::{
     bsdf::BsdfSample,
-    geometry::Frame,
+    geometry::{interpolation_error, Frame},
     lanes::V3,
     light::{ChooseLight, Light, LightSample, ShadingContext},
     material,
+    media::{Crossing, MediumStack},
     motion::Pose,
     sampler::Sampler,
     scene::PreparedScene,
@@ -188,6 +189,63 @@ pub(crate) fn roulette(sampler: &mut Sampler, depth: u32, beta: &mut Vec3, eta_s
     }
     *beta /= 1.0 - q;
     true
+}
+
+/// What a path meets at a surface hit, as to the volumes it is inside (`media`).
+pub(crate) enum Meeting {
+    /// A surface to shade: whether it bounds a medium (`boundary`), and the medium on its far
+    /// side (the one beyond a real boundary; elsewhere the current one).
+    Surface { boundary: bool, beyond: Option<u32> },
+    /// A false interface (the same medium on both sides), crossed in `media`: the path goes on
+    /// straight through it.
+    Passed,
+    /// More false interfaces than `MAX_FALSE_INTERFACES`: the path ends.
+    Stuck,
+}
+
+/// A volume's boundary is crossed through its front face into it, through its back face out of
+/// it; where the medium is the same on both sides light passes unchanged. `material` is the hit
+/// triangle's, `extended` its `TriShading::extended` (tested first: a material without volumes,
+/// layers or unlit costs one test), `front` whether the ray meets its front face, `passed` the
+/// false interfaces the path has passed so far.
+#[inline]
+pub(crate) fn meet_surface(
+    scene: &PreparedScene,
+    material: u32,
+    extended: bool,
+    front: bool,
+    media: &mut MediumStack,
+    passed: &mut u32,
+) -> Meeting {
+    let m = &scene.materials[material as usize];
+    let boundary = extended && m.volume.is_some() && m.bounds_medium();
+    if !boundary {
+        return Meeting::Surface { boundary, beyond: media.current() };
+    }
+    match media.crossing(material, front) {
+        Crossing::Real { beyond } => Meeting::Surface { boundary, beyond },
+        Crossing::False => {
+            media.cross(material, front);
+            *passed += 1;
+            if *passed > MAX_FALSE_INTERFACES {
+                Meeting::Stuck
+            } else {
+                Meeting::Passed
+            }
+        }
+    }
+}
+
+/// The rounding-error bound of the point at barycentrics `b` of triangle `p`, with a few more
+/// roundings of the vertices' size when they went through a transform (`moved`: placed at a
+/// sample's time).
+#[inline]
+pub(crate) fn hit_error(p: [Vec3; 3], b: [f32; 3], moved: bool) -> Vec3 {
+    let mut p_error = interpolation_error(p, b);
+    if moved {
+        p_error += (p[0].abs().max(p[1].abs()).max(p[2].abs())) * (8.0 * f32::EPSILON);
+    }
+    p_error
 }
 
 /// The arithmetic above written once over `Real`: for one path (`f32`) and for a vector of
