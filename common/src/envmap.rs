@@ -157,7 +157,7 @@ mod tests {
     #[test]
     fn the_shipped_studio_map_loads() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/scenes/real/environments/studio_small_05_1k.hdr");
+            .join("../tests/assets/real/environments/studio_small_05_1k.hdr");
         let map = EnvMap::load(&path).unwrap();
         assert_eq!((map.width, map.height), (1024, 512));
         assert!(map.texels.iter().any(|t| t.max_element() > 1.0), "HDR values above 1");

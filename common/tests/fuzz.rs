@@ -1,6 +1,6 @@
 //! Structure-aware fuzzing on stable Rust (proptest): the inputs a hostile client controls, each
 //! mutated from valid seeds, never panic and stay within their budgets.
-//! - the glTF loader, seeded with the glTF-Validator suite (`../shared/scenes/invalid/`): byte
+//! - the glTF loader, seeded with the glTF-Validator suite (`tests/assets/invalid/`): byte
 //!   flips, truncations, deletions and repeats, and JSON-aware mutations (a value replaced by an
 //!   absurd one, a key dropped, an array element repeated);
 //! - the bundle reader, on mutated zips of a real scene;
@@ -37,8 +37,9 @@ fn cases() -> u32 {
     std::env::var("RENDERFARM_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(200)
 }
 
-fn shared() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes")
+/// The repository's `tests/assets/`: the glTF-Validator suite and the Khronos sample assets.
+fn assets() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/assets")
 }
 
 /// The validator suite's `.gltf` and `.glb` files: (folder, bytes).
@@ -46,9 +47,9 @@ fn corpus() -> &'static [(PathBuf, Vec<u8>)] {
     static CORPUS: OnceLock<Vec<(PathBuf, Vec<u8>)>> = OnceLock::new();
     CORPUS.get_or_init(|| {
         let mut files = Vec::new();
-        let mut stack = vec![shared().join("invalid/validator-tests/test")];
+        let mut stack = vec![assets().join("invalid/validator-tests/test")];
         while let Some(dir) = stack.pop() {
-            for entry in std::fs::read_dir(&dir).expect("the validator suite in ../shared") {
+            for entry in std::fs::read_dir(&dir).expect("the validator suite in tests/assets") {
                 let path = entry.unwrap().path();
                 if path.is_dir() {
                     stack.push(path);
@@ -232,7 +233,7 @@ proptest! {
     ) {
         static ZIP: OnceLock<Vec<u8>> = OnceLock::new();
         let zip = ZIP.get_or_init(|| {
-            let dir = shared().join("real/BoxTextured/glTF");
+            let dir = assets().join("real/BoxTextured/glTF");
             let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(&dir)
                 .unwrap()
                 .map(|e| e.unwrap().path())

@@ -90,7 +90,7 @@ fn bad_input_fails_with_a_message() {
 fn environment_map_is_found_beside_the_settings_file() {
     let dir = std::env::temp_dir().join(format!("renderfarm-cli-env-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let hdr = repo().join("../shared/scenes/real/environments/studio_small_05_1k.hdr");
+    let hdr = repo().join("tests/assets/real/environments/studio_small_05_1k.hdr");
     std::fs::copy(&hdr, dir.join("sky.hdr")).unwrap();
     let settings = dir.join("settings.json");
     std::fs::write(
@@ -173,22 +173,23 @@ fn tiny_cornell(out: &std::path::Path) -> std::process::Output {
     run_render(&[&["scenes/cornell-box.gltf", "-o", out.to_str().unwrap()], &args[..]].concat())
 }
 
-fn shared(path: &str) -> String {
-    repo().join("../shared/scenes").join(path).to_string_lossy().into_owned()
+/// A file under the repository's `tests/assets/` (the Khronos samples and the environment map).
+fn asset(path: &str) -> String {
+    repo().join("tests/assets").join(path).to_string_lossy().into_owned()
 }
 
 const SKY: &str = "real/environments/studio_small_05_1k.hdr";
-const AVOCADO: &str = "real/Avocado/glTF/Avocado.gltf";
+/// A real asset with textures and no lights of its own.
+const BOXED: &str = "real/BoxTextured/glTF/BoxTextured.gltf";
 
 /// A real asset has no lights of its own: without an environment it renders black, and the
 /// command says so (and names the fix) instead of reporting a converged image.
 #[test]
 fn an_unlit_scene_is_reported_and_an_environment_lights_it() {
-    let out = temp("avocado.exr");
+    let out = temp("box-textured.exr");
     let small = ["--width", "24", "--height", "24", "--spp", "4"];
-    let output = run_render(
-        &[&[&shared(AVOCADO) as &str, "-o", out.to_str().unwrap()], &small[..]].concat(),
-    );
+    let output =
+        run_render(&[&[&asset(BOXED) as &str, "-o", out.to_str().unwrap()], &small[..]].concat());
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "{stderr}");
     assert!(
@@ -200,10 +201,10 @@ fn an_unlit_scene_is_reported_and_an_environment_lights_it() {
     let (_, _, rgb) = coordinator::output::read_exr_rgb(&out).unwrap();
     assert!(coordinator::output::is_black(&rgb), "the warning said black; the image is not");
 
-    let sky = shared(SKY);
-    let lit = temp("avocado-lit.exr");
+    let sky = asset(SKY);
+    let lit = temp("box-textured-lit.exr");
     let output = run_render(
-        &[&[&shared(AVOCADO) as &str, "--env", &sky, "-o", lit.to_str().unwrap()], &small[..]]
+        &[&[&asset(BOXED) as &str, "--env", &sky, "-o", lit.to_str().unwrap()], &small[..]]
             .concat(),
     );
     let stderr = String::from_utf8_lossy(&output.stderr);
@@ -225,7 +226,7 @@ fn an_unlit_scene_is_reported_and_an_environment_lights_it() {
 fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
     let dir = temp("envzip");
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::copy(shared(SKY), dir.join("sky.hdr")).unwrap();
+    std::fs::copy(asset(SKY), dir.join("sky.hdr")).unwrap();
     std::fs::write(
         dir.join("settings.json"),
         r#"{"width": 24, "height": 16, "spp": 4, "environment": {"map": "sky.hdr", "intensity": 2.0}}"#,
@@ -233,7 +234,7 @@ fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
     .unwrap();
     let by_settings = dir.join("settings.exr");
     let output = run_render(&[
-        &shared(AVOCADO),
+        &asset(BOXED),
         "--settings",
         dir.join("settings.json").to_str().unwrap(),
         "-o",
@@ -245,7 +246,7 @@ fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
     let small = ["--width", "24", "--height", "16", "--spp", "4"];
     let output = run_render(
         &[
-            &[&shared(AVOCADO) as &str, "--env", sky.to_str().unwrap(), "--env-intensity", "2"],
+            &[&asset(BOXED) as &str, "--env", sky.to_str().unwrap(), "--env-intensity", "2"],
             &small[..],
             &["-o", by_flag.to_str().unwrap()],
         ]
@@ -254,15 +255,15 @@ fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert_eq!(channels(&by_flag), channels(&by_settings), "--env differs from the settings' map");
 
-    // The Avocado's folder as a zip (as the REST API takes it), with the map added by --env.
-    let folder = repo().join("../shared/scenes/real/Avocado/glTF");
+    // The textured box's folder as a zip (as the REST API takes it), with the map added by --env.
+    let folder = repo().join("tests/assets/real/BoxTextured/glTF");
     let mut files = Vec::new();
     for entry in std::fs::read_dir(&folder).unwrap() {
         let path = entry.unwrap().path();
-        let name = format!("Avocado/{}", path.file_name().unwrap().to_string_lossy());
+        let name = format!("BoxTextured/{}", path.file_name().unwrap().to_string_lossy());
         files.push((name, std::fs::read(&path).unwrap()));
     }
-    let zip = dir.join("avocado.zip");
+    let zip = dir.join("box-textured.zip");
     std::fs::write(&zip, common::bundle::Bundle::pack(&files).unwrap()).unwrap();
     let by_zip = dir.join("zip.exr");
     let output = run_render(
@@ -278,7 +279,7 @@ fn env_flag_and_zip_bundles_render_what_the_settings_and_the_folder_do() {
 
     // --env-intensity alone has nothing to scale.
     let output =
-        run_render(&[&shared(AVOCADO), "--env-intensity", "2", "-o", by_flag.to_str().unwrap()]);
+        run_render(&[&asset(BOXED), "--env-intensity", "2", "-o", by_flag.to_str().unwrap()]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success() && stderr.contains("--env FILE"), "{stderr}");
 }
@@ -352,7 +353,7 @@ fn progress_shows_the_preparing_stage_on_a_terminal() {
     let command = format!(
         "{} render {} -o {} --spp 4 --width 32 --height 32 --workers 1",
         env!("CARGO_BIN_EXE_coordinator"),
-        shared("real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb"),
+        asset("real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb"),
         out.display()
     );
     // `script` runs it on a pseudo-terminal and copies what it drew to our stdout.

@@ -10,7 +10,7 @@ use tests::*;
 
 /// Relative MSE against the cornell box's independent reference.
 fn rel_mse_to_reference(image: &[u8]) -> f64 {
-    let reference = std::fs::read(repo().join("../shared/scenes/ref/cornell-box.exr")).unwrap();
+    let reference = std::fs::read(repo().join("scenes/ref/cornell-box.exr")).unwrap();
     rel_mse(image, &reference)
 }
 

@@ -198,10 +198,9 @@ fn motion_blurred_frames_are_identical_on_one_or_three_workers() {
 #[test]
 fn real_animated_samples_render_at_several_frames() {
     let dir = temp_dir("anim-real");
-    let real = repo().join("../shared/scenes/real");
+    let real = repo().join("tests/assets/real");
     for (name, path) in [
         ("box-animated", "BoxAnimated/glTF/BoxAnimated.gltf"),
-        ("animated-cube", "AnimatedCube/glTF/AnimatedCube.gltf"),
         ("animated-triangle", "AnimatedTriangle/glTF-Embedded/AnimatedTriangle.gltf"),
     ] {
         let settings = json!({"width": 32, "height": 32, "spp": 4, "frames": {"fps": 2.0},

@@ -72,28 +72,28 @@ fn submit(url: &str, args: &[&str]) -> std::process::Output {
 fn submit_warns_about_an_unlit_scene_and_takes_env_and_zip() {
     let dir = temp_dir("submit");
     let cluster = Cluster::start(&dir, 1, &[]);
-    let real = repo().join("../shared/scenes/real");
-    let avocado = real.join("Avocado/glTF/Avocado.gltf");
+    let real = repo().join("tests/assets/real");
+    let boxed = real.join("BoxTextured/glTF/BoxTextured.gltf");
     let sky = real.join("environments/studio_small_05_1k.hdr");
 
     let dark = dir.join("dark.png");
-    let output = submit(&cluster.url, &[avocado.to_str().unwrap(), "-o", dark.to_str().unwrap()]);
+    let output = submit(&cluster.url, &[boxed.to_str().unwrap(), "-o", dark.to_str().unwrap()]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "{stderr}");
     assert!(stderr.contains("nothing lights this scene") && stderr.contains("--env"), "{stderr}");
     assert!(stderr.contains("the image is black") && !stderr.contains("relMSE 0"), "{stderr}");
     assert!(dark.exists() && dark.with_extension("exr").exists(), "-o OUT.png writes both");
 
-    // The Avocado's folder zipped, lit by --env: no warning, an error estimate, a lit image.
+    // The textured box's folder zipped, lit by --env: no warning, an error estimate, a lit image.
     let mut files = Vec::new();
-    for entry in std::fs::read_dir(avocado.parent().unwrap()).unwrap() {
+    for entry in std::fs::read_dir(boxed.parent().unwrap()).unwrap() {
         let path = entry.unwrap().path();
         files.push((
             path.file_name().unwrap().to_string_lossy().into_owned(),
             std::fs::read(&path).unwrap(),
         ));
     }
-    let zip = dir.join("avocado.zip");
+    let zip = dir.join("box-textured.zip");
     std::fs::write(&zip, common::bundle::Bundle::pack(&files).unwrap()).unwrap();
     let lit = dir.join("lit.exr");
     let output = submit(

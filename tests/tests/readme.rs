@@ -108,9 +108,8 @@ fn readme_render_command_works_as_written() {
     let _ = std::fs::remove_file(out.with_extension("png"));
 }
 
-/// The real asset and the map, downloaded into the repository's folder as the README says
-/// (copied there from `../shared`, and removed afterwards), rendered by the `--env` command and
-/// by the settings file: the same image.
+/// The real asset and the map the README names (in `tests/assets/`), rendered by the `--env`
+/// command and by the settings file, as written, from the repository's folder: the same image.
 #[test]
 fn readme_real_asset_commands_work_as_written_and_agree() {
     let dir = repo();
@@ -124,14 +123,6 @@ fn readme_real_asset_commands_work_as_written_and_agree() {
         }
     }
     let mut cleanup = Cleanup(Vec::new());
-    let shared = repo().join("../shared/scenes/real");
-    for (from, name) in [
-        ("DamagedHelmet/glTF-Binary/DamagedHelmet.glb", "DamagedHelmet.glb"),
-        ("environments/studio_small_05_1k.hdr", "studio_small_05_1k.hdr"),
-    ] {
-        cleanup.0.push(dir.join(name));
-        std::fs::copy(shared.join(from), dir.join(name)).unwrap();
-    }
     let text = readme();
     let sh = blocks(&text, "Render a real asset", "sh");
     let json = blocks(&text, "Render a real asset", "json");

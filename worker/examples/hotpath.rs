@@ -1,6 +1,6 @@
 //! Where a sample spends its time, on one thread: whole samples against bare ray casts. Each
 //! figure is the fastest of several repetitions (the least disturbed by other load).
-//! `cargo run --release -p worker --example hotpath -- ../shared/scenes/cornell-box.gltf` (the
+//! `cargo run --release -p worker --example hotpath -- scenes/cornell-box.gltf` (the
 //! render size comes from `SCENE.settings.json` beside the scene when there is one, else 256x256).
 //! `HOTPATH_REPEAT=1` runs each measurement once (for instruction counts under
 //! `valgrind --tool=callgrind`, which are steadier than times on a shared machine);

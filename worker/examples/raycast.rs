@@ -1,7 +1,7 @@
 //! Ray casts alone, on rays shaped like a path tracer's: camera rays, cosine-distributed bounce
 //! rays from the camera rays' hits, and shadow rays from those hits to points on the emitters.
 //! Each figure is the fastest of several repetitions on one thread.
-//! `cargo run --release -p worker --example raycast -- ../shared/scenes/cornell-box.gltf`
+//! `cargo run --release -p worker --example raycast -- scenes/cornell-box.gltf`
 //! `RAYCAST_REPEAT=1` runs each set once (for `valgrind --tool=callgrind`).
 use std::time::Instant;
 

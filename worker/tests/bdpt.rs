@@ -1,6 +1,6 @@
 //! Bidirectional path tracing (`"integrator": "bdpt"`) converges to what the path tracer and the
 //! closed forms give: the Cornell box against the path tracer through a pinhole and a thin lens,
-//! glossy plates (`veach-mis-s`) against the path tracer,
+//! glossy plates (`veach-mis`) against the path tracer,
 //! the mirror caustic against its closed form, the closed furnace against 1.
 
 mod support;
@@ -198,7 +198,7 @@ fn light_tracing_error_falls_faster_than_one_over_the_paths() {
     assert!((0.8..1.2).contains(&calibration), "squared error / half differences {calibration}");
 }
 
-/// A glossy scene (`veach-mis-s` of the peers' scenes: four metal plates of GGX alpha 0.005 to
+/// A glossy scene (`scenes/veach-mis`: four metal plates of GGX alpha 0.005 to
 /// 0.1 lit by four lights of different sizes), where every strategy is in play (light samples
 /// and BSDF hits on the plates, light tracing of their reflections): the means of the image's
 /// four quadrants per channel within 4 standard errors of the path tracer's (the lights seen
@@ -208,7 +208,7 @@ fn light_tracing_error_falls_faster_than_one_over_the_paths() {
 /// rough (roughness 0.7) is told apart.
 #[test]
 fn bdpt_glossy_plates_match_the_path_tracer() {
-    let path = shared().join("bench/peers/scenes/veach-mis-s.gltf");
+    let path = scenes().join("veach-mis.gltf");
     let scene = common::gltf::load_path(&path).unwrap();
     let base =
         RenderSettings { width: 48, height: 32, spp: 64, max_depth: 5, ..Default::default() };

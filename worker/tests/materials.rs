@@ -5,7 +5,7 @@
 //! checkered floor under an area light and a sky colour) rendered at 48x48 by Mitsuba 3's
 //! volumetric path tracer at tens of thousands of samples per pixel are
 //! `scenes/materials/ref/<scene>-48.exr`; each `.ref.json` beside them records how
-//! (`../shared/bench/peers/make_ref.py` or `scenes/materials/mitsuba_peer.py --ref`, whose loaders
+//! (the peers' `make_ref.py` or `scenes/materials/mitsuba_peer.py --ref`, whose loaders
 //! map the glTF volume to Mitsuba's `dielectric` or `roughdielectric` and a `homogeneous` medium)
 //! and the reference's own noise. The scattering media's references are rendered without Russian
 //! roulette, which biases Mitsuba's `volpathmis` (`docs/perf/materials.md`). Our render at a modest sample count must agree with it over the whole image and per

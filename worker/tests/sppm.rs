@@ -170,13 +170,13 @@ fn assert_means_agree(what: &str, ours: &Film, path: &Film, cap: f64, bias: f64)
     }
 }
 
-/// A glossy scene (`veach-mis-s`: four metal plates of GGX alpha 0.005 to 0.1 lit by four
+/// A glossy scene (`scenes/veach-mis`: four metal plates of GGX alpha 0.005 to 0.1 lit by four
 /// lights of different sizes, followed to the floor they reflect) and
 /// depth of field (the Cornell box through the thin lens of `cornell-dof`): image means within
 /// the noise plus 1% of the path tracer's (on the plates, the lights seen straight on left out).
 #[test]
 fn sppm_glossy_plates_and_thin_lens_match_the_path_tracer() {
-    let path = shared().join("bench/peers/scenes/veach-mis-s.gltf");
+    let path = scenes().join("veach-mis.gltf");
     let scene = common::gltf::load_path(&path).unwrap();
     let base =
         RenderSettings { width: 48, height: 32, spp: 256, max_depth: 5, ..Default::default() };

@@ -1,4 +1,4 @@
-//! Helpers shared by the scene tests: locating `shared/`, rendering a whole frame in-process,
+//! Helpers shared by the scene tests: locating the test scenes, rendering a whole frame in-process,
 //! reading reference EXRs, and the variance-derived statistics the assertions use.
 
 #![allow(dead_code, unreachable_pub)]
@@ -18,20 +18,26 @@ use worker::render::{
     scene::{prepare, prepare_frame, PreparedScene},
 };
 
-/// The `shared/` folder beside the repository.
-pub fn shared() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared")
+/// The repository's `scenes/`: the scenes made for the renderer, with their references in `ref/`.
+pub fn scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes")
 }
 
-/// Loads a scene under `shared/scenes/`.
+/// The repository's `tests/assets/`: the third-party files the tests read (Khronos sample assets
+/// in `real/`, each with its licence, and the environment map in `real/environments/`).
+pub fn assets() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/assets")
+}
+
+/// Loads a scene under `scenes/`.
 pub fn load(name: &str) -> Scene {
-    let path = shared().join("scenes").join(name);
+    let path = scenes().join(name);
     common::gltf::load_path(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-/// Reads `shared/scenes/<name>.settings.json`.
+/// Reads `scenes/<name>.settings.json`.
 pub fn settings(name: &str) -> RenderSettings {
-    let path = shared().join("scenes").join(format!("{name}.settings.json"));
+    let path = scenes().join(format!("{name}.settings.json"));
     RenderSettings::from_json(&std::fs::read_to_string(&path).unwrap()).unwrap()
 }
 
@@ -188,20 +194,16 @@ pub fn erfc(x: f64) -> f64 {
     }
 }
 
-/// A copy of `shared/scenes/<name>.gltf` in a fresh temporary folder (with its `.bin`), after
+/// A copy of `scenes/<name>.gltf` in a fresh temporary folder (with its `.bin`), after
 /// `edit` has changed its JSON. Returns the new path.
 pub fn edited_scene(name: &str, tag: &str, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
-    let src = shared().join("scenes").join(format!("{name}.gltf"));
+    let src = scenes().join(format!("{name}.gltf"));
     let mut json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&src).unwrap()).unwrap();
     edit(&mut json);
     let dir = std::env::temp_dir().join(format!("renderfarm-test-{}-{tag}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::copy(
-        shared().join("scenes").join(format!("{name}.bin")),
-        dir.join(format!("{name}.bin")),
-    )
-    .unwrap();
+    std::fs::copy(scenes().join(format!("{name}.bin")), dir.join(format!("{name}.bin"))).unwrap();
     let path = dir.join(format!("{name}.gltf"));
     std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
     path
@@ -743,7 +745,7 @@ pub fn with_moving_light(scene: &Scene) -> Scene {
 
 /// The Cornell box lit from outside as well: a sun (a directional light of irradiance 3 shining
 /// in through the open front, down and to the side) and the studio environment map
-/// (`shared/scenes/real/environments`, seen through the front) besides its ceiling light. Returns
+/// (`tests/assets/real/environments`, seen through the front) besides its ceiling light. Returns
 /// the scene, settings with the map (`max_depth` 5, 32 x 32) and the decoded map.
 pub fn cornell_sun_and_sky() -> (Scene, RenderSettings, common::envmap::EnvMap) {
     let path = edited_scene("cornell-box", "sun", |j| {
@@ -762,7 +764,7 @@ pub fn cornell_sun_and_sky() -> (Scene, RenderSettings, common::envmap::EnvMap) 
         j["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(sun));
     });
     let scene = common::gltf::load_path(&path).unwrap();
-    let map_path = shared().join("scenes/real/environments/studio_small_05_1k.hdr");
+    let map_path = assets().join("real/environments/studio_small_05_1k.hdr");
     let map = common::envmap::EnvMap::load(&map_path).unwrap();
     let settings = RenderSettings {
         width: 32,
@@ -779,10 +781,10 @@ pub fn cornell_sun_and_sky() -> (Scene, RenderSettings, common::envmap::EnvMap) 
     (scene, settings, map)
 }
 
-/// The exact image of `shared/scenes/furnace` (`ref/furnace.exr`, 256 x 256) box-filtered down
+/// The exact image of `scenes/furnace` (`ref/furnace.exr`, 256 x 256) box-filtered down
 /// to `res` x `res` pixels (256 a multiple of `res`): covered pixels 0.8, the background 1.
 pub fn furnace_expected(res: u32) -> Vec<[f32; 3]> {
-    let (w, _, reference) = read_rgb(&shared().join("scenes/ref/furnace.exr"));
+    let (w, _, reference) = read_rgb(&scenes().join("ref/furnace.exr"));
     let k = w as u32 / res;
     (0..res * res)
         .map(|i| {
