@@ -346,9 +346,10 @@ fn every_real_asset_renders_without_nan() {
 /// The wavefront renderer (8 or 16 paths at once, shading in SIMD) traces exactly the paths of
 /// the scalar one: the same sums bit for bit and the same ray count, with a lens, with short
 /// bounce limits, on an offset tile with an offset sample range, with an emitter that shines
-/// from both faces, with vertex normals, with point, spot and directional lights, and in
-/// uniform environments, the furnaces included; each with its lights chosen by the mixture and
-/// by the light tree (whose probabilities depend on the point).
+/// from both faces, with glossy walls and glossy plates (the metal-rough BSDF), with vertex
+/// normals, with point, spot and directional lights, and in uniform environments, the furnaces
+/// included; each with its lights chosen by the mixture and by the light tree (whose
+/// probabilities depend on the point).
 #[test]
 fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let two_sided = edited_scene("cornell-box", "two-sided-light", |json| {
@@ -372,8 +373,31 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         let roots = json["scenes"][0]["nodes"].as_array_mut().unwrap();
         roots.extend((first..first + 3).map(|n| json!(n)));
     });
+    // The walls glossy: a rough dielectric (specular layer over the diffuse base, the glTF
+    // default), a smooth metal, a half-metal of another roughness, and a dielectric with a tinted
+    // specular colour and another index: the metal-rough BSDF in every lane.
+    let glossy = edited_scene("cornell-box", "glossy-walls", |json| {
+        let walls = [
+            json!({"metallicFactor": 0.0, "roughnessFactor": 0.3}),
+            json!({"metallicFactor": 1.0, "roughnessFactor": 0.05}),
+            json!({"metallicFactor": 0.5, "roughnessFactor": 0.7}),
+        ];
+        for (k, w) in walls.into_iter().enumerate() {
+            let m = &mut json["materials"][k];
+            m["pbrMetallicRoughness"]["metallicFactor"] = w["metallicFactor"].clone();
+            m["pbrMetallicRoughness"]["roughnessFactor"] = w["roughnessFactor"].clone();
+            m["extensions"] = json!({});
+        }
+        json["materials"][0]["extensions"] = json!({
+            "KHR_materials_specular": {"specularFactor": 0.8, "specularColorFactor": [1.0, 0.6, 0.3]},
+            "KHR_materials_ior": {"ior": 1.8}
+        });
+        json["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_materials_ior"));
+    });
     let scenes = [
         ("cornell-box", load("cornell-box.gltf")),
+        ("glossy walls", common::gltf::load_path(&glossy).expect("edited scene")),
+        ("veach-mis", load("veach-mis.gltf")),
         ("two-sided light", common::gltf::load_path(&two_sided).expect("edited scene")),
         ("punctual lights", common::gltf::load_path(&punctual).expect("edited scene")),
         ("furnace", load("furnace.gltf")),

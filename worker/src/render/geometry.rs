@@ -106,6 +106,12 @@ pub fn offset_ray_origin(p: Vec3, p_error: Vec3, n: Vec3, w: Vec3) -> Vec3 {
 /// The routines above written once over `Real`: for one path (`f32`, through the `Vec3`
 /// functions above) and for a vector of paths (the wavefront).
 pub(crate) mod generic {
+    /// `super::reflect`: `2 (v.n) n - v`.
+    #[inline(always)]
+    pub(crate) fn reflect<R: Real>(v: V3<R>, n: V3<R>) -> V3<R> {
+        n.scale(v.x.konst(2.0) * v.dot(n)) - v
+    }
+
     use super::{gamma, Real, V3};
 
     /// `Frame::from_z`'s tangent and bitangent of unit normal `n`.
@@ -182,7 +188,7 @@ pub fn next_float_down(v: f32) -> f32 {
 /// Reflects `v` about `n` (both pointing away from the surface).
 #[inline]
 pub fn reflect(v: Vec3, n: Vec3) -> Vec3 {
-    2.0 * v.dot(n) * n - v
+    generic::reflect(v.into(), n.into()).into()
 }
 
 #[cfg(test)]

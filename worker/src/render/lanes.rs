@@ -662,6 +662,12 @@ impl<R: Real> V3<R> {
         self.dot(self)
     }
 
+    /// `Vec3::normalize`: times the reciprocal of the length, as glam computes it.
+    #[inline(always)]
+    pub(crate) fn normalize(self) -> Self {
+        self.scale(self.x.konst(1.0) / self.length_squared().sqrt())
+    }
+
     /// `Vec3::abs`.
     #[inline(always)]
     pub(crate) fn abs(self) -> Self {

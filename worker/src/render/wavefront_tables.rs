@@ -1,6 +1,6 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
-//! prepared: the Lambert albedo and emission of each material and the emissive triangles (with
-//! the mixture's probabilities where the scene chooses by it).
+//! prepared: the BSDF (Lambert, or the glTF metal-rough BSDF) and emission of each material and
+//! the emissive triangles (with the mixture's probabilities where the scene chooses by it).
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
 //! one way: `scene` does not depend on the renderers.
 
@@ -8,7 +8,7 @@ use common::scene::{Material, Texture};
 use glam::Vec3;
 
 use super::{
-    bsdf::Bsdf,
+    bsdf::{Bsdf, MetalRough},
     light::{Light, LightSampler},
     material::{self, SurfacePoint},
 };
@@ -29,8 +29,10 @@ pub(super) struct LightRec {
 /// What the wavefront renderer needs of a scene it can render, built once per scene.
 #[derive(Clone, Debug)]
 pub struct Tables {
-    /// Lambert albedo per material.
+    /// Lambert albedo per material (zero for a glossy one).
     pub(super) albedo: Vec<Vec3>,
+    /// The metal-rough BSDF per material, for the glossy ones.
+    pub(super) glossy: Vec<Option<MetalRough>>,
     /// Emitted radiance per material.
     pub(super) emission: Vec<Vec3>,
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
@@ -55,11 +57,21 @@ impl Tables {
             return Err(why.to_string());
         }
         let mut albedo = Vec::with_capacity(materials.len());
+        let mut glossy = Vec::with_capacity(materials.len());
         let mut emission = Vec::with_capacity(materials.len());
         for m in materials {
-            let a = wavefront_albedo(textures, m)
+            let bsdf = wavefront_bsdf(textures, m)
                 .map_err(|why| format!("material '{}' has {why}", m.name))?;
-            albedo.push(a);
+            match bsdf {
+                Shade::Lambert(a) => {
+                    albedo.push(a);
+                    glossy.push(None);
+                }
+                Shade::Glossy(b) => {
+                    albedo.push(Vec3::ZERO);
+                    glossy.push(Some(b));
+                }
+            }
             // Without textures or vertex colours every point of the material is this one.
             emission.push(material::emission(textures, m, &SurfacePoint::PLAIN));
         }
@@ -81,15 +93,25 @@ impl Tables {
                 probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        Ok(Tables { albedo, emission, lights })
+        Ok(Tables { albedo, glossy, emission, lights })
     }
 }
 
-/// The Lambert albedo of a material the wavefront takes, or what it has that the wavefront does
-/// not. An allow-list: every field of `Material` is named here (a field added to it does not
-/// compile until it is decided), the textures and extensions the wavefront does not read send the
-/// scene to the scalar renderer, and the factors must make the glTF BSDF a Lambertian one.
-fn wavefront_albedo(textures: &[Texture], m: &Material) -> Result<Vec3, &'static str> {
+/// The BSDF of a material as the wavefront shades it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Shade {
+    /// Lambertian, of this albedo.
+    Lambert(Vec3),
+    /// The glTF metal-rough BSDF, reflecting only.
+    Glossy(MetalRough),
+}
+
+/// The BSDF of a material the wavefront takes, or what it has that the wavefront does not. An
+/// allow-list: every field of `Material` is named here (a field added to it does not compile
+/// until it is decided), the textures and extensions the wavefront does not read send the scene
+/// to the scalar renderer, and the factors must make the glTF BSDF a Lambertian one or a
+/// metal-rough one that does not transmit.
+fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Result<Shade, &'static str> {
     let Material {
         // What the wavefront reads, through the BSDF and the emission below.
         name: _,
@@ -142,8 +164,10 @@ fn wavefront_albedo(textures: &[Texture], m: &Material) -> Result<Vec3, &'static
         return Err("KHR_materials_unlit");
     }
     match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
-        Bsdf::Diffuse(d) => Ok(d.albedo),
-        Bsdf::MetalRough(_) | Bsdf::Layered(_) => Err("a glossy lobe (metal-rough)"),
+        Bsdf::Diffuse(d) => Ok(Shade::Lambert(d.albedo)),
+        Bsdf::MetalRough(b) if b.transmits() => Err("thin-walled transmission"),
+        Bsdf::MetalRough(b) => Ok(Shade::Glossy(b)),
+        Bsdf::Layered(_) => Err("a layer (clear coat, sheen, anisotropy or iridescence)"),
         Bsdf::Dielectric(_) => Err("a refractive boundary"),
     }
 }
@@ -158,11 +182,12 @@ mod tests {
         Material { metallic: 0.0, specular: 0.0, ..Material::default() }
     }
 
-    /// Only untextured Lambertian materials pass; every texture slot, layer and unlit sends the
-    /// scene to the scalar renderer (with the reason), so that none renders untextured.
+    /// Only untextured Lambertian and reflecting metal-rough materials pass; every texture slot,
+    /// layer, transmission and unlit sends the scene to the scalar renderer (with the reason), so
+    /// that none renders untextured.
     #[test]
     fn the_wavefront_takes_only_what_it_renders() {
-        assert!(wavefront_albedo(&[], &lambert()).is_ok());
+        assert!(matches!(wavefront_bsdf(&[], &lambert()), Ok(Shade::Lambert(_))));
         let texture = Some(TextureRef { texture: 0, tex_coord: 0, transform: None });
         let textured = [
             Material { base_color_texture: texture, ..lambert() },
@@ -174,14 +199,19 @@ mod tests {
             Material { diffuse_transmission_color_texture: texture, ..lambert() },
         ];
         for m in &textured {
-            assert_eq!(wavefront_albedo(&[], m), Err("a texture"), "{m:?}");
+            assert_eq!(wavefront_bsdf(&[], m), Err("a texture"), "{m:?}");
         }
-        assert_eq!(wavefront_albedo(&[], &Material::default()), Err("a glossy lobe (metal-rough)"));
+        assert!(matches!(wavefront_bsdf(&[], &Material::default()), Ok(Shade::Glossy(_))));
+        // A full metal passes no light through, whatever its transmission factor.
+        let metal = Material { transmission: 0.5, ..Material::default() };
+        assert!(matches!(wavefront_bsdf(&[], &metal), Ok(Shade::Glossy(_))));
         let unlit = Material { unlit: true, ..lambert() };
-        assert_eq!(wavefront_albedo(&[], &unlit), Err("KHR_materials_unlit"));
-        let m = Material { name: "shiny".into(), ..Material::default() };
+        assert_eq!(wavefront_bsdf(&[], &unlit), Err("KHR_materials_unlit"));
+        let thin = Material { transmission: 0.5, ..lambert() };
+        assert_eq!(wavefront_bsdf(&[], &thin), Err("thin-walled transmission"));
+        let m = Material { name: "thin".into(), diffuse_transmission: 0.3, ..lambert() };
         let why = Tables::new(&[lambert(), m], &[], &LightSampler::default(), None).unwrap_err();
-        assert_eq!(why, "material 'shiny' has a glossy lobe (metal-rough)");
+        assert_eq!(why, "material 'thin' has thin-walled transmission");
         let why = Tables::new(&[lambert()], &[], &LightSampler::default(), Some("vertex colours"));
         assert_eq!(why.unwrap_err(), "vertex colours");
     }

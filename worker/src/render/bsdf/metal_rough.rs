@@ -21,18 +21,16 @@
 //! [`AnisoGgx`](crate::render::sampling::AnisoGgx) for `KHR_materials_anisotropy` (see
 //! `layered.rs`).
 
-use std::f32::consts::FRAC_1_PI;
-
 use glam::{Vec2, Vec3};
 
 use super::{BsdfSample, Lobe};
 use crate::render::{
     geometry::reflect,
-    sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, Ggx, Microfacet},
+    sampling::{sample_cosine_hemisphere, Ggx, Microfacet},
 };
 
 /// The glTF metallic-roughness BRDF at a point.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MetalRough<M = Ggx> {
     /// Base colour (linear).
     pub base: Vec3,
@@ -52,18 +50,6 @@ pub struct MetalRough<M = Ggx> {
     pub diffuse_transmission: f32,
     /// `diffuseTransmissionColor`: the colour of that lobe.
     pub diffuse_transmission_color: Vec3,
-}
-
-#[inline]
-fn schlick_weight(cos: f32) -> f32 {
-    let m = (1.0 - cos).clamp(0.0, 1.0);
-    let m2 = m * m;
-    m2 * m2 * m
-}
-
-#[inline]
-fn luminance(c: Vec3) -> f32 {
-    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
 }
 
 impl MetalRough {
@@ -156,12 +142,21 @@ impl<M: Microfacet> MetalRough<M> {
     /// for `wo`, and of all lobes together.
     #[inline]
     fn lobe_weights(&self, wo: Vec3) -> (f32, f32, f32, f32) {
-        let w = schlick_weight(wo.z);
-        let f_m = self.base + (Vec3::ONE - self.base) * w;
-        let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
-        let f_d_max = f_d.max_element();
-        let spec = self.metallic * luminance(f_m) + (1.0 - self.metallic) * self.specular * f_d_max;
-        self.lobe_weights_given(spec, self.specular * f_d_max)
+        generic::lobe_weights(&self.lobes(), wo.z)
+    }
+
+    /// The parameters the generic arithmetic reads (all but the microfacet distribution).
+    #[inline]
+    pub(crate) fn lobes(&self) -> generic::Lobes<f32> {
+        generic::Lobes {
+            base: self.base.into(),
+            metallic: self.metallic,
+            f0: self.f0_dielectric.into(),
+            specular: self.specular,
+            transmission: self.transmission,
+            diffuse_transmission: self.diffuse_transmission,
+            diffuse_transmission_color: self.diffuse_transmission_color.into(),
+        }
     }
 
     /// `lobe_weights` with the Fresnel terms (s F_d, F_m) of `fresnel` (at `wo.z`) in place of
@@ -174,35 +169,16 @@ impl<M: Microfacet> MetalRough<M> {
     ) -> (f32, f32, f32, f32) {
         let (f_d, f_m) = fresnel(wo.z);
         let f_d_max = f_d.max_element();
-        let spec = self.metallic * luminance(f_m) + (1.0 - self.metallic) * f_d_max;
-        self.lobe_weights_given(spec, f_d_max)
-    }
-
-    /// The lobe weights from the specular lobes' weight `spec` and the share `reflected` of the
-    /// light the dielectric's specular layer reflects (s max(F_d)).
-    #[inline]
-    fn lobe_weights_given(&self, spec: f32, reflected: f32) -> (f32, f32, f32, f32) {
-        let entering = (1.0 - self.metallic) * (1.0 - reflected) * luminance(self.base);
-        // Exact for no transmission: x * 1 is x and x * 0 is 0.
-        let (diff, trans) = (entering * (1.0 - self.transmission), entering * self.transmission);
-        let dtrans = (1.0 - self.metallic)
-            * (1.0 - reflected)
-            * (1.0 - self.transmission)
-            * self.diffuse_transmission
-            * luminance(self.diffuse_transmission_color);
-        let diff = diff * (1.0 - self.diffuse_transmission);
-        let total = spec + diff + trans + dtrans;
-        (spec, trans, dtrans, total)
+        let spec = self.metallic * generic::luminance(f_m.into()) + (1.0 - self.metallic) * f_d_max;
+        generic::lobe_weights_given(&self.lobes(), spec, f_d_max)
     }
 
     /// The Schlick Fresnel terms at `cos` = |wo.h|: the dielectric's weighted by
     /// `specularFactor` (s F_d) and the metal's (F_m).
     #[inline]
     pub fn schlick_fresnel(&self, cos: f32) -> (Vec3, Vec3) {
-        let w = schlick_weight(cos);
-        let f_d = self.f0_dielectric + (Vec3::ONE - self.f0_dielectric) * w;
-        let f_m = self.base + (Vec3::ONE - self.base) * w;
-        (self.specular * f_d, f_m)
+        let (f_d, f_m) = generic::schlick_fresnel(&self.lobes(), cos);
+        (f_d.into(), f_m.into())
     }
 
     /// f(wo, wi): reflection for `wi.z > 0`, transmission for `wi.z < 0`.
@@ -227,31 +203,14 @@ impl<M: Microfacet> MetalRough<M> {
             // Thin-walled: the specular lobe seen through the surface.
             let wm = mirror(wi);
             let h = (wo + wm).normalize();
-            let spec_t = self.ggx.d(h) * self.ggx.g2(wo, wm) / (4.0 * wo.z * wm.z);
+            let spec_t = generic::specular(self.ggx.d(h), self.ggx.g2(wo, wm), wo.z, wm.z);
             let (f_d, _) = fresnel(wo.dot(h));
-            let entering = 1.0 - f_d.max_element();
-            let through = (1.0 - self.metallic) * entering * self.transmission * self.base * spec_t;
-            if self.diffuse_transmission <= 0.0 {
-                return through;
-            }
-            // The diffused light's share that leaves on the far side, Lambertian there.
-            let diffused = (1.0 - self.metallic) * entering * (1.0 - self.transmission);
-            return through
-                + diffused
-                    * self.diffuse_transmission
-                    * self.diffuse_transmission_color
-                    * FRAC_1_PI;
+            return generic::transmitted(&self.lobes(), f_d.into(), spec_t).into();
         }
         let h = (wo + wi).normalize();
-        let spec = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
+        let spec = generic::specular(self.ggx.d(h), self.ggx.g2(wo, wi), wo.z, wi.z);
         let (f_d, f_m) = fresnel(wo.dot(h));
-        let diffuse = (1.0 - f_d.max_element())
-            * self.base
-            * FRAC_1_PI
-            * (1.0 - self.transmission)
-            * (1.0 - self.diffuse_transmission);
-        let dielectric = diffuse + f_d * spec;
-        (1.0 - self.metallic) * dielectric + self.metallic * f_m * spec
+        generic::reflected(&self.lobes(), f_d.into(), f_m.into(), spec).into()
     }
 
     /// Density of `wi`.
@@ -270,7 +229,7 @@ impl<M: Microfacet> MetalRough<M> {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return 0.0;
         }
-        let (p_spec, p_trans, p_dtrans) = probabilities;
+        let (_, p_trans, p_dtrans) = probabilities;
         if wi.z < 0.0 {
             if p_trans <= 0.0 && p_dtrans <= 0.0 {
                 return 0.0;
@@ -280,12 +239,10 @@ impl<M: Microfacet> MetalRough<M> {
             if p_dtrans <= 0.0 {
                 return through;
             }
-            return through + p_dtrans * cosine_hemisphere_pdf(-wi.z);
+            return generic::plus_far_cosine(through, p_dtrans, wi.z);
         }
         let h = (wo + wi).normalize();
-        // max: with full transmission the probabilities can sum to one ulp over 1.
-        p_spec * self.ggx.reflection_pdf(wo, h)
-            + (1.0 - p_spec - p_trans - p_dtrans).max(0.0) * cosine_hemisphere_pdf(wi.z)
+        generic::reflection_pdf(probabilities, self.ggx.reflection_pdf(wo, h), wi.z)
     }
 
     /// Samples a lobe by `u_lobe`, then a direction from it.
@@ -350,4 +307,274 @@ pub(super) fn probabilities((spec, trans, dtrans, total): (f32, f32, f32, f32)) 
 #[inline]
 fn mirror(w: Vec3) -> Vec3 {
     Vec3::new(w.x, w.y, -w.z)
+}
+
+/// The BSDF's arithmetic written once over `Real`: the pieces the scalar methods above combine
+/// with their microfacet distribution (isotropic or anisotropic), and the whole BSDF with
+/// isotropic GGX for a vector of paths (the wavefront), whose selects take the branches the
+/// scalar methods take, so that each lane computes the scalar bits.
+pub(crate) mod generic {
+    use std::f32::consts::FRAC_1_PI;
+
+    use crate::render::{
+        geometry::generic::reflect,
+        lanes::{Real, V3},
+        sampling::generic::{
+            ggx_d, ggx_g2, ggx_reflection_pdf, ggx_visible_normal, sample_cosine_hemisphere,
+        },
+    };
+
+    /// The BSDF's parameters but the microfacet distribution (`MetalRough`'s fields).
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Lobes<R: Real> {
+        pub(crate) base: V3<R>,
+        pub(crate) metallic: R,
+        pub(crate) f0: V3<R>,
+        pub(crate) specular: R,
+        pub(crate) transmission: R,
+        pub(crate) diffuse_transmission: R,
+        pub(crate) diffuse_transmission_color: V3<R>,
+    }
+
+    /// `f32::clamp(x, 0, 1)`.
+    #[inline(always)]
+    fn clamp01<R: Real>(x: R) -> R {
+        let (zero, one) = (x.konst(0.0), x.konst(1.0));
+        let x = R::select(x.lt(zero), zero, x);
+        R::select(x.gt(one), one, x)
+    }
+
+    /// Schlick's weight (1 - cos)^5, cos clamped to [0, 1].
+    #[inline(always)]
+    pub(crate) fn schlick_weight<R: Real>(cos: R) -> R {
+        let m = clamp01(cos.konst(1.0) - cos);
+        let m2 = m * m;
+        m2 * m2 * m
+    }
+
+    /// Rec. 709 luminance.
+    #[inline(always)]
+    pub(crate) fn luminance<R: Real>(c: V3<R>) -> R {
+        let k = |v: f32| c.x.konst(v);
+        c.dot(V3::new(k(0.2126), k(0.7152), k(0.0722)))
+    }
+
+    /// `x + (1 - x) w`, per channel.
+    #[inline(always)]
+    fn toward_one<R: Real>(x: V3<R>, w: R) -> V3<R> {
+        let one = w.konst(1.0);
+        x + (V3::new(one, one, one) - x).scale(w)
+    }
+
+    /// The Schlick Fresnel terms at `cos`: s F_d and F_m (`MetalRough::schlick_fresnel`).
+    #[inline(always)]
+    pub(crate) fn schlick_fresnel<R: Real>(l: &Lobes<R>, cos: R) -> (V3<R>, V3<R>) {
+        let w = schlick_weight(cos);
+        (toward_one(l.f0, w).scale(l.specular), toward_one(l.base, w))
+    }
+
+    /// The lobes' estimated albedos for `wo_z` (`MetalRough::lobe_weights`).
+    #[inline(always)]
+    pub(crate) fn lobe_weights<R: Real>(l: &Lobes<R>, wo_z: R) -> (R, R, R, R) {
+        let one = wo_z.konst(1.0);
+        let w = schlick_weight(wo_z);
+        let f_m = toward_one(l.base, w);
+        let f_d_max = toward_one(l.f0, w).max_element();
+        let spec = l.metallic * luminance(f_m) + (one - l.metallic) * l.specular * f_d_max;
+        lobe_weights_given(l, spec, l.specular * f_d_max)
+    }
+
+    /// The lobe weights from the specular lobes' weight `spec` and the share `reflected` of the
+    /// light the dielectric's specular layer reflects (s max(F_d)).
+    #[inline(always)]
+    pub(crate) fn lobe_weights_given<R: Real>(l: &Lobes<R>, spec: R, reflected: R) -> (R, R, R, R) {
+        let one = spec.konst(1.0);
+        let entering = (one - l.metallic) * (one - reflected) * luminance(l.base);
+        // Exact for no transmission: x * 1 is x and x * 0 is 0.
+        let (diff, trans) = (entering * (one - l.transmission), entering * l.transmission);
+        let dtrans = (one - l.metallic)
+            * (one - reflected)
+            * (one - l.transmission)
+            * l.diffuse_transmission
+            * luminance(l.diffuse_transmission_color);
+        let diff = diff * (one - l.diffuse_transmission);
+        let total = spec + diff + trans + dtrans;
+        (spec, trans, dtrans, total)
+    }
+
+    /// `super::probabilities`.
+    #[inline(always)]
+    pub(crate) fn probabilities<R: Real>((spec, trans, dtrans, total): (R, R, R, R)) -> (R, R, R) {
+        let zero = total.konst(0.0);
+        let none = total.le(zero);
+        (
+            R::select(none, zero, spec / total),
+            R::select(none, zero, trans / total),
+            R::select(none, zero, dtrans / total),
+        )
+    }
+
+    /// The microfacet lobe's value D G2 / (4 wo.z wi.z).
+    #[inline(always)]
+    pub(crate) fn specular<R: Real>(d: R, g2: R, wo_z: R, wi_z: R) -> R {
+        d * g2 / (d.konst(4.0) * wo_z * wi_z)
+    }
+
+    /// f for `wi` above: the dielectric's diffuse and specular lobes and the metal's, from the
+    /// Fresnel terms at the half vector and the microfacet lobe's value `spec`.
+    #[inline(always)]
+    pub(crate) fn reflected<R: Real>(l: &Lobes<R>, f_d: V3<R>, f_m: V3<R>, spec: R) -> V3<R> {
+        let one = spec.konst(1.0);
+        let diffuse = l
+            .base
+            .scale(one - f_d.max_element())
+            .scale(spec.konst(FRAC_1_PI))
+            .scale(one - l.transmission)
+            .scale(one - l.diffuse_transmission);
+        let dielectric = diffuse + f_d.scale(spec);
+        dielectric.scale(one - l.metallic) + f_m.scale(l.metallic).scale(spec)
+    }
+
+    /// f for `wi` below (thin-walled transmission), from the dielectric Fresnel term at the
+    /// mirrored half vector and the mirrored microfacet lobe's value `spec_t`.
+    #[inline(always)]
+    pub(crate) fn transmitted<R: Real>(l: &Lobes<R>, f_d: V3<R>, spec_t: R) -> V3<R> {
+        let (zero, one) = (spec_t.konst(0.0), spec_t.konst(1.0));
+        let entering = one - f_d.max_element();
+        let through = l.base.scale((one - l.metallic) * entering * l.transmission).scale(spec_t);
+        // The diffused light's share that leaves on the far side, Lambertian there.
+        let diffused = (one - l.metallic) * entering * (one - l.transmission);
+        let far = through
+            + l.diffuse_transmission_color
+                .scale(diffused * l.diffuse_transmission)
+                .scale(spec_t.konst(FRAC_1_PI));
+        V3::select(l.diffuse_transmission.le(zero), through, far)
+    }
+
+    /// The density above: the microfacet lobe's share times its density `ggx_pdf`, and the
+    /// cosine lobe's.
+    #[inline(always)]
+    pub(crate) fn reflection_pdf<R: Real>(
+        (p_spec, p_trans, p_dtrans): (R, R, R),
+        ggx_pdf: R,
+        wi_z: R,
+    ) -> R {
+        let rest = (wi_z.konst(1.0) - p_spec - p_trans - p_dtrans).max0();
+        p_spec * ggx_pdf + rest * cosine_pdf(wi_z)
+    }
+
+    /// `through` plus the far side's cosine lobe's share of the density at `wi_z` (< 0).
+    #[inline(always)]
+    pub(crate) fn plus_far_cosine<R: Real>(through: R, p_dtrans: R, wi_z: R) -> R {
+        through + p_dtrans * cosine_pdf(-wi_z)
+    }
+
+    /// `sampling::cosine_hemisphere_pdf`.
+    #[inline(always)]
+    fn cosine_pdf<R: Real>(cos: R) -> R {
+        cos.max0() * cos.konst(FRAC_1_PI)
+    }
+
+    /// `w` mirrored through the surface plane.
+    #[inline(always)]
+    fn mirror<R: Real>(w: V3<R>) -> V3<R> {
+        V3::new(w.x, w.y, -w.z)
+    }
+
+    /// `MetalRough::eval` with isotropic GGX of roughness `alpha`, for every lane; `transmits`
+    /// says whether any lane may transmit (when none does, the far side's branch is not
+    /// computed: it is zero in every lane).
+    #[inline(always)]
+    pub(crate) fn eval<R: Real>(
+        l: &Lobes<R>,
+        alpha: R,
+        wo: V3<R>,
+        wi: V3<R>,
+        transmits: bool,
+    ) -> V3<R> {
+        let zero = alpha.konst(0.0);
+        let z3 = V3::new(zero, zero, zero);
+        let h = (wo + wi).normalize();
+        let spec = specular(ggx_d(alpha, h), ggx_g2(alpha, wo, wi), wo.z, wi.z);
+        let (f_d, f_m) = schlick_fresnel(l, wo.dot(h));
+        let above = reflected(l, f_d, f_m, spec);
+        let below = if transmits {
+            let wm = mirror(wi);
+            let h = (wo + wm).normalize();
+            let spec_t = specular(ggx_d(alpha, h), ggx_g2(alpha, wo, wm), wo.z, wm.z);
+            let (f_d, _) = schlick_fresnel(l, wo.dot(h));
+            V3::select(lane_transmits(l), transmitted(l, f_d, spec_t), z3)
+        } else {
+            z3
+        };
+        let f = V3::select(wi.z.lt(zero), below, above);
+        V3::select(wo.z.le(zero) | wi.z.eq(zero), z3, f)
+    }
+
+    /// `MetalRough::transmits`, per lane.
+    #[inline(always)]
+    pub(crate) fn lane_transmits<R: Real>(l: &Lobes<R>) -> R::Mask {
+        let (zero, one) = (l.metallic.konst(0.0), l.metallic.konst(1.0));
+        (l.transmission.gt(zero) | l.diffuse_transmission.gt(zero)) & l.metallic.lt(one)
+    }
+
+    /// `MetalRough::pdf` with isotropic GGX of roughness `alpha`, for every lane (`transmits`
+    /// as for [`eval`]).
+    #[inline(always)]
+    pub(crate) fn pdf<R: Real>(l: &Lobes<R>, alpha: R, wo: V3<R>, wi: V3<R>, transmits: bool) -> R {
+        let zero = alpha.konst(0.0);
+        let probabilities = probabilities(lobe_weights(l, wo.z));
+        let (_, p_trans, p_dtrans) = probabilities;
+        let h = (wo + wi).normalize();
+        let above = reflection_pdf(probabilities, ggx_reflection_pdf(alpha, wo, h), wi.z);
+        let below = if transmits {
+            let h = (wo + mirror(wi)).normalize();
+            let through = p_trans * ggx_reflection_pdf(alpha, wo, h);
+            let with_far = plus_far_cosine(through, p_dtrans, wi.z);
+            let below = R::select(p_dtrans.le(zero), through, with_far);
+            R::select(p_trans.le(zero) & p_dtrans.le(zero), zero, below)
+        } else {
+            zero
+        };
+        let p = R::select(wi.z.lt(zero), below, above);
+        R::select(wo.z.le(zero) | wi.z.eq(zero), zero, p)
+    }
+
+    /// `MetalRough::sample` with isotropic GGX of roughness `alpha`, for every lane: the
+    /// direction, f, its density, whether it went to the far side, and whether there is a
+    /// sample (`transmits` as for [`eval`]).
+    #[inline(always)]
+    pub(crate) fn sample<R: Real>(
+        l: &Lobes<R>,
+        alpha: R,
+        wo: V3<R>,
+        u_lobe: R,
+        (ux, uy): (R, R),
+        transmits: bool,
+    ) -> (V3<R>, V3<R>, R, R::Mask, R::Mask) {
+        let zero = alpha.konst(0.0);
+        let (p_spec, p_trans, p_dtrans) = probabilities(lobe_weights(l, wo.z));
+        let glossy = reflect(wo, ggx_visible_normal(alpha, alpha, wo, ux, uy));
+        let diffuse = sample_cosine_hemisphere(ux, uy);
+        let spec_lobe = u_lobe.lt(p_spec);
+        let trans_lobe = !spec_lobe & u_lobe.lt(p_spec + p_trans);
+        let dtrans_lobe = !spec_lobe & !trans_lobe & u_lobe.lt(p_spec + p_trans + p_dtrans);
+        let far = trans_lobe | dtrans_lobe;
+        let wi = V3::select(
+            spec_lobe,
+            glossy,
+            V3::select(
+                trans_lobe,
+                mirror(glossy),
+                V3::select(dtrans_lobe, mirror(diffuse), diffuse),
+            ),
+        );
+        let ok = wo.z.gt(zero)
+            & !(trans_lobe & glossy.z.le(zero))
+            & !wi.z.eq(zero)
+            & !(wi.z.lt(zero) & !far);
+        let pdf = pdf(l, alpha, wo, wi, transmits);
+        let f = eval(l, alpha, wo, wi, transmits);
+        (wi, f, pdf, far, ok & pdf.gt(zero))
+    }
 }

@@ -9,7 +9,7 @@
 mod dielectric;
 pub(crate) mod diffuse;
 mod layered;
-mod metal_rough;
+pub(crate) mod metal_rough;
 mod sheen;
 mod thin_film;
 

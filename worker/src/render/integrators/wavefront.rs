@@ -2,22 +2,24 @@
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
 //! For the scenes `wavefront_tables::Tables::new` accepts (an allow-list; the others render on
-//! the scalar path tracer, and `prepare` logs why once): diffuse materials without textures or
-//! vertex colours, untextured emitters, any lights and environment, chosen by the mixture or the
-//! light tree, nothing moving, nothing alpha-tested (the Cornell box and the furnaces among
-//! them). Each lane holds one path; a lane whose path ends takes the task's next sample at once
-//! (one whose ray escapes, before the shading), so that the vectors stay full whatever the path
-//! lengths. Ray casting, the start of a sample (its film and lens numbers), the light choice
-//! (and under the tree, the probability of the light a path hits, from the lane's previous
-//! vertex), samples of lights other than emissive triangles and what escaping rays see stay
-//! scalar, one lane at a time, through the scalar renderer's own calls. The numbers each bounce
-//! draws come from `LaneSampler`, the sampler's integer arithmetic in all lanes at once, and the
-//! shading (hit point, frame, MIS weights, light and BSDF sampling, ray origins, roulette) is
-//! the scalar renderer's own routines instantiated on vectors (`lanes::Real`: the `generic`
-//! modules of `geometry`, `sampling`, `bsdf::diffuse`, `light` and `shared`), so every lane
-//! computes the scalar path's bits, and samples reach the film in the scalar
-//! order: the images are bit for bit those of `path::li` on every CPU (a test compares
-//! them).
+//! the scalar path tracer, and `prepare` logs why once): untextured diffuse materials and
+//! untextured glTF metal-rough materials that do not transmit (the glossy lobes of
+//! `bsdf::metal_rough`), without vertex colours, untextured emitters, any lights and
+//! environment, chosen by the mixture or the light tree, nothing moving, nothing alpha-tested
+//! (the Cornell box, the furnaces and Veach's glossy plates among them). Each lane holds one
+//! path; a lane whose path ends takes the task's next sample at once (one whose ray escapes,
+//! before the shading), so that the vectors stay full whatever the path lengths. Ray casting,
+//! the start of a sample (its film and lens numbers), the light choice (and under the tree, the
+//! probability of the light a path hits, from the lane's previous vertex), samples of lights
+//! other than emissive triangles and what escaping rays see stay scalar, one lane at a time,
+//! through the scalar renderer's own calls. The numbers each bounce draws come from
+//! `LaneSampler`, the sampler's integer arithmetic in all lanes at once, and the shading (hit
+//! point, frame, BSDF evaluation and sampling, MIS weights, light sampling, ray origins,
+//! roulette) is the scalar renderer's own routines instantiated on vectors (`lanes::Real`: the
+//! `generic` modules of `geometry`, `sampling`, `bsdf::diffuse`, `bsdf::metal_rough`, `light`
+//! and `shared`), so every lane computes the scalar path's bits, and samples reach the film in
+//! the scalar order: the images are bit for bit those of `path::li` on every CPU (a test
+//! compares them). A batch in which no lane is glossy does none of the metal-rough arithmetic.
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
@@ -27,7 +29,11 @@ use pulp::{Arch, Simd, WithSimd};
 
 use super::{
     super::{
-        bsdf::diffuse::generic as lambert,
+        bsdf::{
+            diffuse::generic as lambert,
+            metal_rough::generic::{self as metal_rough, Lobes},
+            MetalRough,
+        },
         geometry::{
             generic::{frame_from_z, interpolation_error, offset_ray_origin},
             Ray,
@@ -276,6 +282,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let mut normals = [z3; 3];
     let mut smooth = [false; MAX_LANES];
     let (mut albedo, mut le) = (z3, z3);
+    // The metal-rough BSDF of the lanes whose material is glossy.
+    let mut glossy = [false; MAX_LANES];
+    let mut lobes = Lobes {
+        base: z3,
+        metallic: zero,
+        f0: z3,
+        specular: zero,
+        transmission: zero,
+        diffuse_transmission: zero,
+        diffuse_transmission_color: z3,
+    };
+    let mut alpha = one;
     let (mut l_normal, mut l_area, mut l_prob) = (z3, zero, zero);
     let mut hit_light = [false; MAX_LANES];
     let mut l_two_sided = [false; MAX_LANES];
@@ -370,6 +388,11 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     }
                 }
                 albedo.set_lane(i, tables.albedo[shading.material as usize]);
+                glossy[i] = false;
+                if let Some(b) = &tables.glossy[shading.material as usize] {
+                    glossy[i] = true;
+                    set_lobes(&mut lobes, &mut alpha, i, b);
+                }
                 le.set_lane(i, tables.emission[shading.material as usize]);
                 hit_light[i] = shading.light != NONE;
                 if let Some(l) = tables.lights.get(shading.light as usize).and_then(Option::as_ref)
@@ -428,11 +451,17 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let wo_z = wo.dot(ns);
         let going = livem & ng_ok & !wo_z.le(zero);
         going.to_bools(&mut cont);
+        // Whether any lane shades a glossy material: if none does (a diffuse scene, or a
+        // diffuse batch), the metal-rough arithmetic is not done at all.
+        let any_glossy = (0..lanes).any(|i| glossy[i] && live[i]);
+        let glossym = M::from_bools(s, &glossy);
+        let wo_l = V3::new(wo.dot(fx), wo.dot(fy), wo_z);
 
         // The bounce's numbers, in `path::li`'s dimensions: the light's pair, the lobe's
         // number (a diffuse BSDF has one lobe: not drawn), the direction's pair, roulette's
         // number (drawn where roulette plays).
         let (u_light_x, u_light_y) = paths.draws.draw_2d(0);
+        let u_lobe = if any_glossy { paths.draws.draw_1d(1) } else { zero };
         let (ub_x, ub_y) = paths.draws.draw_2d(2);
         let u_rr = paths.draws.draw_1d(3);
         // The light choice.
@@ -511,6 +540,13 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let is_delta = other & M::from_bools(s, &delta);
         let wi_z = wi.dot(ns);
         let f = lambert::eval(albedo, wo_z, wi_z).scale(wi_z.abs());
+        let wi_l = V3::new(wi.dot(fx), wi.dot(fy), wi_z);
+        let f = if any_glossy {
+            let fg = metal_rough::eval(&lobes, alpha, wo_l, wi_l, false).scale(wi_z.abs());
+            glossym.select3(fg, f)
+        } else {
+            f
+        };
         let shadowm = contm
             & M::from_bools(s, &has_light)
             & sampled
@@ -535,12 +571,30 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             }
         }
         let nee_pdf = light_pdf * choice_pdf;
-        let w = is_delta.select(one, power_heuristic(nee_pdf, lambert::pdf(wo_z, wi_z)));
+        let bsdf_pdf = lambert::pdf(wo_z, wi_z);
+        let bsdf_pdf = if any_glossy {
+            glossym.select(metal_rough::pdf(&lobes, alpha, wo_l, wi_l, false), bsdf_pdf)
+        } else {
+            bsdf_pdf
+        };
+        let w = is_delta.select(one, power_heuristic(nee_pdf, bsdf_pdf));
         let nee = paths.radiance + paths.beta.mul(f).mul(li).scale(w / nee_pdf);
         paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
 
         // BSDF sampling, the next ray, Russian roulette.
         let (local, f, pdf, sampled) = lambert::sample(albedo, wo_z, (ub_x, ub_y));
+        let (local, f, pdf, sampled) = if any_glossy {
+            let (g_wi, g_f, g_pdf, _, g_ok) =
+                metal_rough::sample(&lobes, alpha, wo_l, u_lobe, (ub_x, ub_y), false);
+            (
+                glossym.select3(g_wi, local),
+                glossym.select3(g_f, f),
+                glossym.select(g_pdf, pdf),
+                glossym.select_m(g_ok, sampled),
+            )
+        } else {
+            (local, f, pdf, sampled)
+        };
         let wi = fx.scale(local.x) + fy.scale(local.y) + ns.scale(local.z);
         let beta = paths.beta.mul(f.scale(local.z.abs() / pdf));
         let ok = contm
@@ -577,4 +631,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         }
     }
     (tile, stats)
+}
+
+/// Puts the metal-rough BSDF `b` in lane `i` of `lobes` and `alpha`.
+#[inline(always)]
+fn set_lobes<S: Simd>(lobes: &mut Lobes<F<S>>, alpha: &mut F<S>, i: usize, b: &MetalRough) {
+    let l = b.lobes();
+    lobes.base.set_lane(i, l.base.into());
+    lobes.metallic.set_lane(i, l.metallic);
+    lobes.f0.set_lane(i, l.f0.into());
+    lobes.specular.set_lane(i, l.specular);
+    lobes.transmission.set_lane(i, l.transmission);
+    lobes.diffuse_transmission.set_lane(i, l.diffuse_transmission);
+    lobes.diffuse_transmission_color.set_lane(i, l.diffuse_transmission_color.into());
+    alpha.set_lane(i, b.ggx.alpha);
 }
