@@ -346,12 +346,18 @@ fn every_real_asset_renders_without_nan() {
 /// The wavefront renderer (8 or 16 paths at once, shading in SIMD) traces exactly the paths of
 /// the scalar one: the same sums bit for bit and the same ray count, with a lens, with short
 /// bounce limits, on an offset tile with an offset sample range, with an emitter that shines
-/// from both faces, with glossy walls and glossy plates (the metal-rough BSDF), with vertex
-/// normals, with point, spot and directional lights, and in uniform environments, the furnaces
+/// from both faces, with glossy walls and glossy plates (the metal-rough BSDF), on textured
+/// real assets (DamagedHelmet: base colour, metal-rough, normal and emissive maps, its emissive
+/// parts lights sampled by the scalar routine; BoxTextured; VertexColorTest), with vertex
+/// colours on an untextured material, with vertex normals, with point, spot and directional lights, and in uniform environments, the furnaces
 /// included; each with its lights chosen by the mixture and by the light tree (whose
 /// probabilities depend on the point).
 #[test]
 fn wavefront_renders_the_scalar_paths_bit_for_bit() {
+    let real = |path: &str| {
+        let path = assets().join("real").join(path);
+        common::gltf::load_path(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    };
     let two_sided = edited_scene("cornell-box", "two-sided-light", |json| {
         json["materials"][3]["doubleSided"] = json!(true);
     });
@@ -394,10 +400,41 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         });
         json["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_materials_ior"));
     });
+    // Vertex colours on the short block and the green wall (an untextured material shaded per
+    // point), in a buffer of their own.
+    let coloured = edited_scene("cornell-box", "vertex-colours", |json| {
+        let colours: Vec<u8> = (0..24)
+            .flat_map(|v| {
+                let k = v as f32;
+                [0.2 + 0.8 * (k * 0.37).sin().abs(), 0.5 + 0.5 * (k * 0.91).cos(), 0.9 - k / 30.0]
+            })
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let buffer = json["buffers"].as_array().unwrap().len();
+        json["buffers"].as_array_mut().unwrap().push(json!({
+            "byteLength": colours.len(),
+            "uri": format!("data:application/octet-stream;base64,{}", base64(&colours)),
+        }));
+        for (mesh, first, count) in [(3, 0, 20), (1, 20, 4)] {
+            let view = json["bufferViews"].as_array().unwrap().len();
+            json["bufferViews"].as_array_mut().unwrap().push(
+                json!({"buffer": buffer, "byteOffset": first * 12, "byteLength": count * 12}),
+            );
+            let accessor = json["accessors"].as_array().unwrap().len();
+            json["accessors"].as_array_mut().unwrap().push(
+                json!({"bufferView": view, "componentType": 5126, "count": count, "type": "VEC3"}),
+            );
+            json["meshes"][mesh]["primitives"][0]["attributes"]["COLOR_0"] = json!(accessor);
+        }
+    });
     let scenes = [
         ("cornell-box", load("cornell-box.gltf")),
+        ("vertex colours", common::gltf::load_path(&coloured).expect("edited scene")),
         ("glossy walls", common::gltf::load_path(&glossy).expect("edited scene")),
         ("veach-mis", load("veach-mis.gltf")),
+        ("damaged-helmet", real("DamagedHelmet/glTF-Binary/DamagedHelmet.glb")),
+        ("box-textured", real("BoxTextured/glTF/BoxTextured.gltf")),
+        ("vertex colour test", real("VertexColorTest/glTF-Binary/VertexColorTest.glb")),
         ("two-sided light", common::gltf::load_path(&two_sided).expect("edited scene")),
         ("punctual lights", common::gltf::load_path(&punctual).expect("edited scene")),
         ("furnace", load("furnace.gltf")),

@@ -679,16 +679,16 @@ fn prepare_inner(
                 Some("something moves within the shutter")
             } else if alpha_tested {
                 Some("an alpha-tested material")
-            } else if !colors.is_empty() {
-                Some("vertex colours")
             } else {
                 None
             };
+            // With vertex colours every material varies over its surfaces, like a textured one.
             let tables = super::wavefront_tables::Tables::new(
                 &scene.materials,
                 &scene.textures,
                 &lights,
                 scalar_only,
+                !colors.is_empty(),
             );
             if let Err(why) = &tables {
                 // Once per prepared scene: which kernel renders it, and why.

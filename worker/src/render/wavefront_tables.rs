@@ -33,6 +33,9 @@ pub struct Tables {
     pub(super) albedo: Vec<Vec3>,
     /// The metal-rough BSDF per material, for the glossy ones.
     pub(super) glossy: Vec<Option<MetalRough>>,
+    /// Per material, whether it has textures: its BSDF, shading frame (normal map) and emission
+    /// are then those of each point, found one lane at a time by the scalar renderer's calls.
+    pub(super) textured: Vec<bool>,
     /// Emitted radiance per material.
     pub(super) emission: Vec<Vec3>,
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
@@ -44,13 +47,15 @@ impl Tables {
     /// The tables of a scene being prepared, or why the wavefront does not take it (the scalar
     /// renderer then renders it, with the same estimator): `scalar_only` names what the scene
     /// as a whole needs of the scalar renderer (something moving within the shutter, an alpha
-    /// test, vertex colours), and every material must be one the wavefront takes
-    /// (`wavefront_albedo`, an allow-list) and every emitter untextured.
+    /// test), and every material must be one the wavefront takes (`wavefront_bsdf`, an
+    /// allow-list). `per_point`: the scene has vertex colours, so every material is shaded per
+    /// point, as textured ones are.
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
         light_sampler: &LightSampler,
         scalar_only: Option<&str>,
+        per_point: bool,
     ) -> Result<Tables, String> {
         let mixture = light_sampler.mixture();
         if let Some(why) = scalar_only {
@@ -58,10 +63,16 @@ impl Tables {
         }
         let mut albedo = Vec::with_capacity(materials.len());
         let mut glossy = Vec::with_capacity(materials.len());
+        let mut textured = Vec::with_capacity(materials.len());
         let mut emission = Vec::with_capacity(materials.len());
         for m in materials {
             let bsdf = wavefront_bsdf(textures, m)
                 .map_err(|why| format!("material '{}' has {why}", m.name))?;
+            let bsdf = match bsdf {
+                Shade::Lambert(_) | Shade::Glossy(_) if per_point => Shade::Textured,
+                other => other,
+            };
+            textured.push(bsdf == Shade::Textured);
             match bsdf {
                 Shade::Lambert(a) => {
                     albedo.push(a);
@@ -70,6 +81,10 @@ impl Tables {
                 Shade::Glossy(b) => {
                     albedo.push(Vec3::ZERO);
                     glossy.push(Some(b));
+                }
+                Shade::Textured => {
+                    albedo.push(Vec3::ZERO);
+                    glossy.push(None);
                 }
             }
             // Without textures or vertex colours every point of the material is this one.
@@ -82,7 +97,9 @@ impl Tables {
                 continue;
             };
             if l.textured {
-                return Err("an emitter is textured".into());
+                // Sampled by `Light::sample_li`, its radiance by `shared::light_radiance`.
+                lights.push(None);
+                continue;
             }
             lights.push(Some(LightRec {
                 p: l.p,
@@ -93,7 +110,7 @@ impl Tables {
                 probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        Ok(Tables { albedo, glossy, emission, lights })
+        Ok(Tables { albedo, glossy, textured, emission, lights })
     }
 }
 
@@ -104,6 +121,9 @@ enum Shade {
     Lambert(Vec3),
     /// The glTF metal-rough BSDF, reflecting only.
     Glossy(MetalRough),
+    /// Textured: Lambertian or metal-rough (reflecting only) at each point, as its textures
+    /// say.
+    Textured,
 }
 
 /// The BSDF of a material the wavefront takes, or what it has that the wavefront does not. An
@@ -151,9 +171,6 @@ fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Result<Shade, &'static 
         || transmission_texture.is_some()
         || diffuse_transmission_texture.is_some()
         || diffuse_transmission_color_texture.is_some();
-    if textured {
-        return Err("a texture");
-    }
     if volume.is_some() && m.bounds_medium() {
         return Err("a volume");
     }
@@ -162,6 +179,17 @@ fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Result<Shade, &'static 
     }
     if *unlit {
         return Err("KHR_materials_unlit");
+    }
+    if textured {
+        // What textures do not change: whether the surface is a refractive boundary, and
+        // whether light passes through it (only the factors can make it; textures scale them).
+        if m.extended() && m.refracts() {
+            return Err("a refractive boundary");
+        }
+        if m.transmission > 0.0 || m.diffuse_transmission > 0.0 {
+            return Err("thin-walled transmission");
+        }
+        return Ok(Shade::Textured);
     }
     match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
         Bsdf::Diffuse(d) => Ok(Shade::Lambert(d.albedo)),
@@ -182,9 +210,9 @@ mod tests {
         Material { metallic: 0.0, specular: 0.0, ..Material::default() }
     }
 
-    /// Only untextured Lambertian and reflecting metal-rough materials pass; every texture slot,
-    /// layer, transmission and unlit sends the scene to the scalar renderer (with the reason), so
-    /// that none renders untextured.
+    /// Lambertian and reflecting metal-rough materials pass, textured or not (a textured one is
+    /// shaded per point); layers, transmission and unlit send the scene to the scalar renderer
+    /// (with the reason).
     #[test]
     fn the_wavefront_takes_only_what_it_renders() {
         assert!(matches!(wavefront_bsdf(&[], &lambert()), Ok(Shade::Lambert(_))));
@@ -198,8 +226,15 @@ mod tests {
             Material { diffuse_transmission_texture: texture, ..lambert() },
             Material { diffuse_transmission_color_texture: texture, ..lambert() },
         ];
-        for m in &textured {
-            assert_eq!(wavefront_bsdf(&[], m), Err("a texture"), "{m:?}");
+        for m in &textured[..4] {
+            assert_eq!(wavefront_bsdf(&[], m), Ok(Shade::Textured), "{m:?}");
+        }
+        // A texture on a transmission factor of zero changes nothing; on a positive one, the
+        // scene takes the scalar renderer.
+        for m in &textured[4..] {
+            assert_eq!(wavefront_bsdf(&[], m), Ok(Shade::Textured), "{m:?}");
+            let thin = Material { transmission: 0.5, diffuse_transmission: 0.5, ..m.clone() };
+            assert_eq!(wavefront_bsdf(&[], &thin), Err("thin-walled transmission"), "{m:?}");
         }
         assert!(matches!(wavefront_bsdf(&[], &Material::default()), Ok(Shade::Glossy(_))));
         // A full metal passes no light through, whatever its transmission factor.
@@ -210,9 +245,13 @@ mod tests {
         let thin = Material { transmission: 0.5, ..lambert() };
         assert_eq!(wavefront_bsdf(&[], &thin), Err("thin-walled transmission"));
         let m = Material { name: "thin".into(), diffuse_transmission: 0.3, ..lambert() };
-        let why = Tables::new(&[lambert(), m], &[], &LightSampler::default(), None).unwrap_err();
+        let why =
+            Tables::new(&[lambert(), m], &[], &LightSampler::default(), None, false).unwrap_err();
         assert_eq!(why, "material 'thin' has thin-walled transmission");
-        let why = Tables::new(&[lambert()], &[], &LightSampler::default(), Some("vertex colours"));
-        assert_eq!(why.unwrap_err(), "vertex colours");
+        let why =
+            Tables::new(&[lambert()], &[], &LightSampler::default(), Some("a moving light"), false);
+        assert_eq!(why.unwrap_err(), "a moving light");
+        let colours = Tables::new(&[lambert()], &[], &LightSampler::default(), None, true).unwrap();
+        assert_eq!(colours.textured, [true], "vertex colours: shaded per point");
     }
 }

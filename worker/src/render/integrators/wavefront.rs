@@ -2,11 +2,14 @@
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
 //! For the scenes `wavefront_tables::Tables::new` accepts (an allow-list; the others render on
-//! the scalar path tracer, and `prepare` logs why once): untextured diffuse materials and
-//! untextured glTF metal-rough materials that do not transmit (the glossy lobes of
-//! `bsdf::metal_rough`), without vertex colours, untextured emitters, any lights and
-//! environment, chosen by the mixture or the light tree, nothing moving, nothing alpha-tested
-//! (the Cornell box, the furnaces and Veach's glossy plates among them). Each lane holds one
+//! the scalar path tracer, and `prepare` logs why once): diffuse and glTF metal-rough materials
+//! that do not transmit (the glossy lobes of `bsdf::metal_rough`), textured, normal-mapped and
+//! vertex-coloured or not, any lights and environment, chosen by the mixture or the light tree,
+//! nothing moving, nothing alpha-tested (the Cornell box, the furnaces, Veach's glossy plates and
+//! the damaged helmet among them). At a textured (or vertex-coloured) material, the point's
+//! emission, shading frame and BSDF parameters are found one lane at a time by the scalar
+//! renderer's calls (`material`, `shared::shading_frame`, `shared::hit_weight`), and a
+//! textured emitter is sampled by `Light::sample_li` and `shared::light_radiance`. Each lane holds one
 //! path; a lane whose path ends takes the task's next sample at once (one whose ray escapes,
 //! before the shading), so that the vectors stay full whatever the path lengths. Ray casting,
 //! the start of a sample (its film and lens numbers), the light choice (and under the tree, the
@@ -32,7 +35,7 @@ use super::{
         bsdf::{
             diffuse::generic as lambert,
             metal_rough::generic::{self as metal_rough, Lobes},
-            MetalRough,
+            Bsdf, MetalRough,
         },
         geometry::{
             generic::{frame_from_z, interpolation_error, offset_ray_origin},
@@ -41,16 +44,17 @@ use super::{
         lanes::{F, M, V3},
         light::{
             generic::{pdf_li as triangle_pdf_li, sample_li as triangle_sample_li, TriangleSample},
-            ChooseLight, ShadingContext,
+            ChooseLight, Light, ShadingContext,
         },
+        material,
         sampler::{LaneSampler, Sampler},
-        scene::{PreparedScene, NONE},
+        scene::PreparedScene,
         wavefront_tables::Tables,
     },
     shared::{
         environment_hit,
         generic::{power_heuristic, roulette_end},
-        Stats, RR_MIN_DEPTH, SHADOW_T_MAX, UNWEIGHTED,
+        hit_weight, light_radiance, shading_frame, Stats, RR_MIN_DEPTH, SHADOW_T_MAX, UNWEIGHTED,
     },
 };
 
@@ -284,6 +288,10 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let (mut albedo, mut le) = (z3, z3);
     // The metal-rough BSDF of the lanes whose material is glossy.
     let mut glossy = [false; MAX_LANES];
+    // The lanes whose material is textured (shaded per point, one lane at a time), and the
+    // triangle each lane hit.
+    let mut textured = [false; MAX_LANES];
+    let mut prims = [0u32; MAX_LANES];
     let mut lobes = Lobes {
         base: z3,
         metallic: zero,
@@ -388,15 +396,19 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     }
                 }
                 albedo.set_lane(i, tables.albedo[shading.material as usize]);
+                prims[i] = hit.prim;
+                textured[i] = tables.textured[shading.material as usize];
                 glossy[i] = false;
                 if let Some(b) = &tables.glossy[shading.material as usize] {
                     glossy[i] = true;
                     set_lobes(&mut lobes, &mut alpha, i, b);
                 }
                 le.set_lane(i, tables.emission[shading.material as usize]);
-                hit_light[i] = shading.light != NONE;
-                if let Some(l) = tables.lights.get(shading.light as usize).and_then(Option::as_ref)
-                {
+                // A textured material's emission is found with its shading, below.
+                hit_light[i] = false;
+                let light = tables.lights.get(shading.light as usize).and_then(Option::as_ref);
+                if let (false, Some(l)) = (textured[i], light) {
+                    hit_light[i] = true;
                     l_normal.set_lane(i, l.normal);
                     l_area.set_lane(i, l.area);
                     // Under the tree, the probability of choosing the light from the previous
@@ -448,6 +460,45 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let ns = (use_n & n_dot.gt(zero)).select3(n, ng);
         let ns = (use_n & n_dot.lt(zero)).select3(-n, ns);
         let (fx, fy) = frame_from_z(ns);
+        let (mut fx, mut fy, mut ns) = (fx, fy, ns);
+        // Textured materials, one lane at a time through the scalar renderer's calls: the
+        // emission of the point, the shading frame (normal map) and the BSDF there.
+        for i in (0..lanes).filter(|&i| live[i] && textured[i]) {
+            let prim = prims[i];
+            let shading = scene.shading[prim as usize];
+            let m = &scene.materials[shading.material as usize];
+            let b = [b0.lane(i), b1.lane(i), b2.lane(i)];
+            let corners = [tri[0].lane(i), tri[1].lane(i), tri[2].lane(i)];
+            let (dir_i, wo_i) = (dir.lane(i), wo.lane(i));
+            let Some(ng_i) = c.lane(i).try_normalize() else { continue };
+            let front = ng_i.dot(wo_i) > 0.0;
+            let sp = scene.surface_point(prim, b);
+            if let Some(Light::Triangle(light)) = scene.lights.lights.get(shading.light as usize) {
+                if light.emits_toward(wo_i) {
+                    let le = material::emission_toward(&scene.textures, m, &sp, ng_i, wo_i);
+                    let dist2 = t.lane(i) * t.lane(i) * dir_i.length_squared();
+                    let prev_pdf = paths.prev_bsdf_pdf.lane(i);
+                    let ctx = paths.prev_ctx(i);
+                    let weight = hit_weight(scene, shading.light, &ctx, dir_i, dist2, prev_pdf);
+                    let radiance = paths.radiance.lane(i) + paths.beta.lane(i) * le * weight;
+                    paths.radiance.set_lane(i, radiance);
+                }
+            }
+            let ng_i = if front { ng_i } else { -ng_i };
+            let (frame, _) = shading_frame(scene, prim, corners, b, ng_i, &sp, None);
+            fx.set_lane(i, frame.x);
+            fy.set_lane(i, frame.y);
+            ns.set_lane(i, frame.z);
+            match material::bsdf(&scene.textures, m, &sp, front, [1.0; 2], shading.extended) {
+                Bsdf::Diffuse(d) => albedo.set_lane(i, d.albedo),
+                Bsdf::MetalRough(b) => {
+                    glossy[i] = true;
+                    set_lobes(&mut lobes, &mut alpha, i, &b);
+                }
+                // `Tables::new` takes no material that makes another BSDF.
+                Bsdf::Dielectric(_) | Bsdf::Layered(_) => unreachable!("a BSDF off the wavefront"),
+            }
+        }
         let wo_z = wo.dot(ns);
         let going = livem & ng_ok & !wo_z.le(zero);
         going.to_bools(&mut cont);
@@ -455,7 +506,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // diffuse batch), the metal-rough arithmetic is not done at all.
         let any_glossy = (0..lanes).any(|i| glossy[i] && live[i]);
         let glossym = M::from_bools(s, &glossy);
-        let wo_l = V3::new(wo.dot(fx), wo.dot(fy), wo_z);
+        let wo_l = if any_glossy { V3::new(wo.dot(fx), wo.dot(fy), wo_z) } else { z3 };
 
         // The bounce's numbers, in `path::li`'s dimensions: the light's pair, the lobe's
         // number (a diffuse BSDF has one lobe: not drawn), the direction's pair, roulette's
@@ -496,12 +547,12 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 let Some(l) = &tables.lights[light as usize] else {
                     // A punctual light or the environment: its own sampling routine.
                     other_light[i] = true;
-                    let ls = scene.lights.lights[light as usize]
-                        .sample_li(p.lane(i), Vec2::new(u_x, u_light.y));
+                    let this = &scene.lights.lights[light as usize];
+                    let ls = this.sample_li(p.lane(i), Vec2::new(u_x, u_light.y));
                     other_ok[i] = ls.is_some();
                     if let Some(ls) = ls {
                         o_wi.set_lane(i, ls.wi);
-                        o_li.set_lane(i, ls.li);
+                        o_li.set_lane(i, light_radiance(scene, this, &ls));
                         o_pdf.set_lane(i, ls.pdf);
                         o_point.set_lane(i, ls.point.unwrap_or(Vec3::ZERO));
                         o_normal.set_lane(i, ls.normal);
@@ -540,7 +591,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let is_delta = other & M::from_bools(s, &delta);
         let wi_z = wi.dot(ns);
         let f = lambert::eval(albedo, wo_z, wi_z).scale(wi_z.abs());
-        let wi_l = V3::new(wi.dot(fx), wi.dot(fy), wi_z);
+        let wi_l = if any_glossy { V3::new(wi.dot(fx), wi.dot(fy), wi_z) } else { z3 };
         let f = if any_glossy {
             let fg = metal_rough::eval(&lobes, alpha, wo_l, wi_l, false).scale(wi_z.abs());
             glossym.select3(fg, f)
