@@ -110,6 +110,10 @@ pub struct SceneBundle {
     /// Whether anything gives light: an emissive surface, a punctual light, or an environment
     /// that is not black. Without any, the image is black.
     pub lit: bool,
+    /// The scene as loaded to make the bundle (what a worker loads from it).
+    pub scene: common::scene::Scene,
+    /// The environment map the settings name, as decoded to check it.
+    pub env: Option<EnvMap>,
 }
 
 /// A scene file (`.glb`, `.gltf`, or a `.zip` of a folder, as the REST API takes) and the
@@ -154,11 +158,12 @@ pub fn bundle_scene(scene_path: &Path, settings: &RenderSettings) -> Result<Scen
             if settings.environment.is_some() { "black" } else { "black (none is set)" }
         );
     }
+    let mut env = None;
     if let Some(Environment::Map { map, .. }) = &mut settings.environment {
         let path = PathBuf::from(&*map);
         let env_bytes = std::fs::read(&path)
             .with_context(|| format!("settings.environment.map: reading {}", path.display()))?;
-        EnvMap::from_bytes(map, &env_bytes).context("settings.environment.map")?;
+        env = Some(EnvMap::from_bytes(map, &env_bytes).context("settings.environment.map")?);
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         *map = format!("__environment__/{name}");
         let mut all = match files.take() {
@@ -176,7 +181,7 @@ pub fn bundle_scene(scene_path: &Path, settings: &RenderSettings) -> Result<Scen
         Some(Files::Loose(all)) => Bundle::pack(&all)?,
         Some(Files::Zip(_)) | None => bytes,
     };
-    Ok(SceneBundle { bytes, settings, lit })
+    Ok(SceneBundle { bytes, settings, lit, scene, env })
 }
 
 /// What goes into a bundle besides the scene file as read.
@@ -270,12 +275,18 @@ pub fn render_file_within(
     // The data folder is deleted when the render ends: nothing to keep across a crash.
     config.farm.durable = false;
     let service = crate::service::spawn("127.0.0.1:0", config)?;
+    let map_name = match &bundle.settings.environment {
+        Some(Environment::Map { map, .. }) => Some(map.clone()),
+        _ => None,
+    };
     let (scene_hash, id) = service
         .create_job(&bundle.bytes, bundle.settings, 0)
         .map_err(|e| anyhow::anyhow!("{} ({})", e.message, e.kind))?;
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);
-    let cache = client::SceneCache::default();
+    // The local workers take the scene and map as loaded above rather than decode them again.
+    let env = map_name.zip(bundle.env);
+    let cache = client::SceneCache::seeded(scene_hash.clone(), bundle.scene, env);
     let link = service.local_link();
     let (workers, threads, whole_frame_threads) = local_workers(settings, workers);
     let status = std::thread::scope(|s| -> Result<JobStatus> {

@@ -95,8 +95,16 @@ impl Failure {
 /// A scene as loaded, with its environment map.
 struct Loaded {
     key: String,
-    scene: Scene,
-    env: Option<EnvMap>,
+    scene: Arc<Scene>,
+    env: Option<Arc<EnvMap>>,
+}
+
+/// A scene its caller has loaded already: the bundle's hash, the scene, and the environment map
+/// that the bundle holds under a name, if any ([`SceneCache::seeded`]).
+struct Seed {
+    hash: String,
+    scene: Arc<Scene>,
+    env: Option<(String, Arc<EnvMap>)>,
 }
 
 /// The scenes a worker has prepared, most recent first (a few jobs, or a few frames of an
@@ -107,12 +115,23 @@ struct Loaded {
 pub struct SceneCache {
     entries: Mutex<Vec<(String, Arc<PreparedScene>)>>,
     loaded: Mutex<Option<Arc<Loaded>>>,
+    seed: Option<Seed>,
     /// Scenes prepared so far (readable while one is being prepared).
     prepared: std::sync::atomic::AtomicUsize,
 }
 
 impl SceneCache {
     const CAPACITY: usize = 4;
+
+    /// A cache that holds the scene of the bundle with hash `hash` as its caller loaded it (and
+    /// `env`, the environment map the bundle holds under that name), so that workers in the
+    /// caller's process take it instead of decoding the bundle again: `coordinator render`
+    /// loads the scene from its files to bundle it, and its in-process workers render that
+    /// bundle. The bundle holds the same bytes, so the scene is the one they would load.
+    pub fn seeded(hash: String, scene: Scene, env: Option<(String, EnvMap)>) -> Self {
+        let env = env.map(|(name, map)| (name, Arc::new(map)));
+        SceneCache { seed: Some(Seed { hash, scene: Arc::new(scene), env }), ..Default::default() }
+    }
 
     /// How many scenes (or frames of an animated one) this cache has prepared so far.
     pub fn scenes_prepared(&self) -> usize {
@@ -123,6 +142,21 @@ impl SceneCache {
         let mut loaded = self.loaded.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(l) = loaded.as_ref().filter(|l| l.key == key) {
             return Ok(l.clone());
+        }
+        if let Some(seed) = self.seed.as_ref().filter(|s| s.hash == grant.scene) {
+            let env = match &grant.settings.environment {
+                Some(Environment::Map { map, .. }) => match &seed.env {
+                    Some((name, env)) if name == map => Some(Some(env.clone())),
+                    _ => None,
+                },
+                _ => Some(None),
+            };
+            // Another map than the seed's (not what `coordinator render` makes): loaded below.
+            if let Some(env) = env {
+                let l = Arc::new(Loaded { key: key.to_string(), scene: seed.scene.clone(), env });
+                *loaded = Some(l.clone());
+                return Ok(l);
+            }
         }
         let bytes = link.scene(&grant.scene).map_err(|e| Failure {
             // Only the scene itself is worth reporting: a network error is not the task's.
@@ -146,7 +180,11 @@ impl SceneCache {
             ),
             _ => None,
         };
-        let l = Arc::new(Loaded { key: key.to_string(), scene, env });
+        let l = Arc::new(Loaded {
+            key: key.to_string(),
+            scene: Arc::new(scene),
+            env: env.map(Arc::new),
+        });
         *loaded = Some(l.clone());
         Ok(l)
     }
@@ -176,8 +214,9 @@ impl SceneCache {
         // An animated scene is posed and prepared per frame; a static one once.
         let animated = loaded.scene.is_animated();
         let scene = &loaded.scene;
-        let prepared = prepare_frame(scene, &grant.settings, loaded.env.as_ref(), grant.task.frame)
-            .map_err(|e| Failure::permanent(format!("preparing scene {}: {e}", grant.scene)))?;
+        let prepared =
+            prepare_frame(scene, &grant.settings, loaded.env.as_deref(), grant.task.frame)
+                .map_err(|e| Failure::permanent(format!("preparing scene {}: {e}", grant.scene)))?;
         let key = if animated { frame_key } else { base };
         tracing::info!(
             scene = %grant.scene,
@@ -623,6 +662,86 @@ mod tests {
         fn leave(&self, _: &str) -> Result<(), CallError> {
             Ok(())
         }
+    }
+
+    /// A link that serves one scene bundle and counts how often it was asked for it.
+    struct Serves {
+        bundle: Vec<u8>,
+        fetched: std::sync::atomic::AtomicUsize,
+    }
+
+    impl Link for Serves {
+        fn describe(&self) -> String {
+            "a link that serves one scene".into()
+        }
+        fn join(&self, _: &JoinRequest) -> Result<JoinResponse, CallError> {
+            unreachable!()
+        }
+        fn lease(&self, _: &str, _: f64) -> Result<Option<LeaseGrant>, CallError> {
+            unreachable!()
+        }
+        fn scene(&self, _: &str) -> Result<Vec<u8>, CallError> {
+            self.fetched.fetch_add(1, Ordering::Relaxed);
+            Ok(self.bundle.clone())
+        }
+        fn heartbeat(&self, _: &str, _: &str) -> Result<(), CallError> {
+            unreachable!()
+        }
+        fn submit(&self, _: &str, _: &str, _: TaskResult) -> Result<(), CallError> {
+            unreachable!()
+        }
+        fn fail(&self, _: &str, _: &str, _: &FailReport) -> Result<(), CallError> {
+            unreachable!()
+        }
+        fn leave(&self, _: &str) -> Result<(), CallError> {
+            unreachable!()
+        }
+    }
+
+    /// A seeded cache prepares the scene it holds without fetching or decoding the bundle, and
+    /// the prepared scene is the one the bundle gives; a job of another scene, or one that asks
+    /// for another environment map, loads from the link as before.
+    #[test]
+    fn a_seeded_cache_takes_its_scene_and_loads_any_other() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.glb");
+        let bundle = std::fs::read(&path).unwrap();
+        let scene = common::gltf::load_path(&path).unwrap();
+        let grant = |hash: &str, environment| LeaseGrant {
+            lease: "l".into(),
+            job: "j".into(),
+            scene: hash.into(),
+            settings: common::settings::RenderSettings { environment, ..Default::default() },
+            task: common::protocol::TaskSpec {
+                frame: 0,
+                rect: common::film::Rect { x0: 0, y0: 0, width: 4, height: 4 },
+                samples: common::protocol::SampleRange { start: 0, end: 1 },
+                kind: common::protocol::TaskKind::Camera,
+            },
+            lease_timeout_s: 30.0,
+            scene_budget: Default::default(),
+        };
+        let link = Serves { bundle, fetched: Default::default() };
+        let seeded = SceneCache::seeded("abc".into(), scene, None);
+        let from_seed = seeded.get_or_prepare(&link, &grant("abc", None)).ok().unwrap();
+        assert_eq!(link.fetched.load(Ordering::Relaxed), 0, "the seed's scene was fetched");
+        let plain = SceneCache::default();
+        let from_link = plain.get_or_prepare(&link, &grant("abc", None)).ok().unwrap();
+        assert_eq!(link.fetched.load(Ordering::Relaxed), 1);
+        assert_eq!(from_seed.shading.len(), from_link.shading.len());
+        assert_eq!(format!("{:?}", from_seed.materials), format!("{:?}", from_link.materials));
+        // Another scene, and a map the seed does not hold: from the link.
+        seeded.get_or_prepare(&link, &grant("def", None)).ok().unwrap();
+        assert_eq!(link.fetched.load(Ordering::Relaxed), 2);
+        let sky = Some(Environment::Map {
+            map: "sky.hdr".into(),
+            intensity: 1.0,
+            rotation_deg: 0.0,
+            visible: true,
+        });
+        let refused = seeded.get_or_prepare(&link, &grant("abc", sky)).err().unwrap();
+        assert!(refused.message.contains("sky.hdr"), "{}", refused.message);
+        assert_eq!(link.fetched.load(Ordering::Relaxed), 3);
     }
 
     /// A panic in the worker loop ends `run_linked` (the panic reaches its caller) instead of
