@@ -517,6 +517,28 @@ impl Scene {
         }
     }
 
+    /// Whether the settings' lens fits the camera they render from (the one `camera` names, the
+    /// first by default): a thin lens (`lens.aperture_radius > 0`) needs a perspective camera.
+    /// An orthographic camera has no lens model here, and dropping the setting would render
+    /// everything sharp with no word.
+    pub fn check_lens(&self, settings: &crate::settings::RenderSettings) -> Result<(), String> {
+        if !(settings.lens.aperture_radius > 0.0) {
+            return Ok(());
+        }
+        let camera = match &settings.camera {
+            Some(wanted) => self.cameras.iter().find(|c| &c.name == wanted),
+            None => self.cameras.first(),
+        };
+        match camera {
+            Some(c) if matches!(c.projection, Projection::Orthographic { .. }) => Err(format!(
+                "lens.aperture_radius: the orthographic camera '{}' has no lens (depth of field needs a \
+                 perspective camera): remove `lens`, or name a perspective camera with `camera`",
+                c.name
+            )),
+            _ => Ok(()),
+        }
+    }
+
     /// The scene-dependent checks of the settings' integrator: the light bidirectional path
     /// tracing and photon mapping must start paths from, and more light-traced paths than one per
     /// sample where the camera is orthographic (light tracing cannot reach it). `Ok` for the path

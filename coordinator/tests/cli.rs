@@ -391,3 +391,36 @@ fn render_takes_the_scene_budgets() {
     let stderr = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && stderr.contains("--max-megatexels"), "{stderr}");
 }
+
+/// A thin lens on an orthographic camera is refused before anything renders, naming the camera
+/// and the fix, rather than dropped (the same settings on the perspective camera render).
+#[test]
+fn a_lens_on_an_orthographic_camera_is_refused() {
+    let cameras = asset("real/Cameras/glTF/Cameras.gltf");
+    let settings = |camera: &str| {
+        let path = temp(&format!("lens-{}.json", camera.replace(' ', "-")));
+        let json = format!(
+            r#"{{"width": 16, "height": 16, "spp": 2, "camera": "{camera}",
+                "lens": {{"aperture_radius": 0.05, "focus_distance": 3.0}},
+                "environment": {{"color": [1, 1, 1]}}}}"#
+        );
+        std::fs::write(&path, json).unwrap();
+        path
+    };
+    let out = temp("lens-ortho.exr");
+    let _ = std::fs::remove_file(&out);
+    let ortho = settings("camera 1");
+    let output =
+        run_render(&[&cameras, "--settings", ortho.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("orthographic camera 'camera 1' has no lens") && stderr.contains("`lens`"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "an image was written");
+    let persp = settings("camera 0");
+    let output =
+        run_render(&[&cameras, "--settings", persp.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+}

@@ -221,6 +221,19 @@ fn real_assets_features() {
     assert_eq!(s.cameras.len(), 2);
     assert!(matches!(s.cameras[0].projection, crate::scene::Projection::Perspective { .. }));
     assert!(matches!(s.cameras[1].projection, crate::scene::Projection::Orthographic { .. }));
+    // A thin lens fits the perspective camera and is refused on the orthographic one (naming
+    // it), not dropped.
+    let lens = crate::settings::Lens { aperture_radius: 0.05, focus_distance: 3.0 };
+    let at = |camera: &str, lens| crate::settings::RenderSettings {
+        camera: Some(camera.to_string()),
+        lens,
+        ..Default::default()
+    };
+    let (persp, ortho) = (s.cameras[0].name.clone(), s.cameras[1].name.clone());
+    assert_eq!(s.check_lens(&at(&persp, lens)), Ok(()));
+    assert_eq!(s.check_lens(&at(&ortho, crate::settings::Lens::default())), Ok(()));
+    let e = s.check_lens(&at(&ortho, lens)).unwrap_err();
+    assert!(e.contains("orthographic") && e.contains(&format!("'{ortho}'")), "{e}");
 
     // Emissive strength, texture transforms, vertex colours, textures.
     let s = real(&dir, "EmissiveStrengthTest/glTF-Binary/EmissiveStrengthTest.glb");

@@ -116,6 +116,10 @@ pub fn validate_job_scene(
             )));
         }
     }
+    if settings.lens.aperture_radius > 0.0 {
+        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        scene.check_lens(settings).map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+    }
     if settings.integrator != Integrator::Path {
         let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
         scene

@@ -360,6 +360,7 @@ fn prepare_inner(
             scene.cameras.first().ok_or_else(|| PrepareError("scene has no camera".to_string()))?
         }
     };
+    scene.check_lens(settings).map_err(|e| PrepareError(format!("settings: {e}")))?;
     let camera_node = camera_model.node;
     let origin = camera_model.position();
     let to_world = {
