@@ -16,6 +16,7 @@
 pub mod client;
 pub mod farm;
 pub mod local;
+pub mod log;
 pub mod output;
 pub mod service;
 pub mod split;

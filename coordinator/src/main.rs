@@ -352,20 +352,30 @@ fn main() -> Result<()> {
         Command::Serve { .. } => "coordinator=info,worker=info,common=info",
         _ => "warn",
     };
-    let log = tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| default_filter.into()),
-        )
-        .with_writer(std::io::stderr)
-        // A log that can no longer be written (stderr piped into `head`, a closed terminal) is
-        // dropped; the default would print a complaint to that same stderr, which panics.
-        .log_internal_errors(false)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()));
-    // A service's log is read later and needs its times; a command's warnings are read now.
+    let filter = || {
+        tracing_subscriber::EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| default_filter.into())
+    };
+    // A log that can no longer be written (stderr piped into `head`, a closed terminal) is
+    // dropped; the default would print a complaint to that same stderr, which panics.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     match cli.command {
-        Command::Serve { .. } => log.init(),
-        _ => log.without_time().with_target(false).init(),
+        // A service's log is read later and needs its times.
+        Command::Serve { .. } => tracing_subscriber::fmt()
+            .with_env_filter(filter())
+            .with_writer(std::io::stderr)
+            .log_internal_errors(false)
+            .with_ansi(ansi)
+            .init(),
+        // A command's warnings are read now, each once (`coordinator::log`).
+        _ => tracing_subscriber::fmt()
+            .with_env_filter(filter())
+            .with_writer(coordinator::log::OnceWarnings::default())
+            .log_internal_errors(false)
+            .with_ansi(ansi)
+            .without_time()
+            .with_target(false)
+            .init(),
     }
     match cli.command {
         Command::Serve {

@@ -424,3 +424,22 @@ fn a_lens_on_an_orthographic_camera_is_refused() {
         run_render(&[&cameras, "--settings", persp.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
 }
+
+/// Each loader warning is printed once, though `render` loads the scene twice (to bundle it, and
+/// as the farm checks the upload).
+#[test]
+fn each_loader_warning_is_printed_once() {
+    let out = temp("modes.exr");
+    let scene = asset("real/MeshPrimitiveModes/glTF/MeshPrimitiveModes.gltf");
+    let small = ["--width", "8", "--height", "8", "--spp", "1", "--env-intensity", "1"];
+    let sky = asset(SKY);
+    let output = run_render(
+        &[&[&scene as &str, "--env", &sky, "-o", out.to_str().unwrap()], &small[..]].concat(),
+    );
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    for mode in ["Points", "Lines", "LineLoop", "LineStrip"] {
+        let line = format!("mode {mode} has no triangles; skipped");
+        assert_eq!(stderr.matches(&line).count(), 1, "{mode}: {stderr}");
+    }
+}
