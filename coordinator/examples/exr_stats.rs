@@ -1,5 +1,5 @@
 //! Prints the per-channel mean of an EXR and, given a reference, RMSE and relative MSE
-//! (the metrics of shared/bench): `cargo run --release --example exr_stats -- OUT.exr [REF.exr]`.
+//! (the peers harness's metrics): `cargo run --release --example exr_stats -- OUT.exr [REF.exr]`.
 
 use std::path::PathBuf;
 

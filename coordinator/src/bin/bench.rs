@@ -3,7 +3,7 @@
 //! a log-log SVG plot of error against time, and measures the large-geometry scene (load, BVH
 //! build, render times, bytes per triangle).
 //!
-//! With `--peer-csv FILE` (the CSV of `../shared/bench/peers/run.py --csv`, any number of times)
+//! With `--peer-csv FILE` (the CSV of the peers harness's `run.py --csv`, any number of times)
 //! it also prints, for each of our sample counts, every peer's relative MSE at our time (its runs
 //! interpolated log-log) and our error over it: the equal-time ratios of `docs/perf/`. The
 //! peers' curves go on the same plot.
@@ -115,9 +115,10 @@ struct Args {
     /// A peer harness CSV (`run.py --csv`) to compare with at equal time; repeatable.
     #[arg(long = "peer-csv")]
     peer_csv: Vec<PathBuf>,
-    /// The shared folder with scenes and references.
-    #[arg(long, default_value = "../shared")]
-    shared: PathBuf,
+    /// The repository's folder (the scenes and references in `scenes/`, the real assets in
+    /// `tests/assets/`): the default runs from the repository's root.
+    #[arg(long, default_value = ".")]
+    repo: PathBuf,
     /// Skip the untimed 1-spp warm-up render (the peers harness gives each peer one too, for
     /// the page cache and its kernel cache; ours loads the scene, the program's code and the
     /// allocator's memory once before timing).
@@ -234,7 +235,7 @@ fn main() -> Result<()> {
     if args.materials {
         return materials(&args);
     }
-    let scenes = args.shared.join("scenes");
+    let scenes = args.repo.join("scenes");
     let cornell = scenes.join("cornell-box.gltf");
     let (_, _, reference) = read_exr_rgb(&scenes.join("ref/cornell-box.exr"))?;
     let base = RenderSettings::from_json(&std::fs::read_to_string(
@@ -270,7 +271,7 @@ fn main() -> Result<()> {
     write_plot(&args.plot, "Cornell box 256x256", &with_peers(&rows, peers))?;
     eprintln!("plot: {}", args.plot.display());
     if args.large {
-        large_scene(&scenes, args.threads, &out_dir)?;
+        large_scene(&args.repo.join("tests/assets"), args.threads, &out_dir)?;
     }
     if args.time_scenes {
         time_scenes(args.threads, &out_dir)?;
@@ -418,9 +419,9 @@ fn time_scenes(threads: usize, out_dir: &Path) -> Result<()> {
     Ok(())
 }
 
-fn large_scene(scenes: &Path, threads: usize, out_dir: &Path) -> Result<()> {
+fn large_scene(assets: &Path, threads: usize, out_dir: &Path) -> Result<()> {
     let path =
-        scenes.join("real/MetalRoughSpheresNoTextures/glTF/MetalRoughSpheresNoTextures.gltf");
+        assets.join("real/MetalRoughSpheresNoTextures/glTF/MetalRoughSpheresNoTextures.gltf");
     let start = Instant::now();
     let scene = common::gltf::load_path(&path).with_context(|| format!("{}", path.display()))?;
     let load = start.elapsed().as_secs_f64();

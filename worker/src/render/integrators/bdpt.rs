@@ -57,6 +57,12 @@
 //! samples no light from one either: the medium's boundary stops shadow rays), so the MIS weights
 //! leave out the strategies that would join there; connections between surfaces inside a medium
 //! carry its transmittance.
+//!
+//! Determinism: a camera task's light subpath draws the pixel sample's own numbers from
+//! `LIGHT_DIMENSION` on; a light task's light subpaths start from a frame-wide sequence
+//! (`frame_start`, `leave_still_light`, as photons do) and walk on by the pixel sample's numbers.
+//! A light task renders each sample index's film on one thread and adds the films in sample
+//! order, so its sums do not depend on the threads.
 
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
