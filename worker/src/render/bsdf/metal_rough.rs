@@ -251,8 +251,9 @@ impl<M: Microfacet> MetalRough<M> {
         if wo.z <= 0.0 {
             return None;
         }
-        let (wi, lobe) = self.sample_direction(wo, u_lobe, u, self.lobe_probabilities(wo))?;
-        let pdf = self.pdf(wo, wi);
+        let probabilities = self.lobe_probabilities(wo);
+        let (wi, lobe) = self.sample_direction(wo, u_lobe, u, probabilities)?;
+        let pdf = self.pdf_given(wo, wi, probabilities);
         if !(pdf > 0.0) {
             return None;
         }
@@ -522,8 +523,20 @@ pub(crate) mod generic {
     /// as for [`eval`]).
     #[inline(always)]
     pub(crate) fn pdf<R: Real>(l: &Lobes<R>, alpha: R, wo: V3<R>, wi: V3<R>, transmits: bool) -> R {
+        pdf_given(l, alpha, wo, wi, probabilities(lobe_weights(l, wo.z)), transmits)
+    }
+
+    /// [`pdf`] with the lobe probabilities for `wo` already found.
+    #[inline(always)]
+    fn pdf_given<R: Real>(
+        l: &Lobes<R>,
+        alpha: R,
+        wo: V3<R>,
+        wi: V3<R>,
+        probabilities: (R, R, R),
+        transmits: bool,
+    ) -> R {
         let zero = alpha.konst(0.0);
-        let probabilities = probabilities(lobe_weights(l, wo.z));
         let (_, p_trans, p_dtrans) = probabilities;
         let h = (wo + wi).normalize();
         let above = reflection_pdf(probabilities, ggx_reflection_pdf(alpha, wo, h), wi.z);
@@ -553,7 +566,8 @@ pub(crate) mod generic {
         transmits: bool,
     ) -> (V3<R>, V3<R>, R, R::Mask, R::Mask) {
         let zero = alpha.konst(0.0);
-        let (p_spec, p_trans, p_dtrans) = probabilities(lobe_weights(l, wo.z));
+        let chances = probabilities(lobe_weights(l, wo.z));
+        let (p_spec, p_trans, p_dtrans) = chances;
         let glossy = reflect(wo, ggx_visible_normal(alpha, alpha, wo, ux, uy));
         let diffuse = sample_cosine_hemisphere(ux, uy);
         let spec_lobe = u_lobe.lt(p_spec);
@@ -573,7 +587,7 @@ pub(crate) mod generic {
             & !(trans_lobe & glossy.z.le(zero))
             & !wi.z.eq(zero)
             & !(wi.z.lt(zero) & !far);
-        let pdf = pdf(l, alpha, wo, wi, transmits);
+        let pdf = pdf_given(l, alpha, wo, wi, chances, transmits);
         let f = eval(l, alpha, wo, wi, transmits);
         (wi, f, pdf, far, ok & pdf.gt(zero))
     }
