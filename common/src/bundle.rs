@@ -15,8 +15,9 @@ use std::{
 use crate::{
     budget::{over_budget, Line, SceneBudget},
     envmap::EnvMap,
-    gltf::{check_renderable, load_slice_within, NoFiles, Resolver, SceneError},
+    gltf::{check_renderable, load_slice_spread, NoFiles, Resolver, SceneError},
     scene::Scene,
+    spread::{InOrder, Spread},
 };
 
 /// The formats a bundle can have.
@@ -180,10 +181,15 @@ impl Bundle {
 
     /// Loads the scene and checks that it has something to render.
     pub fn load_scene(&self) -> Result<Scene, SceneError> {
+        self.load_scene_spread(&InOrder)
+    }
+
+    /// [`Bundle::load_scene`], decoding the images on the threads `spread` lends.
+    pub fn load_scene_spread(&self, spread: &dyn Spread) -> Result<Scene, SceneError> {
         let scene = if self.format == Format::Zip {
-            load_slice_within(&self.main, self, &self.budget)
+            load_slice_spread(&self.main, self, &self.budget, spread)
         } else {
-            load_slice_within(&self.main, &NoFiles, &self.budget)
+            load_slice_spread(&self.main, &NoFiles, &self.budget, spread)
         }
         .map_err(|e| match self.main_path.as_str() {
             "" => e,

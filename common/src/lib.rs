@@ -11,8 +11,10 @@
 //! - [`film`]: per-pixel partial sums that merge exactly, variance and error estimates.
 //! - [`protocol`]: task specifications and results.
 //! - [`error`]: the kinds of refusal in the farm protocol, and their HTTP statuses.
+//! - [`spread`]: how a caller lends its threads to work that may run at once.
 //!
-//! No networking, no threads, no rendering here.
+//! No networking, no threads (a caller lends its own through [`spread::Spread`]), no rendering
+//! here.
 
 #![warn(missing_docs)]
 
@@ -26,3 +28,4 @@ pub mod gltf;
 pub mod protocol;
 pub mod scene;
 pub mod settings;
+pub mod spread;

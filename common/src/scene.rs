@@ -601,6 +601,17 @@ impl Scene {
     /// `name` (meshes without one keep their default material); an unknown name is an error
     /// listing the scene's variants.
     pub fn apply_variant(&mut self, name: &str) -> Result<(), String> {
+        let index = self.variant_index(name)?;
+        for mesh in &mut self.meshes {
+            if let Some(&(_, material)) = mesh.variant_materials.iter().find(|(v, _)| *v == index) {
+                mesh.material = material;
+            }
+        }
+        Ok(())
+    }
+
+    /// The index of the material variant `name`, or an error listing the scene's variants.
+    pub fn variant_index(&self, name: &str) -> Result<usize, String> {
         let Some(index) = self.variants.iter().position(|v| v == name) else {
             let names = if self.variants.is_empty() {
                 "the scene has none".to_string()
@@ -609,12 +620,7 @@ impl Scene {
             };
             return Err(format!("variant: no material variant named '{name}' ({names})"));
         };
-        for mesh in &mut self.meshes {
-            if let Some(&(_, material)) = mesh.variant_materials.iter().find(|(v, _)| *v == index) {
-                mesh.material = material;
-            }
-        }
-        Ok(())
+        Ok(index)
     }
 
     /// Whether anything in the scene moves over time.

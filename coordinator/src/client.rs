@@ -93,7 +93,7 @@ pub fn submit(
 ) -> Result<Submitted> {
     settings.validate()?;
     progress(Stage::Loading);
-    let bundle = bundle_scene(scene_path, settings)?;
+    let bundle = bundle_scene(scene_path, settings, &Default::default())?;
     let (hash, id) = remote.create_job(&bundle.bytes, &bundle.settings, priority)?;
     let agent = remote.agent();
     tracing::info!(job = %id, scene = %hash, "job submitted");

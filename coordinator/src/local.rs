@@ -119,14 +119,20 @@ pub struct SceneBundle {
 /// A scene file (`.glb`, `.gltf`, or a `.zip` of a folder, as the REST API takes) and the
 /// environment map the settings name, as one uploadable bundle: a self-contained file as it is,
 /// else a zip of it and exactly the files it uses (a zip as it is, with the map added when the
-/// settings name one). Warns when nothing in the scene or its environment gives light.
-pub fn bundle_scene(scene_path: &Path, settings: &RenderSettings) -> Result<SceneBundle> {
+/// settings name one). The scene is loaded within `budget`, its images decoded on every core.
+/// Warns when nothing in the scene or its environment gives light.
+pub fn bundle_scene(
+    scene_path: &Path,
+    settings: &RenderSettings,
+    budget: &SceneBudget,
+) -> Result<SceneBundle> {
+    let threads = worker::spread::Threads::available();
     let bytes = std::fs::read(scene_path)
         .with_context(|| format!("reading scene {}", scene_path.display()))?;
     let at = || scene_path.display().to_string();
     let (scene, mut files, scene_dir) = if Format::detect(&bytes).ok() == Some(Format::Zip) {
-        let bundle = Bundle::open(&bytes, &Default::default()).with_context(at)?;
-        let scene = bundle.load_scene().with_context(at)?;
+        let bundle = Bundle::open(&bytes, budget).with_context(at)?;
+        let scene = bundle.load_scene_spread(&threads).with_context(at)?;
         let dir = bundle.main_path.rfind('/').map_or("", |i| &bundle.main_path[..=i]).to_string();
         (scene, Some(Files::Zip(bundle)), dir)
     } else {
@@ -136,7 +142,7 @@ pub fn bundle_scene(scene_path: &Path, settings: &RenderSettings) -> Result<Scen
         };
         let resolver =
             RecordingResolver { inner: DirResolver::new(dir), read: Mutex::new(Vec::new()) };
-        let scene = common::gltf::load_slice(&bytes, &resolver)
+        let scene = common::gltf::load_slice_spread(&bytes, &resolver, budget, &threads)
             .with_context(|| format!("loading {}", scene_path.display()))?;
         common::gltf::check_renderable(&scene).with_context(at)?;
         let read = resolver.read.into_inner().unwrap_or_else(|p| p.into_inner());
@@ -266,7 +272,7 @@ pub fn render_file_within(
     settings.validate()?;
     let start = Instant::now();
     progress(Stage::Loading);
-    let bundle = bundle_scene(scene_path, settings)?;
+    let bundle = bundle_scene(scene_path, settings, &budget)?;
     let load_seconds = start.elapsed().as_secs_f64();
     let data = tempfile::Builder::new().prefix("renderfarm-").tempdir()?;
     let mut config = ServiceConfig::new(data.path().to_path_buf());
@@ -279,8 +285,9 @@ pub fn render_file_within(
         Some(Environment::Map { map, .. }) => Some(map.clone()),
         _ => None,
     };
+    // The farm's checks read the scene and map as loaded above rather than decode them again.
     let (scene_hash, id) = service
-        .create_job(&bundle.bytes, bundle.settings, 0)
+        .create_loaded_job(&bundle.bytes, &bundle.scene, bundle.env.is_some(), bundle.settings, 0)
         .map_err(|e| anyhow::anyhow!("{} ({})", e.message, e.kind))?;
     let render_start = Instant::now();
     let stop = AtomicBool::new(false);

@@ -170,7 +170,7 @@ impl SceneCache {
         let bundle = Bundle::open(&bytes, &grant.scene_budget)
             .map_err(|e| Failure::permanent(format!("scene {}: {e}", grant.scene)))?;
         let scene = bundle
-            .load_scene()
+            .load_scene_spread(&crate::spread::Threads::available())
             .map_err(|e| Failure::permanent(format!("scene {}: {e}", grant.scene)))?;
         let env = match &grant.settings.environment {
             Some(Environment::Map { map, .. }) => Some(

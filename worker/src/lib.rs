@@ -5,9 +5,11 @@
 //!   lights, the path tracer, and `render_task`.
 //! - [`client`]: the worker's loop (lease, render, heartbeat, result), over any [`link`].
 //! - [`link`]: the farm protocol's calls as a trait, and over HTTP (`worker --join`).
+//! - [`spread`]: the threads lent to `common`'s parallel work (image decoding).
 //! - [`test_scenes`]: scenes built in code for tests and benchmarks.
 
 pub mod client;
 pub mod link;
 pub mod render;
+pub mod spread;
 pub mod test_scenes;

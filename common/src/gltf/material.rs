@@ -3,6 +3,7 @@
 //! volume, clearcoat, sheen, anisotropy, iridescence, unlit, texture transform), and
 //! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
 
+use std::collections::HashMap;
 use std::io::Cursor;
 
 use ::gltf::json;
@@ -11,7 +12,7 @@ use json::texture::{MagFilter, WrappingMode};
 use json::validation::Checked;
 use serde_json::Value;
 
-use super::{fail, Context, Image, Loader, SceneError};
+use super::{fail, Context, Image, Loader, PendingImage, SceneError};
 use crate::budget;
 use crate::scene::{
     AlphaMode, Anisotropy, Clearcoat, Iridescence, Material, Sheen, TexTransform, Texture,
@@ -411,21 +412,24 @@ impl Loader<'_> {
             };
             self.decode_image(source).context(|| format!("texture {index}"))?;
             let image = &self.images[&source];
+            // The texels come when the images are decoded, all at once (`decode_images`).
             self.textures.push(Texture {
                 width: image.width,
                 height: image.height,
-                texels: image.texels.clone(),
+                texels: std::sync::Arc::from(Vec::new()),
                 wrap_s,
                 wrap_t,
                 nearest,
             });
+            self.texture_images.push((self.textures.len() - 1, source));
             Some(self.textures.len() - 1)
         };
         self.texture_map.insert(index, result);
         Ok(result)
     }
 
-    /// Decodes image `index` into `self.images` unless it is there already.
+    /// Reads image `index` and checks its header into `self.images` unless it is there already,
+    /// charging its texels to the budget, and queues it for `decode_images`.
     fn decode_image(&mut self, index: usize) -> Result<(), SceneError> {
         if self.images.contains_key(&index) {
             return Ok(());
@@ -457,12 +461,48 @@ impl Loader<'_> {
         self.charge_scene(budget::Line::Texels, width as u64 * height as u64, || {
             format!("image {index}, {width}x{height}")
         })?;
-        let decoded =
-            decode(&bytes, format, (width, height)).context(|| format!("image {index}"))?;
-        self.images.insert(index, decoded);
+        self.images.insert(index, Image { width, height });
+        self.pending_images.push(PendingImage { index, bytes, format, width, height });
+        Ok(())
+    }
+
+    /// Decodes the queued images, on the threads the caller lent (`self.spread`), and gives
+    /// each texture its texels. A failure names the image (the lowest-numbered one that fails,
+    /// whatever the threads).
+    pub(super) fn decode_images(&mut self) -> Result<(), SceneError> {
+        let mut pending = std::mem::take(&mut self.pending_images);
+        // Largest first, so that the threads finish together.
+        pending.sort_by_key(|p| std::cmp::Reverse(p.width as u64 * p.height as u64));
+        let mut decoded: Vec<Option<Result<Texels, SceneError>>> =
+            pending.iter().map(|_| None).collect();
+        let jobs = pending
+            .iter()
+            .zip(&mut decoded)
+            .map(|(p, out)| {
+                Box::new(move || *out = Some(decode(&p.bytes, p.format, (p.width, p.height))))
+                    as crate::spread::Job<'_>
+            })
+            .collect();
+        self.spread.run(jobs);
+        let mut by_image: Vec<(usize, Result<Texels, SceneError>)> = pending
+            .iter()
+            .zip(decoded)
+            .map(|(p, d)| (p.index, d.unwrap_or_else(|| fail("was not decoded"))))
+            .collect();
+        by_image.sort_by_key(|(index, _)| *index);
+        let mut texels = HashMap::with_capacity(by_image.len());
+        for (index, d) in by_image {
+            texels.insert(index, d.context(|| format!("image {index}"))?);
+        }
+        for &(texture, image) in &self.texture_images {
+            self.textures[texture].texels = texels[&image].clone();
+        }
         Ok(())
     }
 }
+
+/// The RGBA8 texels of a decoded image, shared by the textures that sample it.
+type Texels = std::sync::Arc<[[u8; 4]]>;
 
 /// The format of image bytes, PNG or JPEG.
 fn format_of(bytes: &[u8]) -> Result<image::ImageFormat, SceneError> {
@@ -481,7 +521,7 @@ fn decode(
     bytes: &[u8],
     format: image::ImageFormat,
     (width, height): (u32, u32),
-) -> Result<Image, SceneError> {
+) -> Result<Texels, SceneError> {
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(width);
@@ -491,7 +531,8 @@ fn decode(
     reader.limits(limits);
     let decoded =
         reader.decode().map_err(|e| SceneError(format!("cannot decode {format:?}: {e}")))?;
-    let rgba = decoded.to_rgba8();
+    // RGBA8 as decoded, else converted (RGB, grey, 16-bit).
+    let rgba = decoded.into_rgba8();
     if rgba.dimensions() != (width, height) {
         return fail(format!(
             "decoded to {}x{}, not the {width}x{height} of its header",
@@ -499,8 +540,7 @@ fn decode(
             rgba.height()
         ));
     }
-    let texels = rgba.pixels().map(|p| p.0).collect();
-    Ok(Image { width, height, texels })
+    Ok(Texels::from(bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw())))
 }
 
 /// Wrap modes and nearest magnification of sampler `index`.

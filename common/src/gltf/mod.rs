@@ -30,6 +30,7 @@ use std::path::{Component, Path, PathBuf};
 use crate::{
     budget::{self, SceneBudget},
     scene::{Camera, Instance, Mesh, PunctualLight, Scene, Texture},
+    spread::{InOrder, Spread},
 };
 
 /// Why a scene could not be loaded. The message names the glTF object at fault.
@@ -143,6 +144,17 @@ pub fn load_slice_within(
     files: &dyn Resolver,
     budget: &SceneBudget,
 ) -> Result<Scene, SceneError> {
+    load_slice_spread(bytes, files, budget, &InOrder)
+}
+
+/// [`load_slice_within`], decoding the images on the threads `spread` lends (the same scene
+/// whatever the threads).
+pub fn load_slice_spread(
+    bytes: &[u8],
+    files: &dyn Resolver,
+    budget: &SceneBudget,
+    spread: &dyn Spread,
+) -> Result<Scene, SceneError> {
     let (json_bytes, bin) = if glb::is_glb(bytes) {
         let g = glb::parse(bytes)?;
         (g.json, g.bin)
@@ -152,6 +164,7 @@ pub fn load_slice_within(
     let doc = json::parse(json_bytes)?;
     let mut loader = Loader::new(&doc, bin, files);
     loader.scene_budget = *budget;
+    loader.spread = spread;
     loader.load()
 }
 
@@ -179,11 +192,19 @@ impl<T> Context<T> for Result<T, SceneError> {
     }
 }
 
-/// A decoded image, shared by the textures that sample it.
+/// An image as its header gives it, its texels charged to the budget.
 struct Image {
     width: u32,
     height: u32,
-    texels: std::sync::Arc<[[u8; 4]]>,
+}
+
+/// An image read and checked, waiting to be decoded (`Loader::decode_images`).
+struct PendingImage {
+    index: usize,
+    bytes: Vec<u8>,
+    format: image::ImageFormat,
+    width: u32,
+    height: u32,
 }
 
 /// The loader's state: the parsed document, lazily loaded buffers and images, and the scene
@@ -195,6 +216,11 @@ struct Loader<'a> {
     files: &'a dyn Resolver,
     buffers: Vec<OnceCell<Cow<'a, [u8]>>>,
     images: HashMap<usize, Image>,
+    /// The images to decode once the materials are read, and which texture takes which.
+    pending_images: Vec<PendingImage>,
+    texture_images: Vec<(usize, usize)>,
+    /// Who decodes them.
+    spread: &'a dyn Spread,
 
     meshes: Vec<Mesh>,
     /// The glTF material of each entry of `meshes` (`None` = default material).
@@ -288,6 +314,9 @@ impl<'a> Loader<'a> {
             files,
             buffers: (0..doc.root.buffers.len()).map(|_| OnceCell::new()).collect(),
             images: HashMap::new(),
+            pending_images: Vec::new(),
+            texture_images: Vec::new(),
+            spread: &InOrder,
             meshes: Vec::new(),
             mesh_materials: Vec::new(),
             mesh_variant_materials: Vec::new(),
@@ -333,6 +362,7 @@ impl<'a> Loader<'a> {
         self.variants = self.variant_names().context(|| "KHR_materials_variants".into())?;
         self.load_nodes()?;
         let materials = self.load_materials()?;
+        self.decode_images()?;
         let parents = nodes::node_parents(self.root)?;
         let animation = self.load_animation(self.animations, &parents)?;
         let mut scene = Scene {

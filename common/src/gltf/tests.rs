@@ -764,6 +764,80 @@ fn one_image_is_decoded_once_and_charged_from_its_header() {
     assert_names(&load_err(&doc), &["10.00 G decoded texels (image 0, 100000x100000)"]);
 }
 
+/// Runs the jobs last first: a spread whose order is not the loader's.
+struct Backwards;
+
+impl crate::spread::Spread for Backwards {
+    fn run<'a>(&self, jobs: Vec<crate::spread::Job<'a>>) {
+        jobs.into_iter().rev().for_each(|job| job());
+    }
+}
+
+/// Images are decoded after the materials are read, by whatever spread the caller lends: each
+/// texture gets its own image's texels whatever order they decode in, and of several images
+/// that fail to decode, the lowest-numbered is named.
+#[test]
+fn images_decode_the_same_in_any_order_and_the_first_failure_is_named() {
+    // Three images of different sizes (decoded largest first) and colours.
+    let png = |size: u32, grey: u8| {
+        let mut bytes = Vec::new();
+        image::RgbaImage::from_raw(size, size, vec![grey; (size * size * 4) as usize])
+            .expect("image")
+            .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+            .expect("encode");
+        bytes
+    };
+    let images = [png(4, 10), png(8, 20), png(16, 30)];
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    let prims: Vec<Value> = (0..3)
+        .map(|m| json!({"attributes": {"POSITION": 0}, "indices": 1, "material": m}))
+        .collect();
+    doc["meshes"][0]["primitives"] = Value::Array(prims);
+    doc["materials"] = Value::Array(
+        (0..3)
+            .map(|t| json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": t}}}))
+            .collect(),
+    );
+    doc["textures"] = Value::Array((0..3).map(|i| json!({"source": i})).collect());
+    let with = |images: &[Vec<u8>]| {
+        let mut doc = doc.clone();
+        doc["images"] = Value::Array(
+            images
+                .iter()
+                .map(|b| {
+                    let data = base64::engine::general_purpose::STANDARD.encode(b);
+                    json!({ "uri": format!("data:image/png;base64,{data}") })
+                })
+                .collect(),
+        );
+        doc.to_string()
+    };
+    let budget = SceneBudget::default();
+    let text = with(&images);
+    let in_order = load_slice_spread(text.as_bytes(), &NoFiles, &budget, &InOrder).expect("loads");
+    let backwards = load_slice_spread(text.as_bytes(), &NoFiles, &budget, &Backwards).expect("loads");
+    for scene in [&in_order, &backwards] {
+        let seen: Vec<(u32, u8)> = scene.textures.iter().map(|t| (t.width, t.texels[0][0])).collect();
+        assert_eq!(seen, [(4, 10), (8, 20), (16, 30)]);
+        assert!(scene.textures.iter().all(|t| t.texels.len() == (t.width * t.height) as usize));
+    }
+    // Images 1 and 2 with their pixel data cut short (the headers intact): image 1 is named,
+    // though image 2, the largest, is decoded first.
+    let cut = |b: &Vec<u8>| {
+        let idat = b.windows(4).position(|w| w == b"IDAT").expect("IDAT");
+        let mut cut = b[..idat + 8].to_vec();
+        cut.extend_from_slice(b"IEND");
+        cut
+    };
+    let text = with(&[images[0].clone(), cut(&images[1]), cut(&images[2])]);
+    for spread in [&InOrder as &dyn crate::spread::Spread, &Backwards] {
+        let msg = load_slice_spread(text.as_bytes(), &NoFiles, &budget, spread)
+            .expect_err("image 1 does not decode")
+            .0;
+        assert!(msg.starts_with("image 1: cannot decode Png"), "{msg}");
+    }
+}
+
 #[test]
 fn layered_extensions_load_and_bad_values_are_named() {
     let mut png = Vec::new();

@@ -101,6 +101,7 @@ fn main() -> Result<()> {
     let bundle = coordinator::local::bundle_scene(
         &repo.join("scenes/cornell-box.gltf"),
         &Default::default(),
+        &Default::default(),
     )?
     .bytes;
     let scene: Value = agent

@@ -38,7 +38,10 @@ pub use error::{ErrorKind, FarmError, FarmResult};
 pub use jobs::{
     FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, DEFAULT_LIST_LIMIT, MAX_LIST_LIMIT,
 };
-pub use validate::{hex, is_hash, validate_job_scene, validate_upload, SceneInfo};
+pub use validate::{
+    hex, is_hash, validate_job_scene, validate_job_scene_loaded, validate_upload,
+    validate_upload_loaded, SceneInfo,
+};
 pub use workers::WorkerInfo;
 
 use std::{collections::BTreeMap, path::PathBuf, sync::Arc, time::Duration};

@@ -6,6 +6,7 @@
 use common::{
     budget::SceneBudget,
     bundle::{Bundle, Format},
+    scene::Scene,
     settings::{Environment, Integrator, RenderSettings},
 };
 use serde::Serialize;
@@ -66,6 +67,26 @@ pub fn validate_upload(
     declared: Option<Format>,
     budget: &SceneBudget,
 ) -> FarmResult<SceneInfo> {
+    validate_upload_of(bytes, declared, budget, None)
+}
+
+/// [`validate_upload`] where the caller has loaded the scene from these very bytes within the
+/// same budget (the embedded render, which loaded it to bundle it): the bundle is checked, the
+/// scene not loaded again.
+pub fn validate_upload_loaded(
+    bytes: &[u8],
+    budget: &SceneBudget,
+    scene: &Scene,
+) -> FarmResult<SceneInfo> {
+    validate_upload_of(bytes, None, budget, Some(scene))
+}
+
+fn validate_upload_of(
+    bytes: &[u8],
+    declared: Option<Format>,
+    budget: &SceneBudget,
+    loaded: Option<&Scene>,
+) -> FarmResult<SceneInfo> {
     let format = Format::detect(bytes).map_err(|e| FarmError::invalid(e.0))?;
     if let Some(d) = declared {
         if d != format {
@@ -80,7 +101,14 @@ pub fn validate_upload(
         }
     }
     let bundle = Bundle::open(bytes, budget).map_err(|e| FarmError::invalid(e.0))?;
-    let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+    let own;
+    let scene = match loaded {
+        Some(scene) => scene,
+        None => {
+            own = load(&bundle)?;
+            &own
+        }
+    };
     let triangles = scene.triangle_count() as u64;
     Ok(SceneInfo {
         scene: hex(&Sha256::digest(bytes)),
@@ -92,6 +120,13 @@ pub fn validate_upload(
     })
 }
 
+/// The bundle's scene, its images decoded on every core.
+fn load(bundle: &Bundle) -> FarmResult<Scene> {
+    bundle
+        .load_scene_spread(&worker::spread::Threads::available())
+        .map_err(|e| FarmError::invalid(format!("scene: {e}")))
+}
+
 /// The scene-dependent checks of a job: the named camera and material variant exist and the
 /// environment map, if any, is in the bundle and decodes. Slow: call it outside the farm lock.
 pub fn validate_job_scene(
@@ -99,39 +134,72 @@ pub fn validate_job_scene(
     settings: &RenderSettings,
     budget: &SceneBudget,
 ) -> FarmResult<()> {
+    validate_job_scene_of(bundle_bytes, settings, budget, None)
+}
+
+/// [`validate_job_scene`] where the caller has loaded the scene and the settings' environment
+/// map from this bundle (the embedded render): neither is decoded again.
+pub fn validate_job_scene_loaded(
+    bundle_bytes: &[u8],
+    settings: &RenderSettings,
+    budget: &SceneBudget,
+    scene: &Scene,
+    env_map_loaded: bool,
+) -> FarmResult<()> {
+    validate_job_scene_of(bundle_bytes, settings, budget, Some((scene, env_map_loaded)))
+}
+
+fn validate_job_scene_of(
+    bundle_bytes: &[u8],
+    settings: &RenderSettings,
+    budget: &SceneBudget,
+    loaded: Option<(&Scene, bool)>,
+) -> FarmResult<()> {
     let bundle = Bundle::open(bundle_bytes, budget).map_err(|e| FarmError::invalid(e.0))?;
     let shows_time = settings.frames.end > settings.frames.start
         || settings.shutter.open < settings.shutter.close;
-    if shows_time {
-        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        scene.check_time(settings).map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-    }
-    if let Some(name) = &settings.camera {
-        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        if !scene.cameras.iter().any(|c| &c.name == name) {
-            let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
-            return Err(FarmError::invalid(format!(
-                "settings: camera: no camera named '{name}' (the scene has: {})",
-                names.join(", ")
-            )));
+    let needs_scene = shows_time
+        || settings.camera.is_some()
+        || settings.lens.aperture_radius > 0.0
+        || settings.integrator != Integrator::Path
+        || settings.variant.is_some();
+    // The scene, loaded at most once, and only where a check reads it.
+    let own;
+    let scene = match (loaded, needs_scene) {
+        (_, false) => None,
+        (Some((scene, _)), true) => Some(scene),
+        (None, true) => {
+            own = load(&bundle)?;
+            Some(&own)
+        }
+    };
+    if let Some(scene) = scene {
+        if shows_time {
+            scene.check_time(settings).map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
+        }
+        if let Some(name) = &settings.camera {
+            if !scene.cameras.iter().any(|c| &c.name == name) {
+                let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
+                return Err(FarmError::invalid(format!(
+                    "settings: camera: no camera named '{name}' (the scene has: {})",
+                    names.join(", ")
+                )));
+            }
+        }
+        if settings.lens.aperture_radius > 0.0 {
+            scene.check_lens(settings).map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+        }
+        if settings.integrator != Integrator::Path {
+            scene
+                .check_integrator(settings)
+                .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+        }
+        if let Some(name) = &settings.variant {
+            scene.variant_index(name).map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
         }
     }
-    if settings.lens.aperture_radius > 0.0 {
-        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        scene.check_lens(settings).map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
-    }
-    if settings.integrator != Integrator::Path {
-        let scene = bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        scene
-            .check_integrator(settings)
-            .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
-    }
-    if let Some(name) = &settings.variant {
-        let mut scene =
-            bundle.load_scene().map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        scene.apply_variant(name).map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
-    }
-    if let Some(Environment::Map { map, .. }) = &settings.environment {
+    let map_loaded = loaded.is_some_and(|(_, env)| env);
+    if let (Some(Environment::Map { map, .. }), false) = (&settings.environment, map_loaded) {
         bundle
             .load_envmap(map)
             .map_err(|e| FarmError::invalid(format!("settings: environment.map: {e}")))?;

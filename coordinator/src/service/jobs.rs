@@ -14,14 +14,14 @@ use axum::{
     routing::{get, post},
     Json, Router,
 };
-use common::settings::RenderSettings;
+use common::{scene::Scene, settings::RenderSettings};
 use serde::Deserialize;
 use serde_json::json;
 
 use super::{blocking, json_body, lock_farm, ApiResult, AppState};
 use crate::farm::{
     job::{JobState, JobStatus},
-    validate_job_scene, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
+    validate_job_scene, validate_job_scene_loaded, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
 };
 
 pub(super) fn routes() -> Router<AppState> {
@@ -40,6 +40,28 @@ pub(super) fn create_checked_job(
     settings: RenderSettings,
     priority: i32,
 ) -> ApiResult<JobStatus> {
+    create_job_of(farm, scene, settings, priority, None)
+}
+
+/// [`create_checked_job`] on a scene (and environment map, where `env_loaded`) the caller
+/// loaded from the stored bundle (the embedded render): neither is decoded again.
+pub(super) fn create_loaded_job(
+    farm: &Mutex<Farm>,
+    (scene, loaded): (&str, &Scene),
+    env_loaded: bool,
+    settings: RenderSettings,
+    priority: i32,
+) -> ApiResult<JobStatus> {
+    create_job_of(farm, scene, settings, priority, Some((loaded, env_loaded)))
+}
+
+fn create_job_of(
+    farm: &Mutex<Farm>,
+    scene: &str,
+    settings: RenderSettings,
+    priority: i32,
+    loaded: Option<(&Scene, bool)>,
+) -> ApiResult<JobStatus> {
     lock_farm(farm).check_settings(&settings)?;
     let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.kind {
         ErrorKind::NotFound => {
@@ -49,7 +71,10 @@ pub(super) fn create_checked_job(
     })?;
     let bytes = std::fs::read(path).map_err(|e| FarmError::internal(format!("scene: {e}")))?;
     let budget = lock_farm(farm).config().scene_budget;
-    validate_job_scene(&bytes, &settings, &budget)?;
+    match loaded {
+        Some((loaded, env)) => validate_job_scene_loaded(&bytes, &settings, &budget, loaded, env)?,
+        None => validate_job_scene(&bytes, &settings, &budget)?,
+    }
     lock_farm(farm).create_job(scene, settings, priority)
 }
 

@@ -259,7 +259,7 @@ mod tests {
             ..Default::default()
         };
         let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.gltf");
-        let bundled = bundle_scene(&scene, &settings).unwrap();
+        let bundled = bundle_scene(&scene, &settings, &Default::default()).unwrap();
         let (bundle, settings) = (bundled.bytes, bundled.settings);
         let mut info = validate_upload(&bundle, None, &Default::default()).unwrap();
         let job = {

@@ -369,6 +369,24 @@ impl Running {
         Ok((info.scene, status.id))
     }
 
+    /// [`Running::create_job`] of a bundle whose scene (and the settings' environment map,
+    /// where `env_loaded`) the caller loaded from it within the farm's scene budget: the
+    /// checks that need them read these rather than decode them again.
+    pub fn create_loaded_job(
+        &self,
+        bundle: &[u8],
+        scene: &common::scene::Scene,
+        env_loaded: bool,
+        settings: RenderSettings,
+        priority: i32,
+    ) -> Result<(String, String), FarmError> {
+        let info = scenes::store_loaded(&self.farm, bundle, scene)?;
+        let job = (info.scene.as_str(), scene);
+        let status = jobs::create_loaded_job(&self.farm, job, env_loaded, settings, priority)?;
+        self.work.notify_waiters();
+        Ok((info.scene, status.id))
+    }
+
     /// Waits until the local workers have handed in more than `seen` results, failures or
     /// departures, or `timeout` passed; returns how many they have handed in.
     pub fn wait_for_handins(&self, seen: u64, timeout: Duration) -> u64 {

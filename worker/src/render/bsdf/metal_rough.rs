@@ -523,13 +523,12 @@ pub(crate) mod generic {
     /// as for [`eval`]).
     #[inline(always)]
     pub(crate) fn pdf<R: Real>(l: &Lobes<R>, alpha: R, wo: V3<R>, wi: V3<R>, transmits: bool) -> R {
-        pdf_given(l, alpha, wo, wi, probabilities(lobe_weights(l, wo.z)), transmits)
+        pdf_given(alpha, wo, wi, probabilities(lobe_weights(l, wo.z)), transmits)
     }
 
     /// [`pdf`] with the lobe probabilities for `wo` already found.
     #[inline(always)]
     fn pdf_given<R: Real>(
-        l: &Lobes<R>,
         alpha: R,
         wo: V3<R>,
         wi: V3<R>,
@@ -587,7 +586,7 @@ pub(crate) mod generic {
             & !(trans_lobe & glossy.z.le(zero))
             & !wi.z.eq(zero)
             & !(wi.z.lt(zero) & !far);
-        let pdf = pdf_given(l, alpha, wo, wi, chances, transmits);
+        let pdf = pdf_given(alpha, wo, wi, chances, transmits);
         let f = eval(l, alpha, wo, wi, transmits);
         (wi, f, pdf, far, ok & pdf.gt(zero))
     }
