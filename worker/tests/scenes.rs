@@ -349,9 +349,12 @@ fn every_real_asset_renders_without_nan() {
 /// from both faces, with glossy walls and glossy plates (the metal-rough BSDF), on textured
 /// real assets (DamagedHelmet: base colour, metal-rough, normal and emissive maps, its emissive
 /// parts lights sampled by the scalar routine; BoxTextured; VertexColorTest), with vertex
-/// colours on an untextured material, with vertex normals, with point, spot and directional lights, and in uniform environments, the furnaces
-/// included; each with its lights chosen by the mixture and by the light tree (whose
-/// probabilities depend on the point).
+/// colours on an untextured material, with vertex normals, with point, spot and directional
+/// lights, in uniform environments, the furnaces included, with cut-outs (alpha-blended, a light
+/// among them), and with glass, layered and thin-walled materials, whose paths the wavefront
+/// hands to the scalar path tracer; each with
+/// its lights chosen by the mixture and by the light tree (whose probabilities depend on the
+/// point).
 #[test]
 fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let real = |path: &str| {
@@ -427,8 +430,65 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             json["meshes"][mesh]["primitives"][0]["attributes"]["COLOR_0"] = json!(accessor);
         }
     });
+    // Materials the wavefront hands to the scalar path tracer beside ones it shades: a glass
+    // tall block (a refractive, absorbing volume) and a short block under a clear coat and
+    // sheen; and thin-walled walls it shades, a glossy green one that passes half its light
+    // through and a red one that diffuses some through.
+    let handed_over = edited_scene("cornell-box", "glass-and-layers", |json| {
+        let materials = json["materials"].as_array_mut().unwrap();
+        materials.push(json!({
+            "name": "glass",
+            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
+            "extensions": {
+                "KHR_materials_transmission": {"transmissionFactor": 1.0},
+                "KHR_materials_volume": {"thicknessFactor": 0.3, "attenuationDistance": 0.5, "attenuationColor": [0.9, 0.7, 0.5]}
+            }
+        }));
+        materials.push(json!({
+            "name": "lacquer",
+            "pbrMetallicRoughness": {"baseColorFactor": [0.6, 0.3, 0.2, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.6},
+            "extensions": {
+                "KHR_materials_clearcoat": {"clearcoatFactor": 1.0, "clearcoatRoughnessFactor": 0.1},
+                "KHR_materials_sheen": {"sheenColorFactor": [0.5, 0.5, 0.9], "sheenRoughnessFactor": 0.4}
+            }
+        }));
+        json["materials"][1]["extensions"]["KHR_materials_transmission"] =
+            json!({"transmissionFactor": 0.5});
+        json["materials"][1]["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.4);
+        json["materials"][1]["extensions"]["KHR_materials_specular"] = json!({});
+        json["materials"][2]["extensions"]["KHR_materials_diffuse_transmission"] = json!({
+            "diffuseTransmissionFactor": 0.4,
+            "diffuseTransmissionColorFactor": [0.9, 0.5, 0.3]
+        });
+        json["meshes"][4]["primitives"][0]["material"] = json!(4);
+        json["meshes"][3]["primitives"][0]["material"] = json!(5);
+        for ext in [
+            "KHR_materials_transmission",
+            "KHR_materials_volume",
+            "KHR_materials_clearcoat",
+            "KHR_materials_sheen",
+            "KHR_materials_diffuse_transmission",
+        ] {
+            json["extensionsUsed"].as_array_mut().unwrap().push(json!(ext));
+        }
+    });
+    // Cut-outs: the short block and the light half there (alpha blending, stochastic), so
+    // rays pass through them at random and the light's samples are weighed by its coverage.
+    let cut_outs = edited_scene("cornell-box", "cut-outs", |json| {
+        let materials = json["materials"].as_array_mut().unwrap();
+        let mut see_through = materials[0].clone();
+        see_through["name"] = json!("see-through");
+        see_through["alphaMode"] = json!("BLEND");
+        see_through["pbrMetallicRoughness"]["baseColorFactor"] = json!([0.2, 0.6, 0.9, 0.5]);
+        materials.push(see_through);
+        json["materials"][3]["alphaMode"] = json!("BLEND");
+        json["materials"][3]["pbrMetallicRoughness"]["baseColorFactor"] = json!([0.0, 0.0, 0.0, 0.6]);
+        json["meshes"][3]["primitives"][0]["material"] = json!(4);
+    });
     let scenes = [
         ("cornell-box", load("cornell-box.gltf")),
+        ("cut-outs", common::gltf::load_path(&cut_outs).expect("edited scene")),
+        ("glass and layers", common::gltf::load_path(&handed_over).expect("edited scene")),
         ("vertex colours", common::gltf::load_path(&coloured).expect("edited scene")),
         ("glossy walls", common::gltf::load_path(&glossy).expect("edited scene")),
         ("veach-mis", load("veach-mis.gltf")),
@@ -484,6 +544,9 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 bend(&mut scalar);
             }
             assert!(wavefront.wavefront().is_some(), "{name}: the wavefront applies");
+            let hands_over = wavefront.wavefront().and_then(|t| t.note.as_deref());
+            assert_eq!(hands_over.is_some(), *name == "glass and layers", "{name}: {hands_over:?}");
+            assert_eq!(wavefront.alpha_tested, *name == "cut-outs", "{name}");
             if *name == "punctual lights" {
                 let punctual = wavefront
                     .lights

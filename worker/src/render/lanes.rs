@@ -215,7 +215,7 @@ impl<S: Simd> U<S> {
     }
 
     /// Lane `i`.
-    #[cfg(test)]
+    #[inline(always)]
     pub(crate) fn lane(&self, i: usize) -> u32 {
         bytemuck::cast_slice::<S::u32s, u32>(std::slice::from_ref(&self.v))[i]
     }

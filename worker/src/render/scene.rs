@@ -26,6 +26,7 @@ use super::{
     media::MediumStack,
     motion::{Motion, MotionInstance, Pose},
     sampler::{mix64, to_unit},
+    wavefront_tables::Tables,
 };
 
 /// The emitting triangles that move within the shutter (`TriShading::light` `UNSAMPLED`), for
@@ -208,7 +209,7 @@ pub enum Transport {
     /// (`None`: every path is traced by the scalar path tracer).
     Path {
         /// What the wavefront renderer reads of the scene.
-        wavefront: Option<super::wavefront_tables::Tables>,
+        wavefront: Option<Tables>,
     },
     /// Bidirectional path tracing.
     Bdpt,
@@ -218,7 +219,7 @@ pub enum Transport {
 
 impl PreparedScene {
     /// The wavefront's tables, when the scene is rendered by the path tracer on the wavefront.
-    pub fn wavefront(&self) -> Option<&super::wavefront_tables::Tables> {
+    pub fn wavefront(&self) -> Option<&Tables> {
         match &self.transport {
             Transport::Path { wavefront } => wavefront.as_ref(),
             _ => None,
@@ -676,24 +677,33 @@ fn prepare_inner(
         .then(|| PowerMixture::new(&lights.lights, &emitters, scene_radius));
     let transport = match transport {
         Transport::Path { .. } => {
+            // What the wavefront's paths cannot meet: motion changes what a ray hits, and
+            // dispersion and scattering media change the numbers a path draws from its start
+            // (the wavefront hands a path to the scalar path tracer only where neither has
+            // changed anything yet).
             let scalar_only = if motion.is_some() {
                 Some("something moves within the shutter")
-            } else if alpha_tested {
-                Some("an alpha-tested material")
+            } else if scene.materials.iter().any(|m| m.refracts() && m.dispersion > 0.0) {
+                Some("a dispersive material")
+            } else if scene.materials.iter().any(scatters) {
+                Some("a scattering medium")
             } else {
                 None
             };
             // With vertex colours every material varies over its surfaces, like a textured one.
-            let tables = super::wavefront_tables::Tables::new(
+            let tables = Tables::new(
                 &scene.materials,
                 &scene.textures,
                 &lights,
                 scalar_only,
                 !colors.is_empty(),
+                (alpha_tested, &|prim| shading[prim as usize].material as usize),
             );
-            if let Err(why) = &tables {
-                // Once per prepared scene: which kernel renders it, and why.
-                tracing::info!("the path tracer runs scalar on this scene: {why}");
+            // Once per prepared scene: which kernel renders it, and why.
+            match &tables {
+                Err(why) => tracing::info!("the path tracer runs scalar on this scene: {why}"),
+                Ok(Tables { note: Some(note), .. }) => tracing::info!("{note}"),
+                Ok(_) => {}
             }
             Transport::Path { wavefront: tables.ok() }
         }
@@ -712,10 +722,7 @@ fn prepare_inner(
         textures: scene.textures.clone(),
         alpha_tested,
         dispersive: scene.materials.iter().any(|m| m.refracts() && m.dispersion > 0.0),
-        scattering_media: scene
-            .materials
-            .iter()
-            .any(|m| m.bounds_medium() && m.volume.is_some_and(|v| v.scatters())),
+        scattering_media: scene.materials.iter().any(scatters),
         lights,
         environment,
         environment_visible,
@@ -745,6 +752,11 @@ fn prepare_inner(
         }
     }
     Ok(prepared)
+}
+
+/// Whether a material bounds a medium that scatters light.
+fn scatters(m: &Material) -> bool {
+    m.bounds_medium() && m.volume.is_some_and(|v| v.scatters())
 }
 
 /// Most surfaces `media_at` passes from a point to infinity (past them, it warns and takes the

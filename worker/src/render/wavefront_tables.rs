@@ -1,10 +1,11 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
-//! prepared: the BSDF (Lambert, or the glTF metal-rough BSDF) and emission of each material and
-//! the emissive triangles (with the mixture's probabilities where the scene chooses by it).
+//! prepared: the BSDF (Lambert, or the glTF metal-rough BSDF) and emission of each material,
+//! which materials hand their paths to the scalar path tracer, and the emissive triangles (with
+//! the mixture's probabilities where the scene chooses by it).
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
 //! one way: `scene` does not depend on the renderers.
 
-use common::scene::{Material, Texture};
+use common::scene::{AlphaMode, Material, Texture};
 use glam::Vec3;
 
 use super::{
@@ -38,6 +39,11 @@ pub struct Tables {
     pub(super) textured: Vec<bool>,
     /// Emitted radiance per material.
     pub(super) emission: Vec<Vec3>,
+    /// Per material, whether the wavefront hands a path that meets it to the scalar path
+    /// tracer, which continues it (`path::li_resumed`).
+    pub(super) scalar: Vec<bool>,
+    /// The materials that hand paths over and why, for the log (`None` when none does).
+    pub note: Option<String>,
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
     /// are sampled by `Light::sample_li`, one lane at a time).
     pub(super) lights: Vec<Option<LightRec>>,
@@ -47,15 +53,20 @@ impl Tables {
     /// The tables of a scene being prepared, or why the wavefront does not take it (the scalar
     /// renderer then renders it, with the same estimator): `scalar_only` names what the scene
     /// as a whole needs of the scalar renderer (something moving within the shutter, an alpha
-    /// test), and every material must be one the wavefront takes (`wavefront_bsdf`, an
-    /// allow-list). `per_point`: the scene has vertex colours, so every material is shaded per
-    /// point, as textured ones are.
+    /// test, dispersion, scattering media). A material the wavefront does not shade
+    /// (`wavefront_bsdf`, an allow-list) hands the paths that meet it to the scalar path
+    /// tracer. `per_point`: the scene has vertex colours, so every material is shaded per
+    /// point, as textured ones are. `alpha_tested`: the scene has cut-outs, so an emitter whose
+    /// material is not opaque (`material_of` a triangle) is sampled with its coverage
+    /// (`shared::light_radiance`) and its emission found where a path hits it, one lane at a
+    /// time, as a textured emitter's is.
     pub fn new(
         materials: &[Material],
         textures: &[Texture],
         light_sampler: &LightSampler,
         scalar_only: Option<&str>,
         per_point: bool,
+        (alpha_tested, material_of): (bool, &dyn Fn(u32) -> usize),
     ) -> Result<Tables, String> {
         let mixture = light_sampler.mixture();
         if let Some(why) = scalar_only {
@@ -65,9 +76,14 @@ impl Tables {
         let mut glossy = Vec::with_capacity(materials.len());
         let mut textured = Vec::with_capacity(materials.len());
         let mut emission = Vec::with_capacity(materials.len());
+        let mut scalar = Vec::with_capacity(materials.len());
+        let mut handed_over = Vec::new();
         for m in materials {
-            let bsdf = wavefront_bsdf(textures, m)
-                .map_err(|why| format!("material '{}' has {why}", m.name))?;
+            let bsdf = wavefront_bsdf(textures, m);
+            scalar.push(matches!(bsdf, Shade::Scalar(_)));
+            if let Shade::Scalar(why) = bsdf {
+                handed_over.push(format!("'{}' ({why})", m.name));
+            }
             let bsdf = match bsdf {
                 Shade::Lambert(_) | Shade::Glossy(_) if per_point => Shade::Textured,
                 other => other,
@@ -82,7 +98,7 @@ impl Tables {
                     albedo.push(Vec3::ZERO);
                     glossy.push(Some(b));
                 }
-                Shade::Textured => {
+                Shade::Textured | Shade::Scalar(_) => {
                     albedo.push(Vec3::ZERO);
                     glossy.push(None);
                 }
@@ -96,7 +112,13 @@ impl Tables {
                 lights.push(None);
                 continue;
             };
-            if l.textured {
+            let material = material_of(l.prim);
+            let partly_there =
+                alpha_tested && materials[material].alpha_mode != AlphaMode::Opaque;
+            if partly_there {
+                textured[material] = true;
+            }
+            if l.textured || partly_there {
                 // Sampled by `Light::sample_li`, its radiance by `shared::light_radiance`.
                 lights.push(None);
                 continue;
@@ -110,7 +132,13 @@ impl Tables {
                 probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        Ok(Tables { albedo, glossy, textured, emission, lights })
+        let note = (!handed_over.is_empty()).then(|| {
+            format!(
+                "the wavefront hands paths to the scalar path tracer at the materials {}",
+                handed_over.join(", ")
+            )
+        });
+        Ok(Tables { albedo, glossy, textured, emission, scalar, note, lights })
     }
 }
 
@@ -124,14 +152,24 @@ enum Shade {
     /// Textured: Lambertian or metal-rough (reflecting only) at each point, as its textures
     /// say.
     Textured,
+    /// Shaded by the scalar path tracer, which takes over the paths that meet it, for the
+    /// reason given.
+    Scalar(&'static str),
 }
 
-/// The BSDF of a material the wavefront takes, or what it has that the wavefront does not. An
-/// allow-list: every field of `Material` is named here (a field added to it does not compile
-/// until it is decided), the textures and extensions the wavefront does not read send the scene
-/// to the scalar renderer, and the factors must make the glTF BSDF a Lambertian one or a
-/// metal-rough one that does not transmit.
-fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Result<Shade, &'static str> {
+/// The BSDF of a material the wavefront takes, or what it has that the wavefront does not
+/// (`Shade::Scalar`). An allow-list: every field of `Material` is named here (a field added to
+/// it does not compile until it is decided), the textures and extensions the wavefront does not
+/// read hand the material to the scalar path tracer, and so do factors that do not make the
+/// glTF BSDF a Lambertian one or a metal-rough one that does not transmit.
+fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Shade {
+    match wavefront_shade(textures, m) {
+        Ok(shade) => shade,
+        Err(why) => Shade::Scalar(why),
+    }
+}
+
+fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static str> {
     let Material {
         // What the wavefront reads, through the BSDF and the emission below.
         name: _,
@@ -148,7 +186,8 @@ fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Result<Shade, &'static 
         diffuse_transmission: _,
         diffuse_transmission_color: _,
         dispersion: _,
-        // Alpha tests send the whole scene to the scalar renderer (`scalar_only`).
+        // Alpha tests change what rays hit (`PreparedScene::intersect`) and what a light
+        // sample brings (`shared::light_radiance`), not the BSDF.
         alpha_mode: _,
         base_color_texture,
         metallic_roughness_texture,
@@ -186,14 +225,10 @@ fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Result<Shade, &'static 
         if m.extended() && m.refracts() {
             return Err("a refractive boundary");
         }
-        if m.transmission > 0.0 || m.diffuse_transmission > 0.0 {
-            return Err("thin-walled transmission");
-        }
         return Ok(Shade::Textured);
     }
     match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
         Bsdf::Diffuse(d) => Ok(Shade::Lambert(d.albedo)),
-        Bsdf::MetalRough(b) if b.transmits() => Err("thin-walled transmission"),
         Bsdf::MetalRough(b) => Ok(Shade::Glossy(b)),
         Bsdf::Layered(_) => Err("a layer (clear coat, sheen, anisotropy or iridescence)"),
         Bsdf::Dielectric(_) => Err("a refractive boundary"),
@@ -211,11 +246,11 @@ mod tests {
     }
 
     /// Lambertian and reflecting metal-rough materials pass, textured or not (a textured one is
-    /// shaded per point); layers, transmission and unlit send the scene to the scalar renderer
-    /// (with the reason).
+    /// shaded per point); layers, transmission and unlit hand their paths to the scalar path
+    /// tracer (with the reason), and what the whole scene needs of it keeps the wavefront off.
     #[test]
     fn the_wavefront_takes_only_what_it_renders() {
-        assert!(matches!(wavefront_bsdf(&[], &lambert()), Ok(Shade::Lambert(_))));
+        assert!(matches!(wavefront_shade(&[], &lambert()), Ok(Shade::Lambert(_))));
         let texture = Some(TextureRef { texture: 0, tex_coord: 0, transform: None });
         let textured = [
             Material { base_color_texture: texture, ..lambert() },
@@ -227,31 +262,51 @@ mod tests {
             Material { diffuse_transmission_color_texture: texture, ..lambert() },
         ];
         for m in &textured[..4] {
-            assert_eq!(wavefront_bsdf(&[], m), Ok(Shade::Textured), "{m:?}");
+            assert_eq!(wavefront_shade(&[], m), Ok(Shade::Textured), "{m:?}");
         }
-        // A texture on a transmission factor of zero changes nothing; on a positive one, the
-        // scene takes the scalar renderer.
+        // Textured transmission factors (thin-walled transmission) are shaded per point too.
         for m in &textured[4..] {
-            assert_eq!(wavefront_bsdf(&[], m), Ok(Shade::Textured), "{m:?}");
+            assert_eq!(wavefront_shade(&[], m), Ok(Shade::Textured), "{m:?}");
             let thin = Material { transmission: 0.5, diffuse_transmission: 0.5, ..m.clone() };
-            assert_eq!(wavefront_bsdf(&[], &thin), Err("thin-walled transmission"), "{m:?}");
+            assert_eq!(wavefront_shade(&[], &thin), Ok(Shade::Textured), "{m:?}");
         }
-        assert!(matches!(wavefront_bsdf(&[], &Material::default()), Ok(Shade::Glossy(_))));
+        assert!(matches!(wavefront_shade(&[], &Material::default()), Ok(Shade::Glossy(_))));
         // A full metal passes no light through, whatever its transmission factor.
         let metal = Material { transmission: 0.5, ..Material::default() };
-        assert!(matches!(wavefront_bsdf(&[], &metal), Ok(Shade::Glossy(_))));
+        assert!(matches!(wavefront_shade(&[], &metal), Ok(Shade::Glossy(_))));
         let unlit = Material { unlit: true, ..lambert() };
-        assert_eq!(wavefront_bsdf(&[], &unlit), Err("KHR_materials_unlit"));
-        let thin = Material { transmission: 0.5, ..lambert() };
-        assert_eq!(wavefront_bsdf(&[], &thin), Err("thin-walled transmission"));
-        let m = Material { name: "thin".into(), diffuse_transmission: 0.3, ..lambert() };
+        assert_eq!(wavefront_shade(&[], &unlit), Err("KHR_materials_unlit"));
+        // Thin-walled transmission: the metal-rough BSDF's far side.
+        for thin in [
+            Material { transmission: 0.5, ..lambert() },
+            Material { diffuse_transmission: 0.3, ..lambert() },
+        ] {
+            let shade = wavefront_shade(&[], &thin);
+            assert!(matches!(shade, Ok(Shade::Glossy(b)) if b.transmits()), "{shade:?}");
+        }
+        // A refractive boundary (a volume) goes to the scalar path tracer.
+        let glass = Material {
+            transmission: 1.0,
+            volume: Some(common::scene::Volume {
+                extinction: Vec3::ZERO,
+                albedo: Vec3::ZERO,
+                anisotropy: 0.0,
+            }),
+            ..lambert()
+        };
+        assert_eq!(wavefront_shade(&[], &glass), Err("a volume"));
+        let m = Material { name: "flat".into(), unlit: true, ..lambert() };
+        let tables =
+            Tables::new(&[lambert(), m], &[], &LightSampler::default(), None, false, (false, &|_| 0)).unwrap();
+        assert_eq!(tables.scalar, [false, true]);
+        let note = tables.note.expect("a material hands paths over");
+        assert!(note.ends_with("materials 'flat' (KHR_materials_unlit)"), "{note}");
+        let plain = Tables::new(&[lambert()], &[], &LightSampler::default(), None, false, (false, &|_| 0)).unwrap();
+        assert_eq!((plain.scalar, plain.note), (vec![false], None));
         let why =
-            Tables::new(&[lambert(), m], &[], &LightSampler::default(), None, false).unwrap_err();
-        assert_eq!(why, "material 'thin' has thin-walled transmission");
-        let why =
-            Tables::new(&[lambert()], &[], &LightSampler::default(), Some("a moving light"), false);
+            Tables::new(&[lambert()], &[], &LightSampler::default(), Some("a moving light"), false, (false, &|_| 0));
         assert_eq!(why.unwrap_err(), "a moving light");
-        let colours = Tables::new(&[lambert()], &[], &LightSampler::default(), None, true).unwrap();
+        let colours = Tables::new(&[lambert()], &[], &LightSampler::default(), None, true, (false, &|_| 0)).unwrap();
         assert_eq!(colours.textured, [true], "vertex colours: shaded per point");
     }
 }

@@ -23,6 +23,7 @@ use glam::{Vec2, Vec3};
 
 use super::{
     super::{
+        accel::Hit,
         bsdf::{Bsdf, Layered},
         geometry::{offset_ray_origin, Frame, Ray},
         light::{Light, ShadingContext},
@@ -45,20 +46,77 @@ use super::{
 /// `pose` places what moves at the sample's time (`None`: nothing moves).
 pub fn li(
     scene: &PreparedScene,
-    mut ray: Ray,
+    ray: Ray,
     sampler: &mut Sampler,
     stats: &mut Stats,
     pose: Option<&Pose<'_>>,
 ) -> Vec3 {
-    let mut radiance = Vec3::ZERO;
-    let mut beta = Vec3::ONE;
-    let mut depth = 0u32;
+    // In a scene with dispersion, the number for the wavelength the path takes on at its first
+    // dispersive boundary (drawn first, whether used or not).
+    let u_wavelength = if scene.dispersive { sampler.next_1d() } else { 0.0 };
+    let start = Resume {
+        ray,
+        hit: None,
+        radiance: Vec3::ZERO,
+        beta: Vec3::ONE,
+        depth: 0,
+        prev_bsdf_pdf: UNWEIGHTED,
+        prev_ctx: ShadingContext::default(),
+    };
+    trace(scene, start, u_wavelength, sampler, stats, pose)
+}
+
+/// A path as the wavefront hands it over (`li_resumed`): so far it has met only surfaces that
+/// reflect, in a scene whose paths start in no medium and take no wavelength, and it has found
+/// what its next ray hits.
+#[derive(Clone, Copy, Debug)]
+pub struct Resume {
+    /// The path's next ray.
+    pub ray: Ray,
+    /// What `ray` hits (`Some` when already found, else cast first).
+    pub hit: Option<Option<Hit>>,
+    /// The radiance gathered so far.
+    pub radiance: Vec3,
+    /// The path's throughput.
+    pub beta: Vec3,
+    /// Bounces so far.
+    pub depth: u32,
+    /// Density of the BSDF sample that produced `ray` (`UNWEIGHTED` for a camera ray).
+    pub prev_bsdf_pdf: f32,
+    /// Where that sample was taken.
+    pub prev_ctx: ShadingContext,
+}
+
+/// The radiance of a path the wavefront hands over at a surface it does not shade (`Resume`),
+/// continued exactly as `li` would have: the same numbers from `sampler` (standing at the
+/// path's next dimension), the same sum. Only for a static scene without dispersion and a
+/// camera in no medium (where `Tables::new` lets the wavefront run).
+pub fn li_resumed(
+    scene: &PreparedScene,
+    start: Resume,
+    sampler: &mut Sampler,
+    stats: &mut Stats,
+) -> Vec3 {
+    debug_assert!(!scene.dispersive && scene.camera_media.current().is_none());
+    trace(scene, start, 0.0, sampler, stats, None)
+}
+
+/// `li` from `start` on.
+fn trace(
+    scene: &PreparedScene,
+    start: Resume,
+    u_wavelength: f32,
+    sampler: &mut Sampler,
+    stats: &mut Stats,
+    pose: Option<&Pose<'_>>,
+) -> Vec3 {
+    let Resume { mut ray, hit: mut found, mut radiance, mut beta, mut depth, .. } = start;
     // Density of the BSDF sample that produced `ray` (`UNWEIGHTED` for camera rays and after a
     // delta lobe or a scattering, whose directions no light sample could have chosen).
-    let mut prev_bsdf_pdf = UNWEIGHTED;
+    let mut prev_bsdf_pdf = start.prev_bsdf_pdf;
     // Where that BSDF sample was taken (its point and shading normal): the light choice's
     // probability there is what light sampling would have given the light it hits.
-    let mut prev_ctx = ShadingContext::default();
+    let mut prev_ctx = start.prev_ctx;
     // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
     // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
     let mut eta_scale = 1.0f32;
@@ -67,9 +125,7 @@ pub fn li(
     let mut media = scene.camera_media;
     // False interfaces passed (bounded, so that no geometry can hold a path forever).
     let mut passed = 0u32;
-    // In a scene with dispersion, the number for the wavelength the path takes on at its first
-    // dispersive boundary (drawn first, whether used or not); the wavelength once taken.
-    let u_wavelength = if scene.dispersive { sampler.next_1d() } else { 0.0 };
+    // The wavelength, once a dispersive boundary has given the path one (from `u_wavelength`).
     let mut wavelength: Option<f32> = None;
     // In a scene with scattering media, the channel the path draws its free flights by (from its
     // first free flight's first number) and each channel's density of the path so far over their
@@ -78,8 +134,13 @@ pub fn li(
     let mut ratios = Vec3::ONE;
     let lights = &scene.lights;
     loop {
-        stats.rays += 1;
-        let hit = scene.intersect(&ray, f32::INFINITY, pose);
+        let hit = match found.take() {
+            Some(hit) => hit,
+            None => {
+                stats.rays += 1;
+                scene.intersect(&ray, f32::INFINITY, pose)
+            }
+        };
         let medium = media.current();
         // In a scene with scattering media every bounce starts with two numbers for the free
         // flight, drawn in a scattering medium and skipped elsewhere; other scenes take none.

@@ -63,11 +63,7 @@ pub(crate) fn power_heuristic(a: f32, b: f32) -> f32 {
 /// transmits. A direction between the two (a bent shading normal) carries no light.
 #[inline]
 pub(crate) fn same_side(cos_s: f32, cos_g: f32, transmits: bool) -> bool {
-    if cos_s > 0.0 {
-        cos_g > 0.0
-    } else {
-        transmits && cos_s < 0.0 && cos_g < 0.0
-    }
+    generic::same_side(cos_s, cos_g, transmits)
 }
 
 /// The density MIS gives a direction that no light sample could have made (a camera ray, a
@@ -263,6 +259,13 @@ pub(crate) mod generic {
         let (zero, sum) = (a.konst(0.0), a2 + b2);
         let w = R::select(sum.eq(zero), zero, a2 / sum);
         R::select(a2.eq(a.konst(f32::INFINITY)), a.konst(1.0), w)
+    }
+
+    /// `super::same_side`, whether the BSDF transmits given per lane.
+    #[inline(always)]
+    pub(crate) fn same_side<R: Real>(cos_s: R, cos_g: R, transmits: R::Mask) -> R::Mask {
+        let zero = cos_s.konst(0.0);
+        (cos_s.gt(zero) & cos_g.gt(zero)) | (transmits & cos_s.lt(zero) & cos_g.lt(zero))
     }
 
     /// Russian roulette's probability of ending a path of throughput `beta` that crossed

@@ -1,12 +1,16 @@
 //! The wavefront renderer: the same path tracer as `path::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
-//! For the scenes `wavefront_tables::Tables::new` accepts (an allow-list; the others render on
-//! the scalar path tracer, and `prepare` logs why once): diffuse and glTF metal-rough materials
-//! that do not transmit (the glossy lobes of `bsdf::metal_rough`), textured, normal-mapped and
-//! vertex-coloured or not, any lights and environment, chosen by the mixture or the light tree,
-//! nothing moving, nothing alpha-tested (the Cornell box, the furnaces, Veach's glossy plates and
-//! the damaged helmet among them). At a textured (or vertex-coloured) material, the point's
+//! For the scenes `wavefront_tables::Tables::new` accepts (nothing moving, no dispersion, no scattering medium, the camera in no volume; the others render
+//! on the scalar path tracer, and `prepare` logs why once), it shades diffuse and glTF
+//! metal-rough materials that do not transmit (the glossy lobes of `bsdf::metal_rough`),
+//! textured, normal-mapped, vertex-coloured and alpha-tested or not, under any lights and
+//! environment, chosen by the mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and
+//! the damaged helmet among them). A path that meets any other material (glass, volumes,
+//! layers, thin-walled transmission, unlit: `wavefront_bsdf`'s allow-list decides) leaves the
+//! vectors there: `path::li_resumed` continues it on the scalar path tracer from that hit, with
+//! the lane's throughput, radiance, depth, MIS state and sampler dimension, so its sum is the one
+//! `path::li` makes, and the lane takes the next sample. At a textured (or vertex-coloured) material, the point's
 //! emission, shading frame and BSDF parameters are found one lane at a time by the scalar
 //! renderer's calls (`material`, `shared::shading_frame`, `shared::hit_weight`), and a
 //! textured emitter is sampled by `Light::sample_li` and `shared::light_radiance`. Each lane holds one
@@ -51,9 +55,10 @@ use super::{
         scene::PreparedScene,
         wavefront_tables::Tables,
     },
+    path::{li_resumed, Resume},
     shared::{
         environment_hit,
-        generic::{power_heuristic, roulette_end},
+        generic::{power_heuristic, roulette_end, same_side},
         hit_weight, light_radiance, shading_frame, Stats, RR_MIN_DEPTH, SHADOW_T_MAX, UNWEIGHTED,
     },
 };
@@ -288,6 +293,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     let (mut albedo, mut le) = (z3, z3);
     // The metal-rough BSDF of the lanes whose material is glossy.
     let mut glossy = [false; MAX_LANES];
+    // The glossy lanes whose BSDF passes light through (thin-walled transmission).
+    let mut transmits = [false; MAX_LANES];
     // The lanes whose material is textured (shaded per point, one lane at a time), and the
     // triangle each lane hit.
     let mut textured = [false; MAX_LANES];
@@ -359,10 +366,15 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 cast = true;
                 stats.rays += 1;
                 let ray = Ray::new(paths.origin.lane(i), paths.dir.lane(i));
-                // `PreparedScene::intersect` for a static scene without cut-outs (all that
-                // `Tables::new` accepts): the BVH alone, its traversal compiled into this kernel
-                // for its instruction set (12% off a sample of the Cornell box on Zen 4).
-                let Some(hit) = scene.accel.intersect_inlined(&ray, f32::INFINITY) else {
+                // `PreparedScene::intersect` for a static scene (all that `Tables::new`
+                // accepts): without cut-outs the BVH alone, its traversal compiled into this
+                // kernel for its instruction set (12% off a sample of the Cornell box on Zen 4).
+                let found = if scene.alpha_tested {
+                    scene.intersect(&ray, f32::INFINITY, None)
+                } else {
+                    scene.accel.intersect_inlined(&ray, f32::INFINITY)
+                };
+                let Some(hit) = found else {
                     // What the escaping ray sees (the path tracer's miss, one lane).
                     let seen = paths.depth[i] > 0 || scene.environment_visible;
                     if seen && scene.environment.is_some() {
@@ -379,12 +391,32 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
                     continue;
                 };
+                let shading = scene.shading[hit.prim as usize];
+                if tables.scalar[shading.material as usize] {
+                    // A surface the wavefront does not shade: the scalar path tracer takes the
+                    // path on from this hit, with the lane's sampler where the lane stands.
+                    let first = paths.depth[i] == 0;
+                    let start = Resume {
+                        ray,
+                        hit: Some(Some(hit)),
+                        radiance: paths.radiance.lane(i),
+                        beta: paths.beta.lane(i),
+                        depth: paths.depth[i],
+                        prev_bsdf_pdf: paths.prev_bsdf_pdf.lane(i),
+                        prev_ctx: if first { ShadingContext::default() } else { paths.prev_ctx(i) },
+                    };
+                    let sm = &mut paths.sampler[i];
+                    sm.set_dimension(paths.draws.dimension_of(i));
+                    let radiance = li_resumed(scene, start, sm, &mut stats);
+                    paths.alive[i] = false;
+                    stream.finish(paths.item[i], radiance.to_array(), &mut tile);
+                    continue;
+                }
                 live[i] = true;
                 first_bounce[i] = paths.depth[i] == 0;
                 t.set_lane(i, hit.t);
                 b1.set_lane(i, hit.b1);
                 b2.set_lane(i, hit.b2);
-                let shading = scene.shading[hit.prim as usize];
                 let (p, _) = scene.triangle(hit.prim, None);
                 for (v, q) in tri.iter_mut().zip(p) {
                     v.set_lane(i, q);
@@ -399,8 +431,10 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 prims[i] = hit.prim;
                 textured[i] = tables.textured[shading.material as usize];
                 glossy[i] = false;
+                transmits[i] = false;
                 if let Some(b) = &tables.glossy[shading.material as usize] {
                     glossy[i] = true;
+                    transmits[i] = b.transmits();
                     set_lobes(&mut lobes, &mut alpha, i, b);
                 }
                 le.set_lane(i, tables.emission[shading.material as usize]);
@@ -493,6 +527,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 Bsdf::Diffuse(d) => albedo.set_lane(i, d.albedo),
                 Bsdf::MetalRough(b) => {
                     glossy[i] = true;
+                    transmits[i] = b.transmits();
                     set_lobes(&mut lobes, &mut alpha, i, &b);
                 }
                 // `Tables::new` takes no material that makes another BSDF.
@@ -506,6 +541,10 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // diffuse batch), the metal-rough arithmetic is not done at all.
         let any_glossy = (0..lanes).any(|i| glossy[i] && live[i]);
         let glossym = M::from_bools(s, &glossy);
+        // Whether any lane's BSDF passes light through: if none does, the far side's branch of
+        // the metal-rough arithmetic is not done.
+        let any_transmits = (0..lanes).any(|i| transmits[i] && live[i]);
+        let transm = M::from_bools(s, &transmits);
         let wo_l = if any_glossy { V3::new(wo.dot(fx), wo.dot(fy), wo_z) } else { z3 };
 
         // The bounce's numbers, in `path::li`'s dimensions: the light's pair, the lobe's
@@ -593,7 +632,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let f = lambert::eval(albedo, wo_z, wi_z).scale(wi_z.abs());
         let wi_l = if any_glossy { V3::new(wi.dot(fx), wi.dot(fy), wi_z) } else { z3 };
         let f = if any_glossy {
-            let fg = metal_rough::eval(&lobes, alpha, wo_l, wi_l, false).scale(wi_z.abs());
+            let fg = metal_rough::eval(&lobes, alpha, wo_l, wi_l, any_transmits).scale(wi_z.abs());
             glossym.select3(fg, f)
         } else {
             f
@@ -601,8 +640,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let shadowm = contm
             & M::from_bools(s, &has_light)
             & sampled
-            & wi_z.gt(zero)
-            & wi.dot(ng).gt(zero)
+            & same_side(wi_z, wi.dot(ng), transm)
             & !f.is_zero();
         shadowm.to_bools(&mut shadow);
         let s_origin = offset_ray_origin(p, p_error, ng, wi);
@@ -618,13 +656,17 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 let ray = Ray::new(s_origin.lane(i), s_dir.lane(i));
                 let t_max = if far[i] { f32::INFINITY } else { SHADOW_T_MAX };
                 // `PreparedScene::occluded`, as for the closest hits above.
-                unblocked[i] = !scene.accel.occluded_inlined(&ray, t_max);
+                unblocked[i] = if scene.alpha_tested {
+                    !scene.occluded(&ray, t_max, None)
+                } else {
+                    !scene.accel.occluded_inlined(&ray, t_max)
+                };
             }
         }
         let nee_pdf = light_pdf * choice_pdf;
         let bsdf_pdf = lambert::pdf(wo_z, wi_z);
         let bsdf_pdf = if any_glossy {
-            glossym.select(metal_rough::pdf(&lobes, alpha, wo_l, wi_l, false), bsdf_pdf)
+            glossym.select(metal_rough::pdf(&lobes, alpha, wo_l, wi_l, any_transmits), bsdf_pdf)
         } else {
             bsdf_pdf
         };
@@ -636,7 +678,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let (local, f, pdf, sampled) = lambert::sample(albedo, wo_z, (ub_x, ub_y));
         let (local, f, pdf, sampled) = if any_glossy {
             let (g_wi, g_f, g_pdf, _, g_ok) =
-                metal_rough::sample(&lobes, alpha, wo_l, u_lobe, (ub_x, ub_y), false);
+                metal_rough::sample(&lobes, alpha, wo_l, u_lobe, (ub_x, ub_y), any_transmits);
             (
                 glossym.select3(g_wi, local),
                 glossym.select3(g_f, f),
@@ -650,8 +692,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let beta = paths.beta.mul(f.scale(local.z.abs() / pdf));
         let ok = contm
             & sampled
-            & local.z.gt(zero)
-            & wi.dot(ng).gt(zero)
+            & same_side(local.z, wi.dot(ng), transm)
             & beta.is_finite()
             & !beta.is_zero();
         let origin = offset_ray_origin(p, p_error, ng, wi);
