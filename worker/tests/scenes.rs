@@ -482,7 +482,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         see_through["pbrMetallicRoughness"]["baseColorFactor"] = json!([0.2, 0.6, 0.9, 0.5]);
         materials.push(see_through);
         json["materials"][3]["alphaMode"] = json!("BLEND");
-        json["materials"][3]["pbrMetallicRoughness"]["baseColorFactor"] = json!([0.0, 0.0, 0.0, 0.6]);
+        json["materials"][3]["pbrMetallicRoughness"]["baseColorFactor"] =
+            json!([0.0, 0.0, 0.0, 0.6]);
         json["meshes"][3]["primitives"][0]["material"] = json!(4);
     });
     let scenes = [

@@ -815,9 +815,11 @@ fn images_decode_the_same_in_any_order_and_the_first_failure_is_named() {
     let budget = SceneBudget::default();
     let text = with(&images);
     let in_order = load_slice_spread(text.as_bytes(), &NoFiles, &budget, &InOrder).expect("loads");
-    let backwards = load_slice_spread(text.as_bytes(), &NoFiles, &budget, &Backwards).expect("loads");
+    let backwards =
+        load_slice_spread(text.as_bytes(), &NoFiles, &budget, &Backwards).expect("loads");
     for scene in [&in_order, &backwards] {
-        let seen: Vec<(u32, u8)> = scene.textures.iter().map(|t| (t.width, t.texels[0][0])).collect();
+        let seen: Vec<(u32, u8)> =
+            scene.textures.iter().map(|t| (t.width, t.texels[0][0])).collect();
         assert_eq!(seen, [(4, 10), (8, 20), (16, 30)]);
         assert!(scene.textures.iter().all(|t| t.texels.len() == (t.width * t.height) as usize));
     }

@@ -21,7 +21,8 @@ use serde_json::json;
 use super::{blocking, json_body, lock_farm, ApiResult, AppState};
 use crate::farm::{
     job::{JobState, JobStatus},
-    validate_job_scene, validate_job_scene_loaded, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
+    validate_job_scene, validate_job_scene_loaded, ErrorKind, Farm, FarmError, JobQuery, ListOrder,
+    MAX_LIST_LIMIT,
 };
 
 pub(super) fn routes() -> Router<AppState> {

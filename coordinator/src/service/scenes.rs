@@ -18,9 +18,7 @@ use super::{
 };
 use common::scene::Scene;
 
-use crate::farm::{
-    validate_upload, validate_upload_loaded, ErrorKind, Farm, FarmError, SceneInfo,
-};
+use crate::farm::{validate_upload, validate_upload_loaded, ErrorKind, Farm, FarmError, SceneInfo};
 
 pub(super) fn routes() -> Router<AppState> {
     Router::new()
@@ -43,7 +41,11 @@ pub(super) fn store_upload(
 
 /// [`store_upload`] of a bundle whose scene the caller loaded from these bytes within the
 /// farm's scene budget (the embedded render): the scene is not loaded again.
-pub(super) fn store_loaded(farm: &Mutex<Farm>, bytes: &[u8], scene: &Scene) -> ApiResult<SceneInfo> {
+pub(super) fn store_loaded(
+    farm: &Mutex<Farm>,
+    bytes: &[u8],
+    scene: &Scene,
+) -> ApiResult<SceneInfo> {
     let budget = lock_farm(farm).config().scene_budget;
     let mut info = validate_upload_loaded(bytes, &budget, scene)?;
     lock_farm(farm).put_scene(bytes, &mut info)?;

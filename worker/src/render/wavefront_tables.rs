@@ -113,8 +113,7 @@ impl Tables {
                 continue;
             };
             let material = material_of(l.prim);
-            let partly_there =
-                alpha_tested && materials[material].alpha_mode != AlphaMode::Opaque;
+            let partly_there = alpha_tested && materials[material].alpha_mode != AlphaMode::Opaque;
             if partly_there {
                 textured[material] = true;
             }
@@ -296,17 +295,34 @@ mod tests {
         };
         assert_eq!(wavefront_shade(&[], &glass), Err("a volume"));
         let m = Material { name: "flat".into(), unlit: true, ..lambert() };
-        let tables =
-            Tables::new(&[lambert(), m], &[], &LightSampler::default(), None, false, (false, &|_| 0)).unwrap();
+        let tables = Tables::new(
+            &[lambert(), m],
+            &[],
+            &LightSampler::default(),
+            None,
+            false,
+            (false, &|_| 0),
+        )
+        .unwrap();
         assert_eq!(tables.scalar, [false, true]);
         let note = tables.note.expect("a material hands paths over");
         assert!(note.ends_with("materials 'flat' (KHR_materials_unlit)"), "{note}");
-        let plain = Tables::new(&[lambert()], &[], &LightSampler::default(), None, false, (false, &|_| 0)).unwrap();
+        let plain =
+            Tables::new(&[lambert()], &[], &LightSampler::default(), None, false, (false, &|_| 0))
+                .unwrap();
         assert_eq!((plain.scalar, plain.note), (vec![false], None));
-        let why =
-            Tables::new(&[lambert()], &[], &LightSampler::default(), Some("a moving light"), false, (false, &|_| 0));
+        let why = Tables::new(
+            &[lambert()],
+            &[],
+            &LightSampler::default(),
+            Some("a moving light"),
+            false,
+            (false, &|_| 0),
+        );
         assert_eq!(why.unwrap_err(), "a moving light");
-        let colours = Tables::new(&[lambert()], &[], &LightSampler::default(), None, true, (false, &|_| 0)).unwrap();
+        let colours =
+            Tables::new(&[lambert()], &[], &LightSampler::default(), None, true, (false, &|_| 0))
+                .unwrap();
         assert_eq!(colours.textured, [true], "vertex colours: shaded per point");
     }
 }
