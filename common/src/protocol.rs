@@ -62,15 +62,33 @@ pub struct TaskResult {
     pub tile: TileAccum,
     /// Rays traced (camera, bounce and shadow rays), for throughput figures.
     pub rays: u64,
+    /// The kernel that rendered it (`"path, AVX-512 x16"`, `"path, AVX2 x8"`, `"path, scalar"`,
+    /// `"bdpt, scalar"`...): what the frame's EXR header reports. Every kernel makes the same
+    /// sums; at most [`MAX_KERNEL_NAME`] printable ASCII bytes.
+    pub kernel: String,
 }
+
+/// The longest kernel name a result may carry, in bytes.
+pub const MAX_KERNEL_NAME: usize = 64;
 
 impl TaskResult {
     /// Checks that this result really answers `spec`: same task, one pixel sum per pixel of the
     /// tile, every pixel holding exactly the task's samples, and sums that some set of real
     /// sample values could have produced ([`crate::film::PixelSums::check`]: finite, means not
     /// negative and within the renderer's largest sample value). The message names the first
-    /// problem found: the pixel (image coordinates), the channel and the value.
+    /// problem found: the pixel (image coordinates), the channel and the value. The kernel's
+    /// name must be 1 to [`MAX_KERNEL_NAME`] printable ASCII characters.
     pub fn check_answers(&self, spec: &TaskSpec) -> Result<(), String> {
+        let k = &self.kernel;
+        if k.is_empty()
+            || k.len() > MAX_KERNEL_NAME
+            || !k.bytes().all(|b| (b' '..=b'~').contains(&b))
+        {
+            let shown: String = k.chars().take(MAX_KERNEL_NAME).collect();
+            return Err(format!(
+                "the kernel's name {shown:?} is not 1 to {MAX_KERNEL_NAME} printable ASCII characters"
+            ));
+        }
         if self.spec != *spec {
             return Err(format!(
                 "the result is for task {:?}, but the lease is for {:?}",
@@ -120,7 +138,8 @@ pub fn encode_result(result: &TaskResult) -> Vec<u8> {
 
 /// The most bytes an encoded result for `spec` can take: a pixel's sums are at most 82 bytes
 /// (two counts of at most five varint bytes, nine `f64`s), and the rest (the task, the tile's
-/// corner and size, the counts of pixels, refused samples and rays) at most 256. The service
+/// corner and size, the counts of pixels, refused samples and rays, the kernel's name) at most
+/// 256. The service
 /// reads no more of a result's body than this.
 pub fn max_result_bytes(spec: &TaskSpec) -> usize {
     256 + spec.rect.area() * 82
@@ -220,10 +239,34 @@ mod tests {
         let mut tile = TileAccum::new(rect);
         tile.pixels.fill(widest);
         tile.rejected = u64::MAX;
-        let result = TaskResult { spec, tile, rays: u64::MAX };
+        let kernel = "~".repeat(MAX_KERNEL_NAME);
+        let result = TaskResult { spec, tile, rays: u64::MAX, kernel };
         let bytes = encode_result(&result).len();
         let bound = max_result_bytes(&spec);
         assert!(bytes <= bound, "{bytes} bytes over the bound of {bound}");
         assert!(bound - bytes <= 256, "{bytes} bytes against a bound of {bound}");
+    }
+
+    /// A result names its kernel in 1 to 64 printable ASCII characters; anything else is
+    /// refused, naming the kernel.
+    #[test]
+    fn kernel_names_are_short_printable_ascii() {
+        let rect = Rect { x0: 0, y0: 0, width: 1, height: 1 };
+        let samples = SampleRange { start: 0, end: 0 };
+        let spec = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
+        let result = |kernel: &str| TaskResult {
+            spec,
+            tile: TileAccum::new(rect),
+            rays: 0,
+            kernel: kernel.to_string(),
+        };
+        assert_eq!(result("path, AVX-512 x16").check_answers(&spec), Ok(()));
+        assert_eq!(result(&"~".repeat(MAX_KERNEL_NAME)).check_answers(&spec), Ok(()));
+        for bad in
+            [String::new(), "x".repeat(MAX_KERNEL_NAME + 1), "path\n".into(), "p\u{e2}th".into()]
+        {
+            let e = result(&bad).check_answers(&spec).unwrap_err();
+            assert!(e.starts_with("the kernel's name"), "{bad:?}: {e}");
+        }
     }
 }

@@ -196,7 +196,7 @@ fn encoded_result(spec: TaskSpec) -> Vec<u8> {
             }
         }
     }
-    encode_result(&TaskResult { spec, tile, rays: 7 })
+    encode_result(&TaskResult { spec, tile, rays: 7, kernel: "path, scalar".into() })
 }
 
 proptest! {

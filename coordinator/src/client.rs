@@ -13,7 +13,7 @@ use serde_json::{json, Value};
 
 use crate::{
     local::{bundle_scene, http_error, numbered, Progress, Stage},
-    output::{is_black, read_exr_rgb},
+    output::{self, is_black, read_exr_rgb},
 };
 
 /// Where the farm is and how to talk to it.
@@ -79,6 +79,8 @@ pub struct Submitted {
     pub outputs: Vec<std::path::PathBuf>,
     /// The last frame is black.
     pub black: bool,
+    /// The last frame's mean luminance, where it is nearly black (`output::nearly_black`).
+    pub nearly_black: Option<f64>,
 }
 
 /// Submits `scene_path` with `settings` to the farm, waits for the job, and writes its frames to
@@ -147,11 +149,14 @@ pub fn submit(
             outputs.push(path);
         }
     }
-    let black = match outputs.iter().rev().nth(1) {
-        Some(last_exr) => is_black(&read_exr_rgb(last_exr)?.2),
-        None => false,
+    let (black, nearly_black) = match outputs.iter().rev().nth(1) {
+        Some(last_exr) => {
+            let rgb = read_exr_rgb(last_exr)?.2;
+            (is_black(&rgb), output::nearly_black(&rgb))
+        }
+        None => (false, None),
     };
-    Ok(Submitted { status, outputs, black })
+    Ok(Submitted { status, outputs, black, nearly_black })
 }
 
 /// Exits non-zero unless `url` answers `/healthz` (the container image's health check).

@@ -53,6 +53,8 @@ pub struct RenderReport {
     pub est_rel_mse: f64,
     /// Samples refused (NaN, infinite or absurd) over all frames.
     pub rejected: u64,
+    /// The kernels that rendered the frames (`TaskResult::kernel`), by name.
+    pub kernels: Vec<String>,
 }
 
 /// Where a render is, for a progress display.
@@ -352,7 +354,9 @@ pub fn render_file_within(
     let (mut mean_rgb, mut est_rel_mse, mut rejected) = (Vec::new(), f64::INFINITY, 0);
     let farm = service.farm();
     let rays = farm.lock().unwrap_or_else(|p| p.into_inner()).counters.rays;
-    for &frame in &status.frames {
+    let mut kernels = std::collections::BTreeSet::new();
+    for (&frame, progress) in status.frames.iter().zip(&status.frame_progress) {
+        kernels.extend(progress.kernels.iter().cloned());
         let (image, _) = farm
             .lock()
             .unwrap_or_else(|p| p.into_inner())
@@ -370,6 +374,7 @@ pub fn render_file_within(
             scene_hash: scene_hash.clone(),
             render_seconds: status.elapsed_s,
             frame,
+            kernels: progress.kernels.clone(),
         };
         let png_path = exr_path.with_extension("png");
         write_frame(&exr_path, &png_path, image, &info)?;
@@ -390,6 +395,7 @@ pub fn render_file_within(
         mean_rgb,
         est_rel_mse,
         rejected,
+        kernels: kernels.into_iter().collect(),
     })
 }
 

@@ -16,7 +16,9 @@ use common::{
 use coordinator::{
     client::{healthcheck, submit, Remote},
     local::{render_file_within, Stage},
-    output::{check_writable, describe_error, exr_output, is_black},
+    output::{
+        check_writable, describe_error, exr_output, is_black, nearly_black, nearly_black_warning,
+    },
     service::{bind, serve_on, ServiceConfig},
 };
 use indicatif::{ProgressBar, ProgressStyle};
@@ -494,6 +496,9 @@ fn main() -> Result<()> {
             if let Some(bar) = bar {
                 bar.finish_and_clear();
             }
+            if let (Some(mean), true) = (done.nearly_black, unlit_by_environment(&settings)) {
+                tracing::warn!("{}", nearly_black_warning(mean));
+            }
             let status = &done.status;
             let rel_mse = status["est_rel_error"].as_f64().map(|e| e * e);
             summary(format_args!(
@@ -529,12 +534,16 @@ fn main() -> Result<()> {
                     "samples were NaN, infinite or absurdly large and were counted as zero; reproduce one with `worker debug-sample`"
                 );
             }
+            if let (Some(mean), true) = (nearly_black(&report.mean_rgb), unlit_by_environment(&s)) {
+                tracing::warn!("{}", nearly_black_warning(mean));
+            }
             summary(format_args!(
-                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s; {}; wrote {}",
+                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s; {}); load {:.3} s; {}; wrote {}",
                 report.samples,
                 report.render_seconds,
                 report.samples as f64 / report.render_seconds / 1e6,
                 report.rays as f64 / report.render_seconds / 1e6,
+                report.kernels.join("; "),
                 report.load_seconds,
                 describe_error(Some(report.est_rel_mse), is_black(&report.mean_rgb)),
                 list(&report.outputs)
@@ -542,6 +551,11 @@ fn main() -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Whether the settings give no environment that lights the scene (none, or a black one).
+fn unlit_by_environment(settings: &RenderSettings) -> bool {
+    settings.environment.as_ref().is_none_or(|e| e.is_black())
 }
 
 fn list(paths: &[PathBuf]) -> String {

@@ -21,6 +21,8 @@ pub struct FrameInfo {
     pub render_seconds: f64,
     /// Frame number.
     pub frame: i64,
+    /// The kernels that rendered it (`TaskResult::kernel`), by name.
+    pub kernels: Vec<String>,
 }
 
 /// What a frame's files hold, per pixel: mean, variance of the mean, sample count (28 bytes a
@@ -210,6 +212,7 @@ fn exr_image(
         text(format!("{:.3}", info.render_seconds)),
     );
     other.insert(Text::from("renderfarm.frame"), text(info.frame.to_string()));
+    other.insert(Text::from("renderfarm.kernels"), text(info.kernels.join("; ")));
     other.insert(Text::from("renderfarm.rejected_samples"), text(totals.rejected.to_string()));
     other.insert(Text::from("renderfarm.est_rel_mse"), text(format!("{est_rel_mse:.6e}")));
     let bounds = IntegerBounds::from_dimensions(size);
@@ -461,6 +464,27 @@ pub fn check_writable(paths: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
+/// The mean luminance below which an image is called nearly black: about five and a half
+/// stops under middle grey (0.18). The damaged helmet lit by its own emissive parts alone comes
+/// out at 0.002; under the studio map at 0.03, the Cornell box at 0.16.
+pub const NEARLY_BLACK: f64 = 0.005;
+
+/// The image's mean luminance (Rec. 709 weights) when it is above zero and below
+/// [`NEARLY_BLACK`]: an image its lights barely reach.
+pub fn nearly_black(mean_rgb: &[[f32; 3]]) -> Option<f64> {
+    let luminance =
+        |p: &[f32; 3]| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64;
+    let mean = mean_rgb.iter().map(luminance).sum::<f64>() / mean_rgb.len().max(1) as f64;
+    (mean > 0.0 && mean < NEARLY_BLACK).then_some(mean)
+}
+
+/// What `render` and `submit` say of a nearly black image of a scene with no environment.
+pub fn nearly_black_warning(mean: f64) -> String {
+    format!(
+        "the image is nearly black (mean luminance {mean:.4}): the scene's own lights reach little of what the camera sees; light it with an environment map: --env FILE.hdr, or \"environment\": {{\"map\": \"FILE.hdr\"}} in the settings (\"environment\": {{\"color\": [1, 1, 1]}} for a uniform white sky)"
+    )
+}
+
 /// True when every mean of the image is zero (nothing lit what the camera sees).
 pub fn is_black(mean_rgb: &[[f32; 3]]) -> bool {
     mean_rgb.iter().all(|p| p.iter().all(|&c| c == 0.0))
@@ -611,6 +635,7 @@ mod tests {
             scene_hash: "ab".repeat(32),
             render_seconds: 1.25,
             frame: 3,
+            kernels: vec!["path, AVX2 x8".into(), "path, scalar".into()],
         };
         let mut image = FrameImage::new(w, h);
         let mut totals = ExrTotals::default();

@@ -61,6 +61,14 @@ fn image_is_identical_with_one_or_two_workers() {
     };
     assert_eq!(get("renderfarm.samples").as_deref(), Some(&*(64 * 48 * 24).to_string()));
     assert_eq!(get("renderfarm.frame").as_deref(), Some("0"));
+    // The Cornell box runs on the wavefront where the CPU has AVX2 or AVX-512.
+    let kernel = get("renderfarm.kernels").unwrap();
+    let expected = match worker::render::integrators::wavefront::lanes() {
+        16 => "path, AVX-512 x16",
+        8 => "path, AVX2 x8",
+        _ => "path, scalar",
+    };
+    assert_eq!(kernel, expected);
     assert_eq!(get("renderfarm.rejected_samples").as_deref(), Some("0"));
     assert_eq!(get("renderfarm.scene_sha256").map(|h| h.len()), Some(64));
     let settings: serde_json::Value =
@@ -181,6 +189,61 @@ fn asset(path: &str) -> String {
 const SKY: &str = "real/environments/studio_small_05_1k.hdr";
 /// A real asset with textures and no lights of its own.
 const BOXED: &str = "real/BoxTextured/glTF/BoxTextured.gltf";
+
+/// The damaged helmet's own emissive parts light almost nothing of it: without an environment
+/// the image is nearly black, and `render` says so once, naming `--env`; under the map it does
+/// not, nor for the Cornell box.
+#[test]
+fn a_nearly_black_image_names_the_environment() {
+    let helmet = asset("real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb");
+    let small = ["--width", "32", "--height", "32", "--spp", "4"];
+    let dark = temp("helmet-dark.exr");
+    let output =
+        run_render(&[&[&helmet as &str, "-o", dark.to_str().unwrap()], &small[..]].concat());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert_eq!(stderr.matches("the image is nearly black").count(), 1, "{stderr}");
+    assert!(stderr.contains("--env FILE.hdr"), "{stderr}");
+    let (_, _, rgb) = coordinator::output::read_exr_rgb(&dark).unwrap();
+    assert!(coordinator::output::nearly_black(&rgb).is_some());
+    let sky = asset(SKY);
+    let lit = temp("helmet-lit.exr");
+    let args = [&helmet as &str, "--env", &sky, "-o", lit.to_str().unwrap()];
+    let output = run_render(&[&args[..], &small[..]].concat());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success() && !stderr.contains("nearly black"), "{stderr}");
+    let output = tiny_cornell(&temp("cb-bright.exr"));
+    assert!(!String::from_utf8_lossy(&output.stderr).contains("nearly black"));
+}
+
+/// Extensions the file uses that the renderer ignores are named in one warning, the archived
+/// specular-glossiness one with what is rendered instead.
+#[test]
+fn ignored_extensions_are_named_in_one_warning() {
+    let dir = temp("ignored-extensions");
+    std::fs::create_dir_all(&dir).unwrap();
+    let source = repo().join("tests/assets/real/Box/glTF");
+    std::fs::copy(source.join("Box0.bin"), dir.join("Box0.bin")).unwrap();
+    let mut gltf: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(source.join("Box.gltf")).unwrap()).unwrap();
+    gltf["extensionsUsed"] =
+        serde_json::json!(["KHR_materials_pbrSpecularGlossiness", "EXT_made_up"]);
+    std::fs::write(dir.join("Box.gltf"), gltf.to_string()).unwrap();
+    let scene = dir.join("Box.gltf");
+    let out = dir.join("box.exr");
+    let sky = asset(SKY);
+    let args = [scene.to_str().unwrap(), "--env", &sky, "-o", out.to_str().unwrap()];
+    let output =
+        run_render(&[&args[..], &["--width", "16", "--height", "16", "--spp", "2"]].concat());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert_eq!(stderr.matches("extensionsUsed: the renderer ignores").count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("KHR_materials_pbrSpecularGlossiness (archived")
+            && stderr.contains("EXT_made_up"),
+        "{stderr}"
+    );
+}
 
 /// A real asset has no lights of its own: without an environment it renders black, and the
 /// command says so (and names the fix) instead of reporting a converged image.

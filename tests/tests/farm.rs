@@ -101,7 +101,7 @@ fn result_for(spec: &TaskSpec, v: f32) -> TaskResult {
             }
         }
     }
-    TaskResult { spec: *spec, tile, rays: 0 }
+    TaskResult { spec: *spec, tile, rays: 0, kernel: "path, scalar".into() }
 }
 
 #[test]

@@ -61,7 +61,40 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Document, SceneError> {
     };
     check_asset(&root)?;
     check_required_extensions(&root)?;
+    let ignored = ignored_extensions(&root);
+    if !ignored.is_empty() {
+        tracing::warn!(
+            "extensionsUsed: the renderer ignores {} (what the file gives without them is rendered)",
+            ignored.join(", ")
+        );
+    }
     Ok(Document { root, raw, animations })
+}
+
+/// The extensions the file says it uses that this loader does not honour, each named once,
+/// with a word on what is rendered instead where one is known.
+pub(crate) fn ignored_extensions(root: &json::Root) -> Vec<String> {
+    let mut ignored: Vec<String> = Vec::new();
+    let mut seen: Vec<&str> = Vec::new();
+    for ext in &root.extensions_used {
+        if SUPPORTED_EXTENSIONS.contains(&ext.as_str()) || seen.contains(&ext.as_str()) {
+            continue;
+        }
+        seen.push(ext);
+        ignored.push(match ext.as_str() {
+            "KHR_materials_pbrSpecularGlossiness" => {
+                format!("{ext} (archived: its materials render by their metallic-roughness values)")
+            }
+            "KHR_draco_mesh_compression" | "EXT_meshopt_compression" => {
+                format!("{ext} (the uncompressed fallback buffers are read where there are any)")
+            }
+            "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" => {
+                format!("{ext} (the PNG or JPEG fallback image is read where there is one)")
+            }
+            _ => ext.clone(),
+        });
+    }
+    ignored
 }
 
 /// Makes valid glTF that the `gltf` crate's types refuse acceptable to them:
@@ -226,5 +259,24 @@ mod tests {
         assert!(e.0.contains("EXT_foo"), "{e}");
         let e = parse(b"[1,2]").err().expect("not an object");
         assert!(e.0.starts_with("JSON"), "{e}");
+    }
+
+    /// Every extension in `extensionsUsed` that the loader does not honour is named once, the
+    /// archived specular-glossiness one and the compression ones with what is read instead.
+    #[test]
+    fn ignored_extensions_are_named_once() {
+        let doc = parse(
+            br#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_materials_specular",
+                "KHR_materials_pbrSpecularGlossiness","EXT_foo","EXT_foo","KHR_texture_basisu"]}"#,
+        )
+        .expect("parses: only extensionsRequired is refused");
+        let ignored = ignored_extensions(&doc.root);
+        assert_eq!(ignored.len(), 3, "{ignored:?}");
+        assert!(ignored[0].starts_with("KHR_materials_pbrSpecularGlossiness (archived"));
+        assert_eq!(ignored[1], "EXT_foo");
+        assert!(ignored[2].starts_with("KHR_texture_basisu (the PNG or JPEG fallback"));
+        let plain =
+            parse(br#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_lights_punctual"]}"#);
+        assert!(ignored_extensions(&plain.expect("parses").root).is_empty());
     }
 }

@@ -185,7 +185,7 @@ fn fake_result(grant: &LeaseGrant) -> Vec<u8> {
         pixel.add(s, [0.5, 0.25, 0.125]);
     }
     let tile = TileAccum { rect: spec.rect, pixels: vec![pixel; spec.rect.area()], rejected: 0 };
-    encode_result(&TaskResult { spec, tile, rays: 0 })
+    encode_result(&TaskResult { spec, tile, rays: 0, kernel: "path, scalar".into() })
 }
 
 /// What the simulated workers of one run share.

@@ -36,7 +36,7 @@
 mod restore;
 mod status;
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use common::{
     film::{ErrorEstimate, Rect, TileAccum},
@@ -171,6 +171,8 @@ pub struct Frame {
     pub samples_done: u64,
     /// The frame is complete and its sums left memory (they are in the database).
     pub evicted: bool,
+    /// The kernels that rendered the tasks merged into it (`TaskResult::kernel`), by name.
+    pub kernels: BTreeSet<String>,
 }
 
 /// A job and everything the scheduler knows about it.
@@ -278,6 +280,7 @@ impl Job {
                 pilot: None,
                 samples_done: 0,
                 evicted: false,
+                kernels: BTreeSet::new(),
             })
             .collect();
         let tiles_open = frames.iter().map(|f| f.tiles.len()).sum();
@@ -399,6 +402,14 @@ impl Job {
         }
         // Past the time limit nothing is leased again: the last lease out ends the job.
         self.finish_if_complete(now);
+    }
+
+    /// Notes that `kernel` rendered a task of frame index `f`.
+    pub fn note_kernel(&mut self, f: usize, kernel: &str) {
+        let kernels = &mut self.frames[f].kernels;
+        if !kernels.contains(kernel) {
+            kernels.insert(kernel.to_string());
+        }
     }
 
     /// Accepts the sums of the leased task `key` (the caller has checked that they answer it):

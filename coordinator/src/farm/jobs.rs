@@ -216,6 +216,7 @@ impl Farm {
                 scene_hash: job.scene.clone(),
                 render_seconds: job.elapsed(self.clock.now()),
                 frame: number,
+                kernels: job.frames[f].kernels.iter().cloned().collect(),
             },
         })
     }

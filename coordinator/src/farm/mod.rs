@@ -190,6 +190,11 @@ impl Farm {
             }
             job.restore_adaptive(&stored.scales, store.pilots(&stored.id)?)
                 .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;
+            for (frame, kernel) in store.kernels(&stored.id)? {
+                if (frame as usize) < job.frames.len() {
+                    job.note_kernel(frame as usize, &kernel);
+                }
+            }
             if job.frames.len() > 1 {
                 for f in 0..job.frames.len() {
                     if job.frame_complete(f) {
@@ -366,6 +371,7 @@ impl Farm {
         let samples: u64 = result.tile.pixels.iter().map(|p| p.n as u64).sum();
         let rays = result.rays;
         let job = self.jobs.get_mut(job_id).expect("a live lease has a job");
+        job.note_kernel(key.frame as usize, &result.kernel);
         job.merge(key, result.tile, samples, now);
         job.note_end(self.clock.unix());
         // A scratch store writes a frame when it leaves memory instead (`keep_frame`).

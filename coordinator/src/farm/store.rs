@@ -118,6 +118,16 @@ fn put_pending(
 }
 
 /// Updates the job's row: state, error, elapsed time, adaptive scales, end time.
+/// Stores the kernels that rendered frame index `frame` of `job` (those stored already stay).
+fn put_kernels(db: &Connection, job: &Job, frame: u32) -> Result<()> {
+    let mut insert = db
+        .prepare_cached("INSERT OR IGNORE INTO kernels (job, frame, kernel) VALUES (?1, ?2, ?3)")?;
+    for kernel in &job.frames[frame as usize].kernels {
+        insert.execute(params![job.id, frame, kernel])?;
+    }
+    Ok(())
+}
+
 fn put_job_state(db: &Connection, job: &Job, now: Moment) -> Result<()> {
     db.prepare_cached(
         "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5, finished = ?6
@@ -171,7 +181,10 @@ impl Store {
                  PRIMARY KEY (job, frame, tile, task));
              CREATE TABLE IF NOT EXISTS pilots (
                  job TEXT NOT NULL, frame INTEGER NOT NULL, means BLOB NOT NULL,
-                 PRIMARY KEY (job, frame));",
+                 PRIMARY KEY (job, frame));
+             CREATE TABLE IF NOT EXISTS kernels (
+                 job TEXT NOT NULL, frame INTEGER NOT NULL, kernel TEXT NOT NULL,
+                 PRIMARY KEY (job, frame, kernel));",
         )
         .context("creating the schema")?;
         // Databases from before jobs had an end time gain the column (empty: such a job's end
@@ -254,6 +267,7 @@ impl Store {
         tx.execute("DELETE FROM pending WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM tiles WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM pilots WHERE job = ?1", [id])?;
+        tx.execute("DELETE FROM kernels WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM jobs WHERE id = ?1", [id])?;
         tx.commit()?;
         Ok(())
@@ -291,6 +305,7 @@ impl Store {
                     .execute(params![job.id, frame, blob])?;
             }
         }
+        put_kernels(&tx, job, frame)?;
         put_job_state(&tx, job, now)?;
         tx.commit()?;
         Ok(())
@@ -317,9 +332,18 @@ impl Store {
             )?
             .execute(params![job.id, frame, blob])?;
         }
+        put_kernels(&tx, job, frame)?;
         put_job_state(&tx, job, now)?;
         tx.commit()?;
         Ok(())
+    }
+
+    /// The kernels that rendered each frame of a job (by frame index), as stored.
+    pub fn kernels(&self, job: &str) -> Result<Vec<(u32, String)>> {
+        let mut stmt =
+            self.db.prepare("SELECT frame, kernel FROM kernels WHERE job = ?1 ORDER BY frame")?;
+        let rows = stmt.query_map([job], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, String>(1)?)))?;
+        Ok(rows.collect::<rusqlite::Result<_>>()?)
     }
 
     /// Every job, oldest first.

@@ -28,11 +28,12 @@ pub(crate) fn result_for(grant: &LeaseGrant, v: f32) -> TaskResult {
             }
         }
     }
-    TaskResult { spec, tile, rays: 0 }
+    TaskResult { spec, tile, rays: 0, kernel: "path, scalar".into() }
 }
 
 /// A result accepted out of order survives a restart as pending: counted once, never
-/// leased again, and added in task order once its predecessor arrives.
+/// leased again, and added in task order once its predecessor arrives. The kernels that
+/// rendered the frame survive with it, and the frame's EXR header names them all.
 #[test]
 fn pending_results_survive_a_restart_and_merge_in_order() {
     let dir = tempfile::tempdir().unwrap();
@@ -49,13 +50,16 @@ fn pending_results_survive_a_restart_and_merge_in_order() {
         let first = farm.lease(&w).unwrap().unwrap();
         let second = farm.lease(&w).unwrap().unwrap();
         assert_eq!((first.task.samples.start, second.task.samples.start), (0, 4));
-        farm.submit(&second.lease, &w, result_for(&second, 0.5), 0).unwrap();
+        let avx2 = TaskResult { kernel: "path, AVX2 x8".into(), ..result_for(&second, 0.5) };
+        farm.submit(&second.lease, &w, avx2, 0).unwrap();
         let status = farm.status(&id).unwrap();
         assert_eq!(status.samples_done, 64 * 4);
+        assert_eq!(status.frame_progress[0].kernels, ["path, AVX2 x8"]);
         (id, first, second)
     };
     let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
     assert_eq!(farm.status(&id).unwrap().samples_done, 64 * 4, "the pending result was lost");
+    assert_eq!(farm.status(&id).unwrap().frame_progress[0].kernels, ["path, AVX2 x8"]);
     let w =
         farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
     let again = farm.lease(&w).unwrap().unwrap();
@@ -64,6 +68,9 @@ fn pending_results_survive_a_restart_and_merge_in_order() {
     farm.submit(&again.lease, &w, result_for(&again, 0.5), 0).unwrap();
     let status = farm.status(&id).unwrap();
     assert_eq!((status.state, status.samples_done), (JobState::Done, 64 * 8));
+    let kernels = ["path, AVX2 x8", "path, scalar"];
+    assert_eq!(status.frame_progress[0].kernels, kernels);
+    assert_eq!(farm.frame_layout(&id, 0).unwrap().info.kernels, kernels);
     // The same bits as merging in order without any restart.
     let mut expected = TileAccum::new(first.task.rect);
     expected.merge(&result_for(&first, 0.5).tile);

@@ -69,17 +69,18 @@ pub fn render_task_threads(
     task: &TaskSpec,
     threads: usize,
 ) -> TaskResult {
+    let result = |tile, rays| TaskResult { spec: *task, tile, rays, kernel: kernel(scene).into() };
     // The one place that dispatches on the integrator.
     match (&scene.transport, task.kind) {
         (Transport::Sppm(params), _) => {
             let (tile, stats) = sppm::render_task(scene, params, seed, task, threads);
-            return TaskResult { spec: *task, tile, rays: stats.rays };
+            return result(tile, stats.rays);
         }
         (_, TaskKind::Light) => {
             // Light tracing (bidirectional jobs' light tasks). A sample index's film per thread,
             // added in sample order: the same bits on any count.
             let (tile, stats) = bdpt::render_light_task(scene, seed, task, threads);
-            return TaskResult { spec: *task, tile, rays: stats.rays };
+            return result(tile, stats.rays);
         }
         (Transport::Path { .. } | Transport::Bdpt, TaskKind::Camera) => {}
     }
@@ -87,7 +88,7 @@ pub fn render_task_threads(
     let threads = threads.clamp(1, rect.height.max(1) as usize);
     if threads == 1 {
         let (tile, stats) = render_rows(scene, seed, task, 0, 1);
-        return TaskResult { spec: *task, tile, rays: stats.rays };
+        return result(tile, stats.rays);
     }
     let parts: Vec<(TileAccum, Stats)> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
@@ -101,7 +102,7 @@ pub fn render_task_threads(
         tile.merge(part);
         rays += stats.rays;
     }
-    TaskResult { spec: *task, tile, rays }
+    result(tile, rays)
 }
 
 /// Renders rows `first, first + step, ...` of the task's tile.

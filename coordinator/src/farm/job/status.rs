@@ -106,6 +106,8 @@ pub struct FrameProgress {
     pub samples_done: u64,
     /// Every tile of the frame is complete.
     pub done: bool,
+    /// The kernels that rendered its tasks so far (`"path, AVX-512 x16"`, `"path, scalar"`...).
+    pub kernels: Vec<String>,
 }
 
 impl Job {
@@ -188,6 +190,7 @@ impl Job {
                     frame: f.number,
                     samples_done: f.samples_done,
                     done: f.tiles.iter().all(Tile::is_complete),
+                    kernels: f.kernels.iter().cloned().collect(),
                 })
                 .collect(),
             settings: self.settings.clone(),

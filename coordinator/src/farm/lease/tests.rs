@@ -61,7 +61,7 @@ fn result(k: u32) -> TaskResult {
             }
         }
     }
-    TaskResult { spec, tile, rays: 0 }
+    TaskResult { spec, tile, rays: 0, kernel: "path, scalar".into() }
 }
 
 fn refusal(answer: FarmResult<Vec<Effect>>) -> (ErrorKind, String) {
