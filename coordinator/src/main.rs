@@ -538,13 +538,13 @@ fn main() -> Result<()> {
                 tracing::warn!("{}", nearly_black_warning(mean));
             }
             summary(format_args!(
-                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s; {}); load {:.3} s; {}; wrote {}",
+                "rendered {} samples in {:.2} s ({:.2} Msamples/s, {:.2} Mrays/s); load {:.3} s; kernel {}; {}; wrote {}",
                 report.samples,
                 report.render_seconds,
                 report.samples as f64 / report.render_seconds / 1e6,
                 report.rays as f64 / report.render_seconds / 1e6,
-                report.kernels.join("; "),
                 report.load_seconds,
+                report.kernels.join(" + "),
                 describe_error(Some(report.est_rel_mse), is_black(&report.mean_rgb)),
                 list(&report.outputs)
             ));
