@@ -192,11 +192,16 @@ pub fn anisotropy(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Opti
     Some((strength.clamp(0.0, 1.0), direction))
 }
 
-/// The clear coat's tangent-space normal from its own normal map (z up), if it has one.
+/// The clear coat's tangent-space normal from its own normal map (z up), if it has one, and
+/// the texture-coordinate set the map reads.
 #[inline]
-pub fn clearcoat_normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<Vec3> {
+pub fn clearcoat_normal_map(
+    textures: &[Texture],
+    m: &Material,
+    sp: &SurfacePoint,
+) -> Option<(Vec3, u32)> {
     let (r, scale) = m.clearcoat.as_ref()?.normal_texture.as_ref()?;
-    tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)
+    Some((tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)?, r.tex_coord))
 }
 
 /// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB).
@@ -231,11 +236,12 @@ pub fn emission_toward(
     e * (1.0 - factor.clamp(0.0, 1.0) * fresnel)
 }
 
-/// The tangent-space normal from the normal map (z up), if the material has one.
+/// The tangent-space normal from the normal map (z up), if the material has one, and the
+/// texture-coordinate set the map reads.
 #[inline]
-pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<Vec3> {
+pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<(Vec3, u32)> {
     let (r, scale) = m.normal_texture.as_ref()?;
-    tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)
+    Some((tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)?, r.tex_coord))
 }
 
 /// A normal-map texel to a tangent-space normal, x and y scaled by `scale`.

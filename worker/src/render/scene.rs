@@ -145,7 +145,8 @@ pub struct PreparedScene {
     /// World-space vertex normals (zero when the mesh has none).
     pub normals: Vec<Vec3>,
     /// World-space vertex tangents (TANGENT) with the bitangent's sign in `w`, kept only when a
-    /// material is anisotropic and a mesh has them (else empty); zero where a mesh has none.
+    /// material is normal-mapped or anisotropic and a mesh has them (else empty); zero where a
+    /// mesh has none.
     /// Those of moving placements stay in object space.
     pub tangents: Vec<Vec4>,
     /// Vertex texture coordinate sets 0 and 1; each is empty when no mesh has it, else one per
@@ -391,8 +392,14 @@ fn prepare_inner(
     let mut triangles: Vec<[Vec3; 3]> = Vec::with_capacity(scene.triangle_count());
     let mut shading: Vec<TriShading> = Vec::with_capacity(scene.triangle_count());
     let mut normals: Vec<Vec3> = Vec::new();
-    let keep_tangents = scene.materials.iter().any(|m| m.anisotropy.is_some())
-        && scene.meshes.iter().any(|m| m.tangents.is_some());
+    // Tangents orient normal maps (the clear coat's too) and anisotropy.
+    let oriented = |m: &Material| {
+        m.anisotropy.is_some()
+            || m.normal_texture.is_some()
+            || m.clearcoat.as_ref().is_some_and(|c| c.normal_texture.is_some())
+    };
+    let keep_tangents =
+        scene.materials.iter().any(oriented) && scene.meshes.iter().any(|m| m.tangents.is_some());
     let mut tangents: Vec<Vec4> = Vec::new();
     let has_uvs = [0, 1].map(|k| scene.meshes.iter().any(|m| m.uvs[k].is_some()));
     let has_colors = scene.meshes.iter().any(|m| m.colors.is_some());

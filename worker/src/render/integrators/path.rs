@@ -292,8 +292,8 @@ fn trace(
         let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, iors, extended);
         if let (true, Bsdf::Layered(Layered { coat: Some(coat), .. })) = (extended, &mut bsdf) {
             let nc = match material::clearcoat_normal_map(&scene.textures, material, &sp) {
-                Some(tangent_normal) => {
-                    perturb_normal(scene, hit.prim, [p0, p1, p2], ns_surface, tangent_normal)
+                Some(mapped) => {
+                    perturb_normal(scene, (hit.prim, [p0, p1, p2], b), ns_surface, mapped, pose)
                         .unwrap_or(ns_surface)
                 }
                 None => ns_surface,

@@ -308,14 +308,14 @@ pub(crate) fn shading_frame(
         ng
     };
     let ns_surface = ns;
-    if let Some(tangent_normal) = material::normal_map(&scene.textures, material, sp) {
-        ns = perturb_normal(scene, prim, tri, ns, tangent_normal).unwrap_or(ns);
+    if let Some(mapped) = material::normal_map(&scene.textures, material, sp) {
+        ns = perturb_normal(scene, (prim, tri, b), ns, mapped, pose).unwrap_or(ns);
     }
     let anisotropy =
         if shading.extended { material::anisotropy(&scene.textures, material, sp) } else { None };
     let frame = match anisotropy {
         Some((_, direction)) => match mesh_tangent_basis(scene, prim, b, ns, pose)
-            .or_else(|| tangent_basis(scene, prim, tri, ns))
+            .or_else(|| tangent_basis(scene, prim, tri, ns, 0))
         {
             Some((t, bt)) => Frame::from_z_and_tangent(ns, t * direction.x + bt * direction.y),
             None => Frame::from_z(ns),
@@ -328,19 +328,21 @@ pub(crate) fn shading_frame(
 /// Applies a tangent-space normal from a normal map in the frame of [`tangent_basis`].
 pub(crate) fn perturb_normal(
     scene: &PreparedScene,
-    prim: u32,
-    tri: [Vec3; 3],
+    (prim, tri, b): (u32, [Vec3; 3], [f32; 3]),
     ns: Vec3,
-    tangent_normal: Vec3,
+    (tangent_normal, uv_set): (Vec3, u32),
+    pose: Option<&Pose<'_>>,
 ) -> Option<Vec3> {
-    let (t, bt) = tangent_basis(scene, prim, tri, ns)?;
+    let (t, bt) = mesh_tangent_basis(scene, prim, b, ns, pose)
+        .or_else(|| tangent_basis(scene, prim, tri, ns, uv_set))?;
     let n =
         (t * tangent_normal.x + bt * tangent_normal.y + ns * tangent_normal.z).try_normalize()?;
     (n.dot(ns) > 0.0).then_some(n)
 }
 
 /// The tangent and bitangent at barycentrics `b` of triangle `prim` from the mesh's TANGENT
-/// attribute (kept for anisotropic materials): the interpolated tangent orthogonalised against
+/// attribute (kept for normal-mapped and anisotropic materials): the interpolated tangent
+/// orthogonalised against
 /// `ns`, and the bitangent cross(ns, tangent) times the sign in `w`, as glTF defines it. `None`
 /// where the mesh has no tangents (or they are degenerate).
 fn mesh_tangent_basis(
@@ -364,16 +366,17 @@ fn mesh_tangent_basis(
 }
 
 /// The tangent and bitangent of texture space at a point of triangle `prim` with shading normal
-/// `ns`: from the triangle's texture-coordinate derivatives (dp/du, dp/dv), orthogonalised
-/// against `ns`. `None` without texture coordinates or where they are degenerate. Normal maps
-/// use these; anisotropy uses the mesh's TANGENT attribute first.
+/// `ns`: from the derivatives (dp/du, dp/dv) of the triangle's texture coordinates of set
+/// `uv_set`, orthogonalised against `ns`. `None` without those coordinates or where they are
+/// degenerate. Normal maps and anisotropy use these where the mesh has no TANGENT attribute.
 fn tangent_basis(
     scene: &PreparedScene,
     prim: u32,
     [p0, p1, p2]: [Vec3; 3],
     ns: Vec3,
+    uv_set: u32,
 ) -> Option<(Vec3, Vec3)> {
-    let uvs = scene.uvs.first().filter(|uv| !uv.is_empty())?;
+    let uvs = scene.uvs.get(uv_set as usize).filter(|uv| !uv.is_empty())?;
     let [i0, i1, i2] = scene.shading[prim as usize].vertices.map(|v| v as usize);
     let (duv1, duv2) = (uvs[i1] - uvs[i0], uvs[i2] - uvs[i0]);
     let det = duv1.x * duv2.y - duv1.y * duv2.x;
@@ -396,6 +399,7 @@ mod tests {
         settings::{Environment, RenderSettings},
     };
     use glam::{UVec2, Vec2, Vec3};
+    use serde_json::json;
 
     use super::*;
     use crate::render::{
@@ -518,6 +522,80 @@ mod tests {
             prepare_with_light_choice(&scene, &settings, crate::render::light::LightChoice::Tree);
         assert!(many.lights.uses_tree());
         assert!(check_partition(&many, 16) > 500);
+    }
+
+    /// A quad facing +z, its texture's u along +x and v down +y's opposite (so the UVs give a
+    /// tangent along +x), normal-mapped by a texel that tilts the normal 45 degrees toward the
+    /// tangent; with `tangent`, the TANGENT attribute of every vertex; with `uv1`, the map reads
+    /// a second set of texture coordinates, whose u runs along +y.
+    fn tilted_quad(tangent: Option<[f32; 4]>, uv1: bool) -> PreparedScene {
+        use base64::Engine as _;
+        let floats = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        let mut bin = floats(&[-1., -1., 0., 1., -1., 0., 1., 1., 0., -1., 1., 0.]);
+        bin.extend(floats(&[0., 0., 1., 0., 0., 1., 0., 0., 1., 0., 0., 1.]));
+        bin.extend(floats(&[0., 1., 1., 1., 1., 0., 0., 0.]));
+        bin.extend(floats(&tangent.unwrap_or_default().repeat(4)));
+        bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+        bin.extend(floats(&[0., 0., 0., 1., 1., 1., 1., 0.]));
+        let data = base64::engine::general_purpose::STANDARD.encode(&bin);
+        let view = |offset: usize, length: usize| json!({"buffer": 0, "byteOffset": offset, "byteLength": length});
+        let accessor = |view: usize, kind: &str| json!({"bufferView": view, "componentType": 5126, "count": 4, "type": kind});
+        let mut attributes = json!({"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2});
+        if tangent.is_some() {
+            attributes["TANGENT"] = json!(3);
+        }
+        attributes["TEXCOORD_1"] = json!(5);
+        // One texel (255, 128, 255): the tangent-space normal (1, 1/255, 1), normalised.
+        let png = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAIAAACQd1PeAAAADElEQVR4nGP43/AfAAUAAn8gmLxdAAAAAElFTkSuQmCC";
+        let doc = json!({
+            "asset": {"version": "2.0"},
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": attributes, "indices": 4, "material": 0}]}],
+            "materials": [{"normalTexture": {"index": 0, "texCoord": u32::from(uv1)}}],
+            "textures": [{"source": 0}],
+            "images": [{"uri": format!("data:image/png;base64,{png}")}],
+            "accessors": [
+                accessor(0, "VEC3"), accessor(1, "VEC3"), accessor(2, "VEC2"), accessor(3, "VEC4"),
+                {"bufferView": 4, "componentType": 5123, "count": 6, "type": "SCALAR"},
+                accessor(5, "VEC2")
+            ],
+            "bufferViews": [
+                view(0, 48), view(48, 48), view(96, 32), view(128, 64), view(192, 12), view(204, 32)
+            ],
+            "buffers": [{"byteLength": bin.len(), "uri": format!("data:application/octet-stream;base64,{data}")}]
+        });
+        let scene = load_slice(doc.to_string().as_bytes(), &NoFiles).expect("the quad");
+        let settings = RenderSettings { width: 8, height: 8, ..Default::default() };
+        prepare(&scene, &settings).expect("prepared")
+    }
+
+    /// A normal map turns the normal toward the tangent of the mesh's TANGENT attribute where
+    /// it has one (here along +y, its bitangent by the sign in w), and toward the tangent the
+    /// map's own texture coordinates give where it has none (+x for set 0, +y for set 1).
+    #[test]
+    fn normal_maps_follow_the_tangent_attribute() {
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        for (tangent, uv1, expected) in [
+            (None, false, Vec3::new(h, 0.0, h)),
+            (None, true, Vec3::new(0.0, h, h)),
+            (Some([0.0, 1.0, 0.0, 1.0]), false, Vec3::new(0.0, h, h)),
+            (Some([0.0, 1.0, 0.0, -1.0]), false, Vec3::new(0.0, h, h)),
+            (Some([-1.0, 0.0, 0.0, 1.0]), true, Vec3::new(-h, 0.0, h)),
+        ] {
+            let scene = tilted_quad(tangent, uv1);
+            assert_eq!(scene.tangents.is_empty(), tangent.is_none());
+            for prim in 0..2 {
+                let (tri, _) = scene.triangle(prim, None);
+                let b = [0.2, 0.3, 0.5];
+                let sp = scene.surface_point(prim, b);
+                let (frame, surface) = shading_frame(&scene, prim, tri, b, Vec3::Z, &sp, None);
+                assert!((surface - Vec3::Z).length() < 1e-6);
+                // The texel's 1/255 along the bitangent aside, the normal is the expected one.
+                let n = frame.z;
+                assert!((n - expected).length() < 0.01, "{tangent:?}: {n}");
+            }
+        }
     }
 
     fn prepare_with_light_choice(
