@@ -702,25 +702,38 @@ fn a_small_file_cannot_make_the_loader_allocate_without_limit() {
     assert_names(&load_err(&doc), &["accessor 0", "too large"]);
 }
 
-/// Textures that share one image share its decoded texels and are charged for them once, from
-/// the image's header, before anything is decoded.
-#[test]
-fn one_image_is_decoded_once_and_charged_from_its_header() {
+/// A PNG of `size` x `size` RGBA texels, every byte `value`.
+fn flat_png(size: u32, value: u8) -> Vec<u8> {
     let mut png = Vec::new();
-    image::RgbaImage::from_raw(64, 64, vec![200; 64 * 64 * 4])
+    image::RgbaImage::from_raw(size, size, vec![value; (size * size * 4) as usize])
         .expect("image")
         .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
         .expect("encode");
+    png
+}
+
+/// `triangle_doc` drawn `n` times, primitive `k` with material `k`, whose base colour is
+/// texture `k`.
+fn textured_triangles(n: usize) -> Value {
     let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
-    let prims: Vec<Value> = (0..8)
+    let prims: Vec<Value> = (0..n)
         .map(|m| json!({"attributes": {"POSITION": 0}, "indices": 1, "material": m}))
         .collect();
     doc["meshes"][0]["primitives"] = Value::Array(prims);
     doc["materials"] = Value::Array(
-        (0..8)
+        (0..n)
             .map(|t| json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": t}}}))
             .collect(),
     );
+    doc
+}
+
+/// Textures that share one image share its decoded texels and are charged for them once, from
+/// the image's header, before anything is decoded.
+#[test]
+fn one_image_is_decoded_once_and_charged_from_its_header() {
+    let png = flat_png(64, 200);
+    let mut doc = textured_triangles(8);
     doc["textures"] = Value::Array((0..8).map(|_| json!({"source": 0})).collect());
     let uri =
         format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(&png));
@@ -779,25 +792,8 @@ impl crate::spread::Spread for Backwards {
 #[test]
 fn images_decode_the_same_in_any_order_and_the_first_failure_is_named() {
     // Three images of different sizes (decoded largest first) and colours.
-    let png = |size: u32, grey: u8| {
-        let mut bytes = Vec::new();
-        image::RgbaImage::from_raw(size, size, vec![grey; (size * size * 4) as usize])
-            .expect("image")
-            .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-            .expect("encode");
-        bytes
-    };
-    let images = [png(4, 10), png(8, 20), png(16, 30)];
-    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
-    let prims: Vec<Value> = (0..3)
-        .map(|m| json!({"attributes": {"POSITION": 0}, "indices": 1, "material": m}))
-        .collect();
-    doc["meshes"][0]["primitives"] = Value::Array(prims);
-    doc["materials"] = Value::Array(
-        (0..3)
-            .map(|t| json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": t}}}))
-            .collect(),
-    );
+    let images = [flat_png(4, 10), flat_png(8, 20), flat_png(16, 30)];
+    let mut doc = textured_triangles(3);
     doc["textures"] = Value::Array((0..3).map(|i| json!({"source": i})).collect());
     let with = |images: &[Vec<u8>]| {
         let mut doc = doc.clone();
