@@ -85,8 +85,8 @@ use super::{
         spectrum,
     },
     shared::{
-        hit_error, light_radiance, meet_surface, roulette, same_side, shading_frame, Meeting,
-        Stats, SHADOW_T_MAX,
+        hit_error, light_radiance, meet_surface, roulette, same_side, shading_frame, surface_bsdf,
+        Meeting, Stats, SHADOW_T_MAX,
     },
 };
 
@@ -757,7 +757,8 @@ pub(super) fn surface_vertex(
             let base = material::base_color(&scene.textures, material, &sp).truncate();
             return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
         }
-        let (mut frame, _) = shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, at.pose);
+        let (mut frame, ns_surface) =
+            shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, at.pose);
         v.refracting = boundary && material.refracts();
         if v.refracting && frame.to_local(wo).z <= 0.0 {
             // As in the path tracer: a refractive boundary shades with the facet's normal where
@@ -783,7 +784,9 @@ pub(super) fn surface_vertex(
         } else {
             [1.0; 2]
         };
-        v.bsdf = Some(material::bsdf(&scene.textures, material, &sp, front, iors, tri.extended));
+        let here = (hit.prim, [p0, p1, p2], b);
+        let shading = (&sp, front, iors);
+        v.bsdf = Some(surface_bsdf(scene, here, shading, (&frame, ns_surface), at.pose));
         return Some((v, None));
     }
 }

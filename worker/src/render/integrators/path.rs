@@ -24,7 +24,6 @@ use glam::{Vec2, Vec3};
 use super::{
     super::{
         accel::Hit,
-        bsdf::{Bsdf, Layered},
         geometry::{offset_ray_origin, Frame, Ray},
         light::{Light, ShadingContext},
         material,
@@ -37,7 +36,7 @@ use super::{
     },
     shared::{
         environment_hit, hit_error, hit_weight, light_radiance, meet_surface, mis_pdf,
-        perturb_normal, power_heuristic, roulette, same_side, sample_light, shading_frame, Meeting,
+        power_heuristic, roulette, same_side, sample_light, shading_frame, surface_bsdf, Meeting,
         Stats, SHADOW_T_MAX, UNWEIGHTED,
     },
 };
@@ -289,17 +288,8 @@ fn trace(
         } else {
             [1.0; 2]
         };
-        let mut bsdf: Bsdf = material::bsdf(&scene.textures, material, &sp, front, iors, extended);
-        if let (true, Bsdf::Layered(Layered { coat: Some(coat), .. })) = (extended, &mut bsdf) {
-            let nc = match material::clearcoat_normal_map(&scene.textures, material, &sp) {
-                Some(mapped) => {
-                    perturb_normal(scene, (hit.prim, [p0, p1, p2], b), ns_surface, mapped, pose)
-                        .unwrap_or(ns_surface)
-                }
-                None => ns_surface,
-            };
-            coat.normal = frame.to_local(nc);
-        }
+        let at = (hit.prim, [p0, p1, p2], b);
+        let bsdf = surface_bsdf(scene, at, (&sp, front, iors), (&frame, ns_surface), pose);
         let transmits = bsdf.transmits();
 
         // Next-event estimation. A bounce's numbers are drawn where they are used, in the

@@ -9,11 +9,12 @@
 //!   coverage).
 //! - Russian roulette, which looks past the eta² a path's radiance took crossing refractions.
 //! - The shading frame at a hit (interpolated normal, normal map, anisotropy direction).
+//! - The BSDF at a surface vertex (`surface_bsdf`), where a clear coat takes its own normal.
 
 use glam::{Vec2, Vec3};
 
 use super::super::{
-    bsdf::BsdfSample,
+    bsdf::{Bsdf, BsdfSample, Layered},
     geometry::{interpolation_error, Frame},
     lanes::V3,
     light::{ChooseLight, Light, LightSample, ShadingContext},
@@ -340,6 +341,32 @@ pub(crate) fn perturb_normal(
     (n.dot(ns) > 0.0).then_some(n)
 }
 
+/// The BSDF at barycentrics `b` of triangle `prim` (`material::bsdf` of its material at `sp`,
+/// seen from the `front` face or not, with the relative indices `iors`), shaded in `frame`. A
+/// clear coat takes its own normal: its normal map's, perturbed from `ns_surface` (the shading
+/// normal without the base's normal map), or `ns_surface` itself, as the extension defines it.
+/// Every integrator's surface vertex is made here.
+pub(crate) fn surface_bsdf(
+    scene: &PreparedScene,
+    (prim, tri, b): (u32, [Vec3; 3], [f32; 3]),
+    (sp, front, iors): (&material::SurfacePoint, bool, [f32; 2]),
+    (frame, ns_surface): (&Frame, Vec3),
+    pose: Option<&Pose<'_>>,
+) -> Bsdf {
+    let extended = scene.shading[prim as usize].extended;
+    let m = &scene.materials[scene.shading[prim as usize].material as usize];
+    let mut bsdf = material::bsdf(&scene.textures, m, sp, front, iors, extended);
+    if let (true, Bsdf::Layered(Layered { coat: Some(coat), .. })) = (extended, &mut bsdf) {
+        let nc = match material::clearcoat_normal_map(&scene.textures, m, sp) {
+            Some(mapped) => perturb_normal(scene, (prim, tri, b), ns_surface, mapped, pose)
+                .unwrap_or(ns_surface),
+            None => ns_surface,
+        };
+        coat.normal = frame.to_local(nc);
+    }
+    bsdf
+}
+
 /// The tangent and bitangent at barycentrics `b` of triangle `prim` from the mesh's TANGENT
 /// attribute (kept for normal-mapped and anisotropic materials): the interpolated tangent
 /// orthogonalised against
@@ -399,7 +426,7 @@ mod tests {
         settings::{Environment, RenderSettings},
     };
     use glam::{UVec2, Vec2, Vec3};
-    use serde_json::json;
+    use serde_json::{json, Value};
 
     use super::*;
     use crate::render::{
@@ -529,6 +556,11 @@ mod tests {
     /// tangent; with `tangent`, the TANGENT attribute of every vertex; with `uv1`, the map reads
     /// a second set of texture coordinates, whose u runs along +y.
     fn tilted_quad(tangent: Option<[f32; 4]>, uv1: bool) -> PreparedScene {
+        tilted_quad_with(tangent, uv1, json!({}))
+    }
+
+    /// `tilted_quad` with the material's `extensions`.
+    fn tilted_quad_with(tangent: Option<[f32; 4]>, uv1: bool, extensions: Value) -> PreparedScene {
         use base64::Engine as _;
         let floats = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
         let mut bin = floats(&[-1., -1., 0., 1., -1., 0., 1., 1., 0., -1., 1., 0.]);
@@ -552,7 +584,10 @@ mod tests {
             "scenes": [{"nodes": [0]}],
             "nodes": [{"mesh": 0}],
             "meshes": [{"primitives": [{"attributes": attributes, "indices": 4, "material": 0}]}],
-            "materials": [{"normalTexture": {"index": 0, "texCoord": u32::from(uv1)}}],
+            "materials": [{
+                "normalTexture": {"index": 0, "texCoord": u32::from(uv1)},
+                "extensions": extensions
+            }],
             "textures": [{"source": 0}],
             "images": [{"uri": format!("data:image/png;base64,{png}")}],
             "accessors": [
@@ -595,6 +630,33 @@ mod tests {
                 let n = frame.z;
                 assert!((n - expected).length() < 0.01, "{tangent:?}: {n}");
             }
+        }
+    }
+
+    /// A clear coat takes its own normal, the same in every integrator (`surface_bsdf`): its
+    /// normal map's where it has one, else the surface's without the base's normal map.
+    #[test]
+    fn a_clear_coat_takes_its_own_normal() {
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        let tilted = Vec3::new(h, 0.0, h);
+        let plain = json!({"KHR_materials_clearcoat": {"clearcoatFactor": 1.0}});
+        let mapped = json!({"KHR_materials_clearcoat": {
+            "clearcoatFactor": 1.0, "clearcoatNormalTexture": {"index": 0}
+        }});
+        for (extensions, coat_normal) in [(plain, Vec3::Z), (mapped, tilted)] {
+            let scene = tilted_quad_with(None, false, extensions);
+            let (prim, b) = (0, [0.2, 0.3, 0.5]);
+            let (tri, _) = scene.triangle(prim, None);
+            let sp = scene.surface_point(prim, b);
+            let (frame, surface) = shading_frame(&scene, prim, tri, b, Vec3::Z, &sp, None);
+            assert!((frame.z - tilted).length() < 0.01, "the base's map tilts the frame");
+            let at = (prim, tri, b);
+            let bsdf = surface_bsdf(&scene, at, (&sp, true, [1.0; 2]), (&frame, surface), None);
+            let Bsdf::Layered(Layered { coat: Some(coat), .. }) = bsdf else {
+                panic!("a coated BSDF: {bsdf:?}")
+            };
+            let n = frame.to_world(coat.normal);
+            assert!((n - coat_normal).length() < 0.01, "{coat_normal}: {n}");
         }
     }
 
