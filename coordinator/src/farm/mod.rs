@@ -39,8 +39,7 @@ pub use jobs::{
     FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, DEFAULT_LIST_LIMIT, MAX_LIST_LIMIT,
 };
 pub use validate::{
-    hex, is_hash, validate_job_scene, validate_job_scene_loaded, validate_upload,
-    validate_upload_loaded, SceneInfo,
+    hex, is_hash, validate_job_scene, validate_upload, validate_upload_loaded, SceneInfo,
 };
 pub use workers::WorkerInfo;
 

@@ -129,27 +129,9 @@ fn load(bundle: &Bundle) -> FarmResult<Scene> {
 
 /// The scene-dependent checks of a job: the named camera and material variant exist and the
 /// environment map, if any, is in the bundle and decodes. Slow: call it outside the farm lock.
+/// `loaded`: the scene the caller loaded from this bundle, and whether it decoded the settings'
+/// environment map too (the embedded render); neither is then decoded again.
 pub fn validate_job_scene(
-    bundle_bytes: &[u8],
-    settings: &RenderSettings,
-    budget: &SceneBudget,
-) -> FarmResult<()> {
-    validate_job_scene_of(bundle_bytes, settings, budget, None)
-}
-
-/// [`validate_job_scene`] where the caller has loaded the scene and the settings' environment
-/// map from this bundle (the embedded render): neither is decoded again.
-pub fn validate_job_scene_loaded(
-    bundle_bytes: &[u8],
-    settings: &RenderSettings,
-    budget: &SceneBudget,
-    scene: &Scene,
-    env_map_loaded: bool,
-) -> FarmResult<()> {
-    validate_job_scene_of(bundle_bytes, settings, budget, Some((scene, env_map_loaded)))
-}
-
-fn validate_job_scene_of(
     bundle_bytes: &[u8],
     settings: &RenderSettings,
     budget: &SceneBudget,

@@ -21,8 +21,7 @@ use serde_json::json;
 use super::{blocking, json_body, lock_farm, ApiResult, AppState};
 use crate::farm::{
     job::{JobState, JobStatus},
-    validate_job_scene, validate_job_scene_loaded, ErrorKind, Farm, FarmError, JobQuery, ListOrder,
-    MAX_LIST_LIMIT,
+    validate_job_scene, ErrorKind, Farm, FarmError, JobQuery, ListOrder, MAX_LIST_LIMIT,
 };
 
 pub(super) fn routes() -> Router<AppState> {
@@ -35,28 +34,9 @@ pub(super) fn routes() -> Router<AppState> {
 
 /// `POST /jobs` after the body is parsed: checks the settings against the farm and the stored
 /// scene, and creates the job. Slow (it may load the scene): call it off the async threads.
+/// `loaded`: the scene (and whether the environment map) the caller loaded from the stored
+/// bundle, as `validate_job_scene` takes it.
 pub(super) fn create_checked_job(
-    farm: &Mutex<Farm>,
-    scene: &str,
-    settings: RenderSettings,
-    priority: i32,
-) -> ApiResult<JobStatus> {
-    create_job_of(farm, scene, settings, priority, None)
-}
-
-/// [`create_checked_job`] on a scene (and environment map, where `env_loaded`) the caller
-/// loaded from the stored bundle (the embedded render): neither is decoded again.
-pub(super) fn create_loaded_job(
-    farm: &Mutex<Farm>,
-    (scene, loaded): (&str, &Scene),
-    env_loaded: bool,
-    settings: RenderSettings,
-    priority: i32,
-) -> ApiResult<JobStatus> {
-    create_job_of(farm, scene, settings, priority, Some((loaded, env_loaded)))
-}
-
-fn create_job_of(
     farm: &Mutex<Farm>,
     scene: &str,
     settings: RenderSettings,
@@ -72,10 +52,7 @@ fn create_job_of(
     })?;
     let bytes = std::fs::read(path).map_err(|e| FarmError::internal(format!("scene: {e}")))?;
     let budget = lock_farm(farm).config().scene_budget;
-    match loaded {
-        Some((loaded, env)) => validate_job_scene_loaded(&bytes, &settings, &budget, loaded, env)?,
-        None => validate_job_scene(&bytes, &settings, &budget)?,
-    }
+    validate_job_scene(&bytes, &settings, &budget, loaded)?;
     lock_farm(farm).create_job(scene, settings, priority)
 }
 
@@ -104,7 +81,8 @@ async fn create_job(
         })?;
     let farm = state.farm.clone();
     let status =
-        blocking(move || create_checked_job(&farm, &req.scene, settings, req.priority)).await?;
+        blocking(move || create_checked_job(&farm, &req.scene, settings, req.priority, None))
+            .await?;
     state.work.notify_waiters();
     Ok((StatusCode::CREATED, Json(status)).into_response())
 }

@@ -364,7 +364,7 @@ impl Running {
         priority: i32,
     ) -> Result<(String, String), FarmError> {
         let info = scenes::store_upload(&self.farm, bundle, None)?;
-        let status = jobs::create_checked_job(&self.farm, &info.scene, settings, priority)?;
+        let status = jobs::create_checked_job(&self.farm, &info.scene, settings, priority, None)?;
         self.work.notify_waiters();
         Ok((info.scene, status.id))
     }
@@ -381,8 +381,8 @@ impl Running {
         priority: i32,
     ) -> Result<(String, String), FarmError> {
         let info = scenes::store_loaded(&self.farm, bundle, scene)?;
-        let job = (info.scene.as_str(), scene);
-        let status = jobs::create_loaded_job(&self.farm, job, env_loaded, settings, priority)?;
+        let loaded = Some((scene, env_loaded));
+        let status = jobs::create_checked_job(&self.farm, &info.scene, settings, priority, loaded)?;
         self.work.notify_waiters();
         Ok((info.scene, status.id))
     }

@@ -682,6 +682,8 @@ fn prepare_inner(
     // of many emitters). Bidirectional path tracing needs the mixture only where the two differ.
     let emission = (sppm || (bdpt && lights.uses_tree()))
         .then(|| PowerMixture::new(&lights.lights, &emitters, scene_radius));
+    let dispersive = scene.materials.iter().any(|m| m.refracts() && m.dispersion > 0.0);
+    let scattering_media = scene.materials.iter().any(scatters);
     let transport = match transport {
         Transport::Path { .. } => {
             // What the wavefront's paths cannot meet: motion changes what a ray hits, and
@@ -690,9 +692,9 @@ fn prepare_inner(
             // changed anything yet).
             let scalar_only = if motion.is_some() {
                 Some("something moves within the shutter")
-            } else if scene.materials.iter().any(|m| m.refracts() && m.dispersion > 0.0) {
+            } else if dispersive {
                 Some("a dispersive material")
-            } else if scene.materials.iter().any(scatters) {
+            } else if scattering_media {
                 Some("a scattering medium")
             } else {
                 None
@@ -728,8 +730,8 @@ fn prepare_inner(
         materials: scene.materials.clone(),
         textures: scene.textures.clone(),
         alpha_tested,
-        dispersive: scene.materials.iter().any(|m| m.refracts() && m.dispersion > 0.0),
-        scattering_media: scene.materials.iter().any(scatters),
+        dispersive,
+        scattering_media,
         lights,
         environment,
         environment_visible,

@@ -52,8 +52,8 @@ pub struct Tables {
 impl Tables {
     /// The tables of a scene being prepared, or why the wavefront does not take it (the scalar
     /// renderer then renders it, with the same estimator): `scalar_only` names what the scene
-    /// as a whole needs of the scalar renderer (something moving within the shutter, an alpha
-    /// test, dispersion, scattering media). A material the wavefront does not shade
+    /// as a whole needs of the scalar renderer (something moving within the shutter,
+    /// dispersion, scattering media). A material the wavefront does not shade
     /// (`wavefront_bsdf`, an allow-list) hands the paths that meet it to the scalar path
     /// tracer. `per_point`: the scene has vertex colours, so every material is shaded per
     /// point, as textured ones are. `alpha_tested`: the scene has cut-outs, so an emitter whose
@@ -146,10 +146,9 @@ impl Tables {
 enum Shade {
     /// Lambertian, of this albedo.
     Lambert(Vec3),
-    /// The glTF metal-rough BSDF, reflecting only.
+    /// The glTF metal-rough BSDF, thin-walled transmission included.
     Glossy(MetalRough),
-    /// Textured: Lambertian or metal-rough (reflecting only) at each point, as its textures
-    /// say.
+    /// Textured: Lambertian or metal-rough (thin-walled) at each point, as its textures say.
     Textured,
     /// Shaded by the scalar path tracer, which takes over the paths that meet it, for the
     /// reason given.
@@ -160,7 +159,7 @@ enum Shade {
 /// (`Shade::Scalar`). An allow-list: every field of `Material` is named here (a field added to
 /// it does not compile until it is decided), the textures and extensions the wavefront does not
 /// read hand the material to the scalar path tracer, and so do factors that do not make the
-/// glTF BSDF a Lambertian one or a metal-rough one that does not transmit.
+/// glTF BSDF a Lambertian one or a metal-rough one (thin-walled where it transmits).
 fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Shade {
     match wavefront_shade(textures, m) {
         Ok(shade) => shade,

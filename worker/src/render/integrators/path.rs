@@ -72,8 +72,8 @@ pub fn li(
 pub struct Resume {
     /// The path's next ray.
     pub ray: Ray,
-    /// What `ray` hits (`Some` when already found, else cast first).
-    pub hit: Option<Option<Hit>>,
+    /// What `ray` hits, when already found (`None`: cast it first).
+    pub hit: Option<Hit>,
     /// The radiance gathered so far.
     pub radiance: Vec3,
     /// The path's throughput.
@@ -134,7 +134,7 @@ fn trace(
     let lights = &scene.lights;
     loop {
         let hit = match found.take() {
-            Some(hit) => hit,
+            Some(hit) => Some(hit),
             None => {
                 stats.rays += 1;
                 scene.intersect(&ray, f32::INFINITY, pose)

@@ -1,16 +1,17 @@
 //! The wavefront renderer: the same path tracer as `path::li`, run on 8 (AVX2) or 16
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
-//! For the scenes `wavefront_tables::Tables::new` accepts (nothing moving, no dispersion, no scattering medium, the camera in no volume; the others render
-//! on the scalar path tracer, and `prepare` logs why once), it shades diffuse and glTF
-//! metal-rough materials that do not transmit (the glossy lobes of `bsdf::metal_rough`),
-//! textured, normal-mapped, vertex-coloured and alpha-tested or not, under any lights and
-//! environment, chosen by the mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and
-//! the damaged helmet among them). A path that meets any other material (glass, volumes,
-//! layers, thin-walled transmission, unlit: `wavefront_bsdf`'s allow-list decides) leaves the
-//! vectors there: `path::li_resumed` continues it on the scalar path tracer from that hit, with
-//! the lane's throughput, radiance, depth, MIS state and sampler dimension, so its sum is the one
-//! `path::li` makes, and the lane takes the next sample. At a textured (or vertex-coloured) material, the point's
+//! For the scenes `wavefront_tables::Tables::new` accepts (nothing moving, no dispersion, no
+//! scattering medium, the camera in no volume; the others render on the scalar path tracer,
+//! and `prepare` logs why once), it shades diffuse and glTF metal-rough materials (the lobes of
+//! `bsdf::metal_rough`, thin-walled transmission included), textured, normal-mapped,
+//! vertex-coloured and alpha-tested or not, under any lights and environment, chosen by the
+//! mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and the
+//! damaged helmet among them). A path that meets any other material (glass, volumes, layers,
+//! unlit: `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
+//! continues it on the scalar path tracer from that hit, with the lane's throughput, radiance,
+//! depth, MIS state and sampler dimension, so its sum is the one `path::li` makes, and the lane
+//! takes the next sample. At a textured (or vertex-coloured) material, the point's
 //! emission, shading frame and BSDF parameters are found one lane at a time by the scalar
 //! renderer's calls (`material`, `shared::shading_frame`, `shared::hit_weight`), and a
 //! textured emitter is sampled by `Light::sample_li` and `shared::light_radiance`. Each lane holds one
@@ -398,7 +399,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     let first = paths.depth[i] == 0;
                     let start = Resume {
                         ray,
-                        hit: Some(Some(hit)),
+                        hit: Some(hit),
                         radiance: paths.radiance.lane(i),
                         beta: paths.beta.lane(i),
                         depth: paths.depth[i],
