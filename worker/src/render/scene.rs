@@ -781,13 +781,12 @@ fn light_media(scene: &PreparedScene) -> Vec<MediumStack> {
         .lights
         .lights
         .iter()
-        .map(|light| match light {
-            Light::Triangle(l) => {
-                media_at(scene, (l.p[0] + l.p[1] + l.p[2]) / 3.0, l.normal, l.prim, None)
+        .map(|light| match light.placed() {
+            Some((p, facing)) => {
+                let prim = light.on_surface().map_or(NONE, |l| l.prim);
+                media_at(scene, p, facing.unwrap_or_else(askew), prim, None)
             }
-            Light::Point(l) => media_at(scene, l.position, askew(), NONE, None),
-            Light::Spot(l) => media_at(scene, l.position, l.direction, NONE, None),
-            Light::Environment(_) | Light::Directional(_) => MediumStack::default(),
+            None => MediumStack::default(),
         })
         .collect();
     if media.iter().all(|m| m.current().is_none()) {

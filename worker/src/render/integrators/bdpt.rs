@@ -71,22 +71,19 @@ use super::{
     super::{
         bsdf::{Bsdf, Dielectric},
         camera::PlacedCamera,
-        geometry::{interpolation_error, offset_ray_origin, Frame, Ray},
-        light::{spot_falloff, ChooseLight, Light, ShadingContext},
+        geometry::{offset_ray_origin, Frame, Ray},
+        light::{ChooseLight, Light, ShadingContext},
         material,
         media::{self, transmittance, MediumStack},
         motion::Pose,
         sampler::{Sampler, FRAME_DIMENSIONS},
-        sampling::{
-            sample_henyey_greenstein, sample_uniform_disk_concentric, sample_uniform_sphere,
-            uniform_sphere_pdf,
-        },
+        sampling::sample_henyey_greenstein,
         scene::{PreparedScene, NONE, UNSAMPLED},
         spectrum,
     },
     shared::{
         hit_error, light_radiance, meet_surface, roulette, same_side, shading_frame, surface_bsdf,
-        Meeting, Stats, SHADOW_T_MAX,
+        surface_emission, Meeting, Stats, SHADOW_T_MAX,
     },
 };
 
@@ -311,10 +308,10 @@ impl Vertex {
         if self.light == NONE {
             return 0.0;
         }
+        let light = &scene.lights.lights[self.light as usize];
         if self.infinite {
             // The density per unit area of the disk the light enters through, projected.
-            let r = scene.sphere.1;
-            return self.convert_density(1.0 / (std::f32::consts::PI * r * r), next);
+            return self.convert_density(light.pdf_le(self.wo, scene.sphere.1).pos, next);
         }
         let w = next.p - self.p;
         let d2 = w.length_squared();
@@ -322,11 +319,7 @@ impl Vertex {
             return 0.0;
         }
         let w = w / d2.sqrt();
-        let pdf_dir = match &scene.lights.lights[self.light as usize] {
-            Light::Triangle(l) => l.pdf_le(l.normal.dot(w)),
-            _ => uniform_sphere_pdf(),
-        };
-        let mut pdf = pdf_dir / d2;
+        let mut pdf = light.pdf_le(w, scene.sphere.1).dir / d2;
         if next.on_surface() {
             pdf *= next.ng.dot(w).abs();
         }
@@ -346,11 +339,7 @@ impl Vertex {
             Some(mixture) => mixture.pmf(&blind, self.light),
             None => scene.lights.pmf(&blind, self.light),
         };
-        match &scene.lights.lights[self.light as usize] {
-            Light::Triangle(l) => pmf / l.area,
-            Light::Environment(env) => pmf * env.pdf(-self.wo),
-            _ => pmf,
-        }
+        pmf * origin_density(&scene.lights.lights[self.light as usize], self.wo, scene.sphere.1)
     }
 
     /// Radiance an emitter's surface vertex sends toward unit direction `w`.
@@ -358,15 +347,25 @@ impl Vertex {
         if self.light == NONE {
             return Vec3::ZERO;
         }
-        match &scene.lights.lights[self.light as usize] {
-            Light::Environment(env) if self.infinite => env.radiance(-self.wo),
-            Light::Triangle(l) if l.emits_toward(w) => {
-                let m = &scene.materials[scene.shading[self.prim as usize].material as usize];
-                let sp = scene.surface_point(self.prim, self.b);
-                material::emission_toward(&scene.textures, m, &sp, self.ng, w)
-            }
-            _ => Vec3::ZERO,
+        let light = &scene.lights.lights[self.light as usize];
+        match light.on_surface() {
+            Some(l) if l.emits_toward(w) => surface_emission(scene, l, self.b, w),
+            Some(_) => Vec3::ZERO,
+            None if self.infinite => light.radiance(self.wo),
+            None => Vec3::ZERO,
         }
+    }
+}
+
+/// The density of a light subpath's first vertex on `light` leaving along unit `wo` (pbrt's
+/// convention: its position's per unit area, but for a light at infinity, whose disk point no
+/// other strategy chooses, its direction's per solid angle), the choice of light excluded.
+fn origin_density(light: &Light, wo: Vec3, radius: f32) -> f32 {
+    let pdf = light.pdf_le(wo, radius);
+    if light.is_infinite() {
+        pdf.dir
+    } else {
+        pdf.pos
     }
 }
 
@@ -945,10 +944,7 @@ pub(super) fn leave_still_light(
     let (first, second) = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
     let Some((idx, pmf)) = choose_emitting(scene, u_choice) else { return };
     let light = &scene.lights.lights[idx as usize];
-    let u = match light {
-        Light::Directional(_) => (first, second),
-        _ => (second, first),
-    };
+    let u = (first, second);
     let media = scene.light_media.get(idx as usize).copied().unwrap_or_default();
     let pmf = pmf * scale;
     leave_light(scene, at, sampler, u, light, Some(idx), pmf, media, max_vertices, path, stats);
@@ -966,15 +962,15 @@ pub(super) fn choose_emitting(scene: &PreparedScene, u: f32) -> Option<(u32, f32
 
 /// The subpath of `light`, chosen with probability `pmf` (`idx`, its index in `scene.lights`;
 /// `None` for an emitter that moves within the shutter, posed at the sample's time), starting
-/// in the volumes `media`: its vertex on the light, at the point the numbers `u.0` give and
-/// leaving in the direction `u.1` give, and the walk from there (`light_subpath`). The sampler
-/// must be at its walk's numbers.
+/// in the volumes `media`: its vertex on the light, where `Light::sample_le` leaves by the
+/// numbers `u` (the better stratified pair first), and the walk from there (`light_subpath`).
+/// The sampler must be at its walk's numbers.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn leave_light(
     scene: &PreparedScene,
     at: &At<'_>,
     sampler: &mut Sampler,
-    (u_pos, u_dir): (Vec2, Vec2),
+    u: (Vec2, Vec2),
     light: &Light,
     idx: Option<u32>,
     pmf: f32,
@@ -984,60 +980,41 @@ pub(super) fn leave_light(
     stats: &mut Stats,
 ) {
     path.clear();
-    let (mut v, beta, ray, pdf_dir) = match light {
-        Light::Triangle(l) => {
-            let Some((b, dir, pdf_dir)) = l.sample_le(u_pos, u_dir) else { return };
-            let p = l.p[0] * b[0] + l.p[1] * b[1] + l.p[2] * b[2];
-            let mut le = if l.textured {
-                let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
-                let sp = scene.surface_point(l.prim, b);
-                material::emission_toward(&scene.textures, m, &sp, l.normal, dir)
-            } else {
-                l.emission
-            };
-            if scene.alpha_tested {
-                le *= scene.coverage(l.prim, b);
+    let Some(mut ls) = light.sample_le(u.0, u.1, scene.sphere) else { return };
+    let mut v = match light.on_surface() {
+        Some(l) => {
+            if l.textured {
+                ls.le = surface_emission(scene, l, ls.barycentrics, ls.dir);
             }
-            let mut v = Vertex::new(Kind::Light, p, le);
-            v.p_error = interpolation_error(l.p, b);
+            if scene.alpha_tested {
+                ls.le *= scene.coverage(l.prim, ls.barycentrics);
+            }
+            let mut v = Vertex::new(Kind::Light, ls.p, ls.le);
+            v.p_error = ls.p_error;
             v.ng = l.normal;
             v.prim = l.prim;
-            v.b = b;
-            let pdf_pos = 1.0 / l.area;
-            let beta = le * (l.normal.dot(dir).abs() / (pmf * pdf_pos * pdf_dir));
-            let side = if l.normal.dot(dir) > 0.0 { l.normal } else { -l.normal };
-            (v, beta, Ray::new(offset_ray_origin(p, v.p_error, side, dir), dir), pdf_dir)
+            v.b = ls.barycentrics;
+            v
         }
-        Light::Point(l) => {
-            let dir = sample_uniform_sphere(u_dir);
-            let v = Vertex::new(Kind::Light, l.position, l.intensity);
-            (
-                v,
-                l.intensity / (pmf * uniform_sphere_pdf()),
-                Ray::new(l.position, dir),
-                uniform_sphere_pdf(),
-            )
-        }
-        Light::Spot(l) => {
-            let dir = sample_uniform_sphere(u_dir);
-            let le = l.intensity * spot_falloff(dir.dot(l.direction), l.cos_inner, l.cos_outer);
-            let v = Vertex::new(Kind::Light, l.position, le);
-            (v, le / (pmf * uniform_sphere_pdf()), Ray::new(l.position, dir), uniform_sphere_pdf())
-        }
-        // Lights at infinity: a direction, then a point on the disk of the scene's radius
-        // across it, outside the scene; the walk's first density is the disk's per unit area.
-        Light::Environment(env) => {
-            let Some((wi, le, pdf_dir)) = env.sample(u_dir) else { return };
-            let (v, ray, pdf_pos) = enter_from_infinity(scene, -wi, le, u_pos);
-            (v, le / (pmf * pdf_pos * pdf_dir), ray, pdf_pos)
-        }
-        Light::Directional(l) => {
-            let (v, ray, pdf_pos) = enter_from_infinity(scene, -l.to_light, l.irradiance, u_pos);
-            (v, l.irradiance / (pmf * pdf_pos), ray, pdf_pos)
-        }
+        None => Vertex::new(Kind::Light, ls.p, ls.le),
     };
+    let beta = ls.beta(light, pmf);
+    let origin = match light.on_surface() {
+        Some(l) => {
+            let side = if l.normal.dot(ls.dir) > 0.0 { l.normal } else { -l.normal };
+            offset_ray_origin(ls.p, ls.p_error, side, ls.dir)
+        }
+        None => ls.p,
+    };
+    let ray = Ray::new(origin, ls.dir);
+    // Lights at infinity: the walk's first density is the disk's per unit area.
+    let pdf_dir = if light.is_infinite() { ls.pdf_pos } else { ls.pdf_dir };
+    if light.is_infinite() {
+        v.infinite = true;
+        v.wo = ls.dir;
+    }
     v.light = idx.unwrap_or(NONE);
-    v.delta_light = matches!(light, Light::Point(_) | Light::Spot(_) | Light::Directional(_));
+    v.delta_light = light.is_delta();
     // No MIS weight asks a moving emitter's density (photons carry no weights).
     v.pdf_fwd = if idx.is_some() { v.pdf_light_origin(scene) } else { 0.0 };
     v.medium = media.current();
@@ -1060,19 +1037,6 @@ pub(super) fn leave_light(
         stats,
         &mut unlit,
     );
-}
-
-/// A light subpath's first vertex on a light at infinity whose light travels along unit `d`:
-/// a point of the disk of the scene's radius across `d` (numbers `u`), moved back out of the
-/// scene; with the ray into the scene and the disk's density per unit area.
-fn enter_from_infinity(scene: &PreparedScene, d: Vec3, le: Vec3, u: Vec2) -> (Vertex, Ray, f32) {
-    let (centre, r) = scene.sphere;
-    let disk = sample_uniform_disk_concentric(u) * r;
-    let origin = centre + Frame::from_z(d).to_world(Vec3::new(disk.x, disk.y, 0.0)) - d * r;
-    let mut v = Vertex::new(Kind::Light, origin, le);
-    v.infinite = true;
-    v.wo = d;
-    (v, Ray::new(origin, d), 1.0 / (std::f32::consts::PI * r * r))
 }
 
 /// The balance-heuristic weight of the strategy with `s` light and `t` camera vertices, where
@@ -1314,18 +1278,17 @@ pub(super) fn sample_light(
     };
     v.light = idx;
     v.delta_light = ls.is_delta;
-    if let Light::Triangle(l) = light {
+    if let Some(l) = light.on_surface() {
         v.ng = l.normal;
         v.p_error = ls.point_error;
         v.prim = l.prim;
         v.b = ls.barycentrics;
     }
     v.beta = li / (ls.pdf * pmf);
-    v.pdf_fwd = match light {
-        _ if !scene.lights.uses_tree() => v.pdf_light_origin(scene),
-        Light::Triangle(l) => pmf / l.area,
-        Light::Environment(_) => pmf * ls.pdf,
-        _ => pmf,
+    v.pdf_fwd = if scene.lights.uses_tree() {
+        pmf * origin_density(light, v.wo, scene.sphere.1)
+    } else {
+        v.pdf_light_origin(scene)
     };
     let l = pt.beta * pt.f(pt.wo, ls.wi) * v.beta * pt.ns().dot(ls.wi).abs();
     if l == Vec3::ZERO || !visible(scene, at, pt, &v, stats) {

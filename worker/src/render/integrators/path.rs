@@ -25,7 +25,7 @@ use super::{
     super::{
         accel::Hit,
         geometry::{offset_ray_origin, Frame, Ray},
-        light::{Light, ShadingContext},
+        light::ShadingContext,
         material,
         media::{self, free_flight, transmittance},
         motion::Pose,
@@ -232,7 +232,7 @@ fn trace(
                     beta * material::emission_toward(&scene.textures, material, &sp, ng, wo);
             }
         } else if tri.light != NONE {
-            if let Light::Triangle(light) = &lights.lights[tri.light as usize] {
+            if let Some(light) = lights.lights[tri.light as usize].on_surface() {
                 if light.emits_toward(wo) {
                     let le = material::emission_toward(&scene.textures, material, &sp, ng, wo);
                     let dist2 = hit.t * hit.t * ray.dir.length_squared();

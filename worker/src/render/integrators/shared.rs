@@ -17,7 +17,7 @@ use super::super::{
     bsdf::{Bsdf, BsdfSample, Layered},
     geometry::{interpolation_error, Frame},
     lanes::V3,
-    light::{ChooseLight, Light, LightSample, ShadingContext},
+    light::{ChooseLight, Light, LightSample, ShadingContext, TriangleLight},
     material,
     media::{Crossing, MediumStack},
     motion::Pose,
@@ -152,18 +152,27 @@ pub(crate) fn sample_light(
 /// that often: light sampling counts it so).
 #[inline]
 pub(crate) fn light_radiance(scene: &PreparedScene, light: &Light, ls: &LightSample) -> Vec3 {
-    let Light::Triangle(l) = light else { return ls.li };
-    let mut li = if l.textured {
-        let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
-        let sp = scene.surface_point(l.prim, ls.barycentrics);
-        material::emission_toward(&scene.textures, m, &sp, ls.normal, ls.wi)
-    } else {
-        ls.li
-    };
+    let Some(l) = light.on_surface() else { return ls.li };
+    let mut li =
+        if l.textured { surface_emission(scene, l, ls.barycentrics, ls.wi) } else { ls.li };
     if scene.alpha_tested {
         li *= scene.coverage(l.prim, ls.barycentrics);
     }
     li
+}
+
+/// What a textured emissive triangle `l` sends from its point at barycentrics `b` along `w`
+/// (either way: only the cosine's size matters), by its material (`material::emission_toward`).
+#[inline]
+pub(crate) fn surface_emission(
+    scene: &PreparedScene,
+    l: &TriangleLight,
+    b: [f32; 3],
+    w: Vec3,
+) -> Vec3 {
+    let m = &scene.materials[scene.shading[l.prim as usize].material as usize];
+    let sp = scene.surface_point(l.prim, b);
+    material::emission_toward(&scene.textures, m, &sp, l.normal, w)
 }
 
 /// Russian roulette after `depth` bounces: past `RR_MIN_DEPTH` the path survives with

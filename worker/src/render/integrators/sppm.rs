@@ -165,7 +165,7 @@ fn photon_path(
             let light = Light::Triangle(l);
             let pmf = share * pmf;
             let media = moving.media.get(i).copied().unwrap_or_default();
-            let u = (Vec2::new(start[2], start[3]), Vec2::new(start[0], start[1]));
+            let u = (Vec2::new(start[0], start[1]), Vec2::new(start[2], start[3]));
             leave_light(scene, at, sampler, u, &light, None, pmf, media, max, path, stats);
             return;
         }

@@ -508,7 +508,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             let Some(ng_i) = c.lane(i).try_normalize() else { continue };
             let front = ng_i.dot(wo_i) > 0.0;
             let sp = scene.surface_point(prim, b);
-            if let Some(Light::Triangle(light)) = scene.lights.lights.get(shading.light as usize) {
+            if let Some(light) =
+                scene.lights.lights.get(shading.light as usize).and_then(Light::on_surface)
+            {
                 if light.emits_toward(wo_i) {
                     let le = material::emission_toward(&scene.textures, m, &sp, ng_i, wo_i);
                     let dist2 = t.lane(i) * t.lane(i) * dir_i.length_squared();

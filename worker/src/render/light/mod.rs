@@ -8,6 +8,12 @@
 //! already includes the probability of choosing the light, so the integrator's MIS weights compare
 //! like with like. Delta lights (point, spot, directional) report `is_delta` and are never hit by
 //! BSDF-sampled rays.
+//!
+//! `Light` is the one interface the integrators see (pbrt-v4's): `sample_li` / `pdf_li` toward a
+//! receiver, `sample_le` / `pdf_le` for light leaving a light (light subpaths, photons), and
+//! `radiance` along a direction; `is_delta`, `is_infinite`, `on_surface` and `placed` say what
+//! an integrator must know of its kind. No integrator matches on light kinds: a new light
+//! touches only this folder.
 
 mod area;
 mod environment;
@@ -25,6 +31,11 @@ pub use tree::{LightBounds, LightTree};
 use std::{f32::consts::PI, sync::Arc};
 
 use glam::{Vec2, Vec3};
+
+use crate::render::{
+    geometry::{interpolation_error, Frame},
+    sampling::{sample_uniform_disk_concentric, sample_uniform_sphere, uniform_sphere_pdf},
+};
 
 /// A light's contribution toward a receiving point.
 #[derive(Clone, Copy, Debug)]
@@ -45,6 +56,51 @@ pub struct LightSample {
     pub pdf: f32,
     /// True for point, spot and directional lights.
     pub is_delta: bool,
+}
+
+/// Light leaving a light, for a light subpath or a photon (`Light::sample_le`).
+#[derive(Clone, Copy, Debug)]
+pub struct LeSample {
+    /// What leaves along `dir`: radiance for an emissive triangle (the mean of a textured one,
+    /// whose texture the integrator evaluates at `barycentrics`) or the environment; intensity
+    /// for a point or spot light; irradiance for a directional light.
+    pub le: Vec3,
+    /// Where it starts: on the light, or for a light at infinity on the disk of the scene's
+    /// radius across `dir`, moved back out of the scene.
+    pub p: Vec3,
+    /// Unit direction it travels.
+    pub dir: Vec3,
+    /// Rounding error bound of `p` per axis (an emissive triangle's; zero otherwise).
+    pub p_error: Vec3,
+    /// Barycentrics of `p` on an emissive triangle (zero otherwise).
+    pub barycentrics: [f32; 3],
+    /// Density of `p`: per unit area on a triangle or the disk; 1 for a point or spot light,
+    /// whose position is certain.
+    pub pdf_pos: f32,
+    /// Density of `dir` per solid angle; 1 for a directional light, whose direction is certain.
+    pub pdf_dir: f32,
+}
+
+impl LeSample {
+    /// The sample's throughput once the light was chosen with probability `pmf`: what leaves,
+    /// times the cosine at an emitting surface, over the densities.
+    #[inline]
+    pub fn beta(&self, light: &Light, pmf: f32) -> Vec3 {
+        let pdf = pmf * self.pdf_pos * self.pdf_dir;
+        match light.on_surface() {
+            Some(l) => self.le * (l.normal.dot(self.dir).abs() / pdf),
+            None => self.le / pdf,
+        }
+    }
+}
+
+/// The densities with which `Light::sample_le` makes a given start and direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LePdf {
+    /// Of the start (as `LeSample::pdf_pos`).
+    pub pos: f32,
+    /// Of the direction (as `LeSample::pdf_dir`).
+    pub dir: f32,
 }
 
 /// Any light source.
@@ -101,6 +157,114 @@ impl Light {
         }
     }
 
+    /// Samples light leaving the light (pbrt-v4's `SampleLe`). `u_main`, the better stratified
+    /// pair, goes to what spreads the light most: the direction, but a directional light's point
+    /// (its direction is fixed); `u_other` to the rest. `sphere` is the scene's bounding sphere,
+    /// which lights at infinity enter through. `None` where nothing leaves.
+    #[inline]
+    pub fn sample_le(&self, u_main: Vec2, u_other: Vec2, sphere: (Vec3, f32)) -> Option<LeSample> {
+        let delta_pos = |p: Vec3, le: Vec3, dir: Vec3| LeSample {
+            le,
+            p,
+            dir,
+            p_error: Vec3::ZERO,
+            barycentrics: [0.0; 3],
+            pdf_pos: 1.0,
+            pdf_dir: uniform_sphere_pdf(),
+        };
+        match self {
+            Light::Triangle(l) => {
+                let (b, dir, pdf_dir) = l.sample_le(u_other, u_main)?;
+                Some(LeSample {
+                    le: l.emission,
+                    p: l.p[0] * b[0] + l.p[1] * b[1] + l.p[2] * b[2],
+                    dir,
+                    p_error: interpolation_error(l.p, b),
+                    barycentrics: b,
+                    pdf_pos: 1.0 / l.area,
+                    pdf_dir,
+                })
+            }
+            Light::Point(l) => {
+                Some(delta_pos(l.position, l.intensity, sample_uniform_sphere(u_main)))
+            }
+            Light::Spot(l) => {
+                let dir = sample_uniform_sphere(u_main);
+                let le = l.intensity * spot_falloff(dir.dot(l.direction), l.cos_inner, l.cos_outer);
+                Some(delta_pos(l.position, le, dir))
+            }
+            Light::Environment(env) => {
+                let (wi, le, pdf_dir) = env.sample(u_main)?;
+                let (p, pdf_pos) = enter_from_infinity(sphere, -wi, u_other);
+                Some(LeSample { pdf_pos, pdf_dir, ..delta_pos(p, le, -wi) })
+            }
+            Light::Directional(l) => {
+                let (p, pdf_pos) = enter_from_infinity(sphere, -l.to_light, u_main);
+                Some(LeSample { pdf_pos, pdf_dir: 1.0, ..delta_pos(p, l.irradiance, -l.to_light) })
+            }
+        }
+    }
+
+    /// Densities with which `sample_le` leaves in unit direction `dir` (pbrt-v4's `PDF_Le`),
+    /// from the point it starts at (any point of a triangle or of the disk: their densities are
+    /// uniform); a scene of radius `radius`. A triangle's face that does not emit has direction
+    /// density 0.
+    #[inline]
+    pub fn pdf_le(&self, dir: Vec3, radius: f32) -> LePdf {
+        let disk = 1.0 / (PI * radius * radius);
+        match self {
+            Light::Triangle(l) => LePdf { pos: 1.0 / l.area, dir: l.pdf_le(l.normal.dot(dir)) },
+            Light::Point(_) | Light::Spot(_) => LePdf { pos: 1.0, dir: uniform_sphere_pdf() },
+            Light::Environment(env) => LePdf { pos: disk, dir: env.pdf(-dir) },
+            Light::Directional(_) => LePdf { pos: disk, dir: 1.0 },
+        }
+    }
+
+    /// Radiance leaving the light along unit direction `w` (the direction light travels), for
+    /// a ray that finds it: an emissive triangle's from an emitting face (the mean of a textured
+    /// one), the environment's; zero for delta lights, which no ray finds.
+    #[inline]
+    pub fn radiance(&self, w: Vec3) -> Vec3 {
+        match self {
+            Light::Triangle(l) => l.radiance(w),
+            Light::Environment(env) => env.radiance(-w),
+            Light::Point(_) | Light::Spot(_) | Light::Directional(_) => Vec3::ZERO,
+        }
+    }
+
+    /// True for point, spot and directional lights (a delta in position or direction).
+    #[inline]
+    pub fn is_delta(&self) -> bool {
+        matches!(self, Light::Point(_) | Light::Spot(_) | Light::Directional(_))
+    }
+
+    /// True for lights at infinity (the environment, directional lights).
+    #[inline]
+    pub fn is_infinite(&self) -> bool {
+        matches!(self, Light::Environment(_) | Light::Directional(_))
+    }
+
+    /// The emissive triangle, for a light on a surface.
+    #[inline]
+    pub fn on_surface(&self) -> Option<&TriangleLight> {
+        match self {
+            Light::Triangle(l) => Some(l),
+            _ => None,
+        }
+    }
+
+    /// Where a light lies in the scene, to find the volumes around it: a point in it and the
+    /// direction to look from it (a triangle's centroid and normal, a spot light's axis; `None`
+    /// for a point light, which faces nowhere). `None` for lights at infinity.
+    pub fn placed(&self) -> Option<(Vec3, Option<Vec3>)> {
+        match self {
+            Light::Triangle(l) => Some(((l.p[0] + l.p[1] + l.p[2]) / 3.0, Some(l.normal))),
+            Light::Point(l) => Some((l.position, None)),
+            Light::Spot(l) => Some((l.position, Some(l.direction))),
+            Light::Environment(_) | Light::Directional(_) => None,
+        }
+    }
+
     /// Power estimate used to choose between lights (luminance of emitted flux).
     pub fn power(&self, scene_radius: f32) -> f32 {
         let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722)).max(0.0);
@@ -116,6 +280,16 @@ impl Light {
             }
         }
     }
+}
+
+/// A point where light travelling along unit `d` from infinity enters a scene within `sphere`:
+/// on the disk of the sphere's radius across `d` (numbers `u`), moved back out of the scene;
+/// with the disk's density per unit area.
+fn enter_from_infinity(sphere: (Vec3, f32), d: Vec3, u: Vec2) -> (Vec3, f32) {
+    let (centre, r) = sphere;
+    let disk = sample_uniform_disk_concentric(u) * r;
+    let origin = centre + Frame::from_z(d).to_world(Vec3::new(disk.x, disk.y, 0.0)) - d * r;
+    (origin, 1.0 / (PI * r * r))
 }
 
 /// Where a light is chosen for: the receiving point and its shading normal (zero where there is

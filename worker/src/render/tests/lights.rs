@@ -520,3 +520,83 @@ fn light_tree_favours_near_lights_that_face_the_point() {
     assert!(near > 0.9, "near {near}, far {far}, facing away {away}");
     assert_eq!(away, 0.0, "a light facing away cannot reach the point");
 }
+
+/// `Light::sample_le` for every kind of light: the light's flux estimated from its samples
+/// (the mean of `LeSample::beta`) matches its power in closed form (`Light::power`: emission x
+/// area x pi per face, 4 pi x intensity, the spot's cone weight, irradiance or 4 pi x radiance
+/// over the disk of the scene's radius), within 5 standard errors of the estimate; every sample
+/// reports the densities `pdf_le` gives for its direction, and a light at infinity starts outside
+/// the scene on a ray through it.
+#[test]
+fn light_emission_samples_carry_the_lights_power() {
+    let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722)) as f64;
+    let sphere = (Vec3::new(0.5, -1.0, 2.0), 3.0f32);
+    let p = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.2, 0.1), Vec3::new(0.3, 1.0, -0.2)];
+    let map = Environment::Map(MapEnvironment::new(&test_map(), 2.0, 33.0));
+    let lights = [
+        (
+            "one-sided triangle",
+            Light::Triangle(TriangleLight::new(p, Vec3::splat(2.0), false).unwrap()),
+        ),
+        (
+            "two-sided triangle",
+            Light::Triangle(TriangleLight::new(p, Vec3::splat(2.0), true).unwrap()),
+        ),
+        (
+            "point",
+            Light::Point(PointLight { position: Vec3::ONE, intensity: Vec3::new(1.0, 2.0, 3.0) }),
+        ),
+        ("spot", Light::Spot(SpotLight { intensity: Vec3::splat(10.0), ..spot(10.0, 30.0) })),
+        (
+            "directional",
+            Light::Directional(DirectionalLight {
+                to_light: Vec3::new(0.6, 0.8, 0.0),
+                irradiance: Vec3::splat(0.7),
+            }),
+        ),
+        (
+            "uniform environment",
+            Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(0.05)))),
+        ),
+        ("map environment", Light::Environment(std::sync::Arc::new(map))),
+    ];
+    let n = 200_000;
+    for (name, light) in &lights {
+        let mut rng = Rng::from_name(name);
+        let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+        for _ in 0..n {
+            let u_main = Vec2::new(rng.next_f32(), rng.next_f32());
+            let u_other = Vec2::new(rng.next_f32(), rng.next_f32());
+            let Some(ls) = light.sample_le(u_main, u_other, sphere) else { continue };
+            let pdf = light.pdf_le(ls.dir, sphere.1);
+            let close = |a: f32, b: f32| (a - b).abs() <= 1e-3 * b.abs().max(1e-6);
+            assert!(
+                close(pdf.pos, ls.pdf_pos) && close(pdf.dir, ls.pdf_dir),
+                "{name}: {ls:?} against {pdf:?}"
+            );
+            assert!((ls.dir.length() - 1.0).abs() < 1e-5, "{name}: direction {}", ls.dir);
+            if light.is_infinite() {
+                let to_centre = sphere.0 - ls.p;
+                let along = to_centre.dot(ls.dir);
+                let miss = (to_centre - along * ls.dir).length();
+                assert!(
+                    along >= sphere.1 * 0.999 && miss <= sphere.1 * 1.001,
+                    "{name}: starts at {}",
+                    ls.p
+                );
+            }
+            let b = lum(ls.beta(light, 1.0));
+            sum += b;
+            sum2 += b * b;
+        }
+        let mean = sum / n as f64;
+        let std_err = ((sum2 / n as f64 - mean * mean).max(0.0) / n as f64).sqrt();
+        let power = light.power(sphere.1) as f64;
+        // The spot's weight and the map's mean are quadratures, good to about 1e-3.
+        let tolerance = 5.0 * std_err + 2e-3 * power;
+        assert!(
+            (mean - power).abs() <= tolerance,
+            "{name}: flux {mean} against power {power} (tolerance {tolerance})"
+        );
+    }
+}
