@@ -25,6 +25,8 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_volume",
     "KHR_materials_volume_scatter",
     "KHR_texture_transform",
+    // A texture's WebP image in place of its PNG or JPEG fallback.
+    "EXT_texture_webp",
     // Only widens the component types accessors may use; the accessor reader takes them all.
     "KHR_mesh_quantization",
     // Instances of a node's mesh from per-instance TRS accessors.
@@ -88,7 +90,7 @@ pub(crate) fn ignored_extensions(root: &json::Root) -> Vec<String> {
             "KHR_draco_mesh_compression" | "EXT_meshopt_compression" => {
                 format!("{ext} (the uncompressed fallback buffers are read where there are any)")
             }
-            "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" => {
+            "KHR_texture_basisu" | "EXT_texture_avif" => {
                 format!("{ext} (the PNG or JPEG fallback image is read where there is one)")
             }
             _ => ext.clone(),

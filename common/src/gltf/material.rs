@@ -399,7 +399,10 @@ impl Loader<'_> {
                 root.textures.len()
             ));
         };
-        let source = tex.source.value();
+        let source = match webp_source(self.raw, index)? {
+            Some(webp) => webp,
+            None => tex.source.value(),
+        };
         let result = if source == u32::MAX as usize {
             tracing::warn!(
                 "texture {index}: has no source image (only an unsupported extension's); ignored"
@@ -504,18 +507,35 @@ impl Loader<'_> {
 /// The RGBA8 texels of a decoded image, shared by the textures that sample it.
 type Texels = std::sync::Arc<[[u8; 4]]>;
 
-/// The format of image bytes, PNG or JPEG.
+/// The image texture `index` reads by `EXT_texture_webp` (its `source`), which takes the place
+/// of the texture's own PNG or JPEG fallback; `None` when the texture has no such extension.
+fn webp_source(raw: &Value, index: usize) -> Result<Option<usize>, SceneError> {
+    let Some(ext) =
+        raw["textures"][index].get("extensions").and_then(|e| e.get("EXT_texture_webp"))
+    else {
+        return Ok(None);
+    };
+    match ext.get("source").and_then(Value::as_u64).and_then(|s| usize::try_from(s).ok()) {
+        Some(source) if source < u32::MAX as usize => Ok(Some(source)),
+        _ => fail(format!("texture {index}: EXT_texture_webp has no valid source image")),
+    }
+}
+
+/// The format of image bytes: PNG, JPEG, or WebP (`EXT_texture_webp`).
 fn format_of(bytes: &[u8]) -> Result<image::ImageFormat, SceneError> {
     let format = image::guess_format(bytes).map_err(|_| {
-        SceneError("unrecognised image format (only PNG and JPEG are supported)".into())
+        SceneError("unrecognised image format (only PNG, JPEG and WebP are supported)".into())
     })?;
-    if !matches!(format, image::ImageFormat::Png | image::ImageFormat::Jpeg) {
-        return fail(format!("{format:?} images are not supported (only PNG and JPEG)"));
+    if !matches!(
+        format,
+        image::ImageFormat::Png | image::ImageFormat::Jpeg | image::ImageFormat::WebP
+    ) {
+        return fail(format!("{format:?} images are not supported (only PNG, JPEG and WebP)"));
     }
     Ok(format)
 }
 
-/// Decodes PNG or JPEG bytes of the size their header gave into RGBA8, allocating no more than
+/// Decodes PNG, JPEG or WebP bytes of the size their header gave into RGBA8, allocating no more than
 /// that size needs.
 fn decode(
     bytes: &[u8],

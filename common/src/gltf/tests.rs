@@ -836,6 +836,41 @@ fn images_decode_the_same_in_any_order_and_the_first_failure_is_named() {
     }
 }
 
+/// `EXT_texture_webp`: a texture reads its WebP image in place of its PNG fallback (a lossless
+/// WebP decodes to its source's texels exactly), loads with no fallback at all, and a WebP
+/// stream cut short or a missing source is an error naming the image or texture.
+#[test]
+fn webp_textures_decode_to_their_source_texels() {
+    let (w, h) = (7u32, 5u32);
+    let texels: Vec<u8> = (0..w * h * 4).map(|i| (i * 37 % 251) as u8).collect();
+    let mut webp = Vec::new();
+    image::codecs::webp::WebPEncoder::new_lossless(&mut webp)
+        .encode(&texels, w, h, image::ExtendedColorType::Rgba8)
+        .expect("encode");
+    let uri = |mime: &str, bytes: &[u8]| {
+        format!("data:{mime};base64,{}", base64::engine::general_purpose::STANDARD.encode(bytes))
+    };
+    let mut doc = textured_triangles(2);
+    doc["extensionsUsed"] = json!(["EXT_texture_webp"]);
+    doc["images"] =
+        json!([{"uri": uri("image/png", &flat_png(2, 9))}, {"uri": uri("image/webp", &webp)}]);
+    doc["textures"] = json!([
+        {"source": 0, "extensions": {"EXT_texture_webp": {"source": 1}}},
+        {"extensions": {"EXT_texture_webp": {"source": 1}}}
+    ]);
+    let scene = load(&doc).expect("loads");
+    for t in &scene.textures {
+        assert_eq!((t.width, t.height), (w, h), "the WebP image, not the fallback");
+        assert_eq!(bytemuck::cast_slice::<[u8; 4], u8>(&t.texels), &texels[..]);
+    }
+    let mut cut = doc.clone();
+    cut["images"][1]["uri"] = json!(uri("image/webp", &webp[..webp.len() - 9]));
+    assert_names(&load_err(&cut), &["image 1", "WebP"]);
+    let mut missing = doc.clone();
+    missing["textures"][1]["extensions"]["EXT_texture_webp"] = json!({});
+    assert_names(&load_err(&missing), &["texture 1", "EXT_texture_webp", "source"]);
+}
+
 #[test]
 fn layered_extensions_load_and_bad_values_are_named() {
     let mut png = Vec::new();
