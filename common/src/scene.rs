@@ -275,6 +275,10 @@ pub struct Material {
     pub specular: f32,
     /// `KHR_materials_specular.specularColorFactor`.
     pub specular_color: Vec3,
+    /// `KHR_materials_specular.specularTexture` (A = the factor, linear).
+    pub specular_texture: Option<TextureRef>,
+    /// `KHR_materials_specular.specularColorTexture` (sRGB encoded).
+    pub specular_color_texture: Option<TextureRef>,
     /// `KHR_materials_ior.ior` (1.5 without the extension).
     pub ior: f32,
     /// `KHR_materials_transmission.transmissionFactor` (0 without the extension): the share of
@@ -366,6 +370,8 @@ impl Default for Material {
             emissive_texture: None,
             specular: 1.0,
             specular_color: Vec3::ONE,
+            specular_texture: None,
+            specular_color_texture: None,
             ior: 1.5,
             transmission: 0.0,
             transmission_texture: None,

@@ -70,7 +70,8 @@ impl Loader<'_> {
             }
             emissive *= strength;
         }
-        let (specular, specular_color) = match ext.and_then(|e| e.specular.as_ref()) {
+        let specular_ext = ext.and_then(|e| e.specular.as_ref());
+        let (specular, specular_color) = match specular_ext {
             Some(s) => (s.specular_factor.0, Vec3::from_array(s.specular_color_factor.0)),
             None => (1.0, Vec3::ONE),
         };
@@ -187,6 +188,19 @@ impl Loader<'_> {
             )?,
             None => None,
         };
+        let (specular_texture, specular_color_texture) = match specular_ext {
+            Some(s) => (
+                self.texture_info(
+                    s.specular_texture.as_ref(),
+                    "KHR_materials_specular.specularTexture",
+                )?,
+                self.texture_info(
+                    s.specular_color_texture.as_ref(),
+                    "KHR_materials_specular.specularColorTexture",
+                )?,
+            ),
+            None => (None, None),
+        };
         let normal_texture = match &m.normal_texture {
             Some(n) => self.normal_texture(n, "normalTexture")?,
             None => None,
@@ -204,6 +218,8 @@ impl Loader<'_> {
             emissive_texture,
             specular,
             specular_color,
+            specular_texture,
+            specular_color_texture,
             ior,
             transmission: transmission.min(1.0),
             transmission_texture,

@@ -485,7 +485,8 @@ fn materials_textures_and_extensions() {
          "doubleSided": true,
          "extensions": {
             "KHR_materials_emissive_strength": {"emissiveStrength": 4.0},
-            "KHR_materials_specular": {"specularFactor": 0.0, "specularColorFactor": [0.5, 0.5, 0.5]},
+            "KHR_materials_specular": {"specularFactor": 0.0, "specularColorFactor": [0.5, 0.5, 0.5],
+                "specularTexture": {"index": 1}, "specularColorTexture": {"index": 0, "texCoord": 1}},
             "KHR_materials_ior": {"ior": 1.33},
             "KHR_materials_transmission": {"transmissionFactor": 0.9, "transmissionTexture": {"index": 1, "texCoord": 1}}
          }}
@@ -504,6 +505,10 @@ fn materials_textures_and_extensions() {
     assert_eq!((m.metallic, m.roughness), (0.0, 0.3));
     assert_eq!(m.emissive, Vec3::new(4.0, 2.0, 0.0));
     assert_eq!((m.specular, m.specular_color), (0.0, Vec3::splat(0.5)));
+    let (specular, color) =
+        (m.specular_texture.expect("specular"), m.specular_color_texture.expect("colour"));
+    assert_eq!((specular.tex_coord, color.tex_coord), (0, 1));
+    assert_ne!(specular.texture, color.texture, "glTF textures 1 and 0");
     assert_eq!((m.ior, m.transmission), (1.33, 0.9));
     assert_eq!(m.alpha_mode, AlphaMode::Mask { cutoff: 0.5 });
     assert!(m.double_sided);
@@ -534,6 +539,7 @@ fn materials_textures_and_extensions() {
         (1.0, 1.5, 0.0, 1.0)
     );
     assert!(plain.transmission_texture.is_none());
+    assert!(plain.specular_texture.is_none() && plain.specular_color_texture.is_none());
 
     // An undecodable image is an error naming it.
     doc["images"] = json!([{"uri": data_uri(b"definitely not a PNG")}]);

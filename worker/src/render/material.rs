@@ -108,7 +108,14 @@ pub fn bsdf(
     {
         return Bsdf::Diffuse(Diffuse { albedo: base });
     }
-    let bsdf = MetalRough::new(base, metallic, roughness, m.ior, m.specular, m.specular_color);
+    let (mut specular, mut specular_color) = (m.specular, m.specular_color);
+    if let Some(r) = &m.specular_texture {
+        specular *= texture::sample(textures, r, sp.uvs, false).w;
+    }
+    if let Some(r) = &m.specular_color_texture {
+        specular_color *= texture::sample(textures, r, sp.uvs, true).truncate();
+    }
+    let bsdf = MetalRough::new(base, metallic, roughness, m.ior, specular, specular_color);
     let mut bsdf = bsdf.with_transmission(transmission);
     if diffuse_transmission > 0.0 {
         let mut color = m.diffuse_transmission_color;
@@ -249,4 +256,70 @@ pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Opti
 fn tangent_normal(t: Vec4, scale: f32) -> Option<Vec3> {
     let n = Vec3::new((2.0 * t.x - 1.0) * scale, (2.0 * t.y - 1.0) * scale, 2.0 * t.z - 1.0);
     n.try_normalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use common::scene::{Texture, TextureRef, Wrap};
+
+    use super::*;
+
+    /// `KHR_materials_specular`'s textures scale its factors: the specular texture's alpha the
+    /// factor (linear), the colour texture's RGB the colour (sRGB): a texel of alpha 0 gives the
+    /// BSDF of factor 0, one of alpha 255 the factor itself, and a colour texel (255, 0, 255) the
+    /// colour with no green, value for value.
+    #[test]
+    fn specular_textures_scale_the_specular_factors() {
+        let texel = |rgba: [u8; 4]| Texture {
+            width: 1,
+            height: 1,
+            texels: std::sync::Arc::from(vec![rgba]),
+            wrap_s: Wrap::Repeat,
+            wrap_t: Wrap::Repeat,
+            nearest: true,
+        };
+        let textures = [texel([9, 9, 9, 0]), texel([9, 9, 9, 255]), texel([255, 0, 255, 7])];
+        let tex = |i| Some(TextureRef { texture: i, tex_coord: 0, transform: None });
+        let base = Material {
+            metallic: 0.3,
+            roughness: 0.4,
+            specular: 0.7,
+            specular_color: Vec3::new(0.9, 0.8, 0.6),
+            ..Material::default()
+        };
+        let cases = [
+            (
+                Material { specular_texture: tex(0), ..base.clone() },
+                Material { specular: 0.0, ..base.clone() },
+            ),
+            (Material { specular_texture: tex(1), ..base.clone() }, base.clone()),
+            (
+                Material { specular_color_texture: tex(2), ..base.clone() },
+                Material { specular_color: Vec3::new(0.9, 0.0, 0.6), ..base.clone() },
+            ),
+        ];
+        let dirs = [
+            (Vec3::new(0.3, 0.1, 0.95).normalize(), Vec3::new(-0.2, -0.1, 0.97).normalize()),
+            (Vec3::new(0.0, 0.6, 0.8), Vec3::new(0.5, -0.5, 0.707).normalize()),
+            (Vec3::new(0.9, 0.0, 0.436).normalize(), Vec3::new(-0.8, 0.1, 0.59).normalize()),
+        ];
+        for (k, (textured, plain)) in cases.iter().enumerate() {
+            let a = bsdf(&textures, textured, &SurfacePoint::PLAIN, true, [1.0; 2], false);
+            let b = bsdf(&textures, plain, &SurfacePoint::PLAIN, true, [1.0; 2], false);
+            for (wo, wi) in dirs {
+                assert_eq!(a.eval(wo, wi), b.eval(wo, wi), "case {k}: {wo} {wi}");
+                assert_eq!(a.pdf(wo, wi), b.pdf(wo, wi), "case {k}: {wo} {wi}");
+            }
+            // And the texture matters: the factor without it differs.
+            let bare = Material {
+                specular_texture: None,
+                specular_color_texture: None,
+                ..textured.clone()
+            };
+            let c = bsdf(&textures, &bare, &SurfacePoint::PLAIN, true, [1.0; 2], false);
+            if k != 1 {
+                assert_ne!(a.eval(dirs[0].0, dirs[0].1), c.eval(dirs[0].0, dirs[0].1), "case {k}");
+            }
+        }
+    }
 }

@@ -179,6 +179,8 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         roughness: _,
         specular: _,
         specular_color: _,
+        specular_texture,
+        specular_color_texture,
         ior: _,
         transmission: _,
         diffuse_transmission: _,
@@ -207,7 +209,9 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         || emissive_texture.is_some()
         || transmission_texture.is_some()
         || diffuse_transmission_texture.is_some()
-        || diffuse_transmission_color_texture.is_some();
+        || diffuse_transmission_color_texture.is_some()
+        || specular_texture.is_some()
+        || specular_color_texture.is_some();
     if volume.is_some() && m.bounds_medium() {
         return Err("a volume");
     }
@@ -255,15 +259,17 @@ mod tests {
             Material { metallic_roughness_texture: texture, ..lambert() },
             Material { normal_texture: texture.map(|t| (t, 1.0)), ..lambert() },
             Material { emissive_texture: texture, ..lambert() },
+            Material { specular_texture: texture, ..lambert() },
+            Material { specular_color_texture: texture, ..lambert() },
             Material { transmission_texture: texture, ..lambert() },
             Material { diffuse_transmission_texture: texture, ..lambert() },
             Material { diffuse_transmission_color_texture: texture, ..lambert() },
         ];
-        for m in &textured[..4] {
+        for m in &textured[..6] {
             assert_eq!(wavefront_shade(&[], m), Ok(Shade::Textured), "{m:?}");
         }
         // Textured transmission factors (thin-walled transmission) are shaded per point too.
-        for m in &textured[4..] {
+        for m in &textured[6..] {
             assert_eq!(wavefront_shade(&[], m), Ok(Shade::Textured), "{m:?}");
             let thin = Material { transmission: 0.5, diffuse_transmission: 0.5, ..m.clone() };
             assert_eq!(wavefront_shade(&[], &thin), Ok(Shade::Textured), "{m:?}");
