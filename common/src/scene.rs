@@ -404,17 +404,73 @@ pub enum Wrap {
     MirroredRepeat,
 }
 
-/// A decoded texture: RGBA8 texels as stored in the file (colour textures are sRGB encoded; the
-/// renderer decodes at lookup), row 0 at the top (v = 0).
+/// Decoded texels, row-major from the top row, as stored in the file (colour textures are sRGB
+/// encoded; the renderer decodes at lookup): 8 bits a channel, or 16 where the image has 16
+/// (a 16-bit PNG: normal and height maps baked at 16 bits band when cut to 8). Shared by every
+/// texture that samples the same image (and by clones of the scene).
+#[derive(Clone, Debug)]
+pub enum Texels {
+    /// 8-bit RGBA.
+    Rgba8(std::sync::Arc<[[u8; 4]]>),
+    /// 16-bit RGBA.
+    Rgba16(std::sync::Arc<[[u16; 4]]>),
+}
+
+impl Texels {
+    /// Number of texels.
+    pub fn len(&self) -> usize {
+        match self {
+            Texels::Rgba8(t) => t.len(),
+            Texels::Rgba16(t) => t.len(),
+        }
+    }
+
+    /// True when there are none (a texture whose image is not decoded yet).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The 8-bit texels, when the image has 8 bits a channel.
+    pub fn rgba8(&self) -> Option<&[[u8; 4]]> {
+        match self {
+            Texels::Rgba8(t) => Some(t),
+            Texels::Rgba16(_) => None,
+        }
+    }
+
+    /// The 16-bit texels, when the image has 16 bits a channel.
+    pub fn rgba16(&self) -> Option<&[[u16; 4]]> {
+        match self {
+            Texels::Rgba16(t) => Some(t),
+            Texels::Rgba8(_) => None,
+        }
+    }
+
+    /// Whether both are the same decoded image (not a copy).
+    pub fn same_image(&self, other: &Texels) -> bool {
+        match (self, other) {
+            (Texels::Rgba8(a), Texels::Rgba8(b)) => std::sync::Arc::ptr_eq(a, b),
+            (Texels::Rgba16(a), Texels::Rgba16(b)) => std::sync::Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
+}
+
+impl From<Vec<[u8; 4]>> for Texels {
+    fn from(texels: Vec<[u8; 4]>) -> Self {
+        Texels::Rgba8(texels.into())
+    }
+}
+
+/// A decoded texture, row 0 at the top (v = 0).
 #[derive(Clone, Debug)]
 pub struct Texture {
     /// Width in texels.
     pub width: u32,
     /// Height in texels.
     pub height: u32,
-    /// `width * height` RGBA8 texels, row-major from the top row; shared by every texture that
-    /// samples the same image (and by clones of the scene).
-    pub texels: std::sync::Arc<[[u8; 4]]>,
+    /// `width * height` texels.
+    pub texels: Texels,
     /// Wrap mode along u.
     pub wrap_s: Wrap,
     /// Wrap mode along v.

@@ -1,7 +1,7 @@
 //! Materials, textures, samplers and images: the metallic-roughness model with the extensions
 //! the renderer honours (emissive strength, specular, ior, transmission, diffuse transmission,
 //! volume, clearcoat, sheen, anisotropy, iridescence, unlit, texture transform), and
-//! PNG/JPEG decoding into RGBA8 texels, each image decoded once however many textures use it.
+//! PNG/JPEG/WebP decoding into RGBA8 texels (16-bit PNGs into RGBA16), each image decoded once however many textures use it.
 
 use std::collections::HashMap;
 use std::io::Cursor;
@@ -15,7 +15,7 @@ use serde_json::Value;
 use super::{fail, Context, Image, Loader, PendingImage, SceneError};
 use crate::budget;
 use crate::scene::{
-    AlphaMode, Anisotropy, Clearcoat, Iridescence, Material, Sheen, TexTransform, Texture,
+    AlphaMode, Anisotropy, Clearcoat, Iridescence, Material, Sheen, TexTransform, Texels, Texture,
     TextureRef, Volume, Wrap,
 };
 
@@ -435,7 +435,7 @@ impl Loader<'_> {
             self.textures.push(Texture {
                 width: image.width,
                 height: image.height,
-                texels: std::sync::Arc::from(Vec::new()),
+                texels: Vec::new().into(),
                 wrap_s,
                 wrap_t,
                 nearest,
@@ -520,9 +520,6 @@ impl Loader<'_> {
     }
 }
 
-/// The RGBA8 texels of a decoded image, shared by the textures that sample it.
-type Texels = std::sync::Arc<[[u8; 4]]>;
-
 /// The image texture `index` reads by `EXT_texture_webp` (its `source`), which takes the place
 /// of the texture's own PNG or JPEG fallback; `None` when the texture has no such extension.
 fn webp_source(raw: &Value, index: usize) -> Result<Option<usize>, SceneError> {
@@ -567,16 +564,23 @@ fn decode(
     reader.limits(limits);
     let decoded =
         reader.decode().map_err(|e| SceneError(format!("cannot decode {format:?}: {e}")))?;
-    // RGBA8 as decoded, else converted (RGB, grey, 16-bit).
-    let rgba = decoded.into_rgba8();
-    if rgba.dimensions() != (width, height) {
+    if (decoded.width(), decoded.height()) != (width, height) {
         return fail(format!(
             "decoded to {}x{}, not the {width}x{height} of its header",
-            rgba.width(),
-            rgba.height()
+            decoded.width(),
+            decoded.height()
         ));
     }
-    Ok(Texels::from(bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw())))
+    // 16 bits a channel kept (a 16-bit PNG), else RGBA8; either as decoded when RGBA, else
+    // converted (RGB, grey).
+    use image::ColorType::{La16, Rgb16, Rgba16, L16};
+    if matches!(decoded.color(), L16 | La16 | Rgb16 | Rgba16) {
+        let rgba = decoded.into_rgba16();
+        let texels = bytemuck::cast_slice::<u16, [u16; 4]>(rgba.as_raw());
+        return Ok(Texels::Rgba16(texels.into()));
+    }
+    let rgba = decoded.into_rgba8();
+    Ok(Texels::Rgba8(bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw()).into()))
 }
 
 /// Wrap modes and nearest magnification of sampler `index`.

@@ -526,7 +526,7 @@ fn materials_textures_and_extensions() {
     assert_eq!(scene.textures.len(), 2, "one per glTF texture used");
     let tex = &scene.textures[base.texture];
     assert_eq!((tex.width, tex.height), (2, 1));
-    assert_eq!(&tex.texels[..], [[255, 0, 0, 255], [0, 0, 255, 128]]);
+    assert_eq!(tex.texels.rgba8().expect("8 bits"), [[255, 0, 0, 255], [0, 0, 255, 128]]);
     assert_eq!(
         (tex.wrap_s, tex.wrap_t, tex.nearest),
         (Wrap::ClampToEdge, Wrap::MirroredRepeat, true)
@@ -750,10 +750,7 @@ fn one_image_is_decoded_once_and_charged_from_its_header() {
     loader.scene_budget.texels = 64 * 64;
     let scene = loader.load().expect("one image, charged once");
     assert_eq!(scene.textures.len(), 8);
-    assert!(scene
-        .textures
-        .iter()
-        .all(|t| std::sync::Arc::ptr_eq(&t.texels, &scene.textures[0].texels)));
+    assert!(scene.textures.iter().all(|t| t.texels.same_image(&scene.textures[0].texels)));
     // One texel less refuses it, naming the image and its size.
     let mut loader = Loader::new(&parsed, None, &NoFiles);
     loader.scene_budget.texels = 64 * 64 - 1;
@@ -821,7 +818,7 @@ fn images_decode_the_same_in_any_order_and_the_first_failure_is_named() {
         load_slice_spread(text.as_bytes(), &NoFiles, &budget, &Backwards).expect("loads");
     for scene in [&in_order, &backwards] {
         let seen: Vec<(u32, u8)> =
-            scene.textures.iter().map(|t| (t.width, t.texels[0][0])).collect();
+            scene.textures.iter().map(|t| (t.width, t.texels.rgba8().unwrap()[0][0])).collect();
         assert_eq!(seen, [(4, 10), (8, 20), (16, 30)]);
         assert!(scene.textures.iter().all(|t| t.texels.len() == (t.width * t.height) as usize));
     }
@@ -867,7 +864,7 @@ fn webp_textures_decode_to_their_source_texels() {
     let scene = load(&doc).expect("loads");
     for t in &scene.textures {
         assert_eq!((t.width, t.height), (w, h), "the WebP image, not the fallback");
-        assert_eq!(bytemuck::cast_slice::<[u8; 4], u8>(&t.texels), &texels[..]);
+        assert_eq!(bytemuck::cast_slice::<[u8; 4], u8>(t.texels.rgba8().unwrap()), &texels[..]);
     }
     let mut cut = doc.clone();
     cut["images"][1]["uri"] = json!(uri("image/webp", &webp[..webp.len() - 9]));
@@ -875,6 +872,41 @@ fn webp_textures_decode_to_their_source_texels() {
     let mut missing = doc.clone();
     missing["textures"][1]["extensions"]["EXT_texture_webp"] = json!({});
     assert_names(&load_err(&missing), &["texture 1", "EXT_texture_webp", "source"]);
+}
+
+/// A 16-bit PNG keeps its 16 bits (RGBA as stored; grey spread over RGB with an opaque alpha),
+/// and an 8-bit one stays 8-bit.
+#[test]
+fn sixteen_bit_pngs_keep_their_bits() {
+    let rgba: Vec<u16> = vec![0, 1, 257, 65535, 40000, 12345, 65534, 32768];
+    let mut png16 = Vec::new();
+    image::ImageBuffer::<image::Rgba<u16>, _>::from_raw(2, 1, rgba.clone())
+        .expect("image")
+        .write_to(&mut std::io::Cursor::new(&mut png16), image::ImageFormat::Png)
+        .expect("encode");
+    let mut grey16 = Vec::new();
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 1, vec![3u16, 60001])
+        .expect("image")
+        .write_to(&mut std::io::Cursor::new(&mut grey16), image::ImageFormat::Png)
+        .expect("encode");
+    let uri = |bytes: &[u8]| {
+        format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(bytes))
+    };
+    let mut doc = textured_triangles(3);
+    doc["images"] =
+        json!([{"uri": uri(&png16)}, {"uri": uri(&grey16)}, {"uri": uri(&flat_png(1, 7))}]);
+    doc["textures"] = json!([{"source": 0}, {"source": 1}, {"source": 2}]);
+    let scene = load(&doc).expect("loads");
+    let texels: Vec<&crate::scene::Texels> = scene.textures.iter().map(|t| &t.texels).collect();
+    assert_eq!(
+        texels[0].rgba16().expect("16 bits"),
+        [[0, 1, 257, 65535], [40000, 12345, 65534, 32768]]
+    );
+    assert_eq!(
+        texels[1].rgba16().expect("16 bits"),
+        [[3, 3, 3, 65535], [60001, 60001, 60001, 65535]]
+    );
+    assert_eq!(texels[2].rgba8().expect("8 bits"), [[7, 7, 7, 7]]);
 }
 
 #[test]

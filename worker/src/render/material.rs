@@ -273,7 +273,7 @@ mod tests {
         let texel = |rgba: [u8; 4]| Texture {
             width: 1,
             height: 1,
-            texels: std::sync::Arc::from(vec![rgba]),
+            texels: vec![rgba].into(),
             wrap_s: Wrap::Repeat,
             wrap_t: Wrap::Repeat,
             nearest: true,

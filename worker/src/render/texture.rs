@@ -1,9 +1,10 @@
 //! Texture lookups: `KHR_texture_transform`, wrap modes, bilinear (or nearest) filtering, and the
-//! sRGB decoding of colour textures (a 256-entry table, exact per 8-bit value).
+//! sRGB decoding of colour textures (a table per 8-bit value; for 16-bit textures, one per
+//! 16-bit value).
 
 use std::sync::OnceLock;
 
-use common::scene::{TexTransform, Texture, TextureRef, Wrap};
+use common::scene::{TexTransform, Texels, Texture, TextureRef, Wrap};
 use glam::{Mat2, Vec2, Vec4};
 
 /// 8-bit sRGB to linear, per value.
@@ -18,6 +19,19 @@ fn srgb_table() -> &'static [f32; 256] {
                 ((c + 0.055) / 1.055).powf(2.4)
             }
         })
+    })
+}
+
+/// 16-bit sRGB to linear, per value.
+fn srgb_table16() -> &'static [f32] {
+    static TABLE: OnceLock<Vec<f32>> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        (0..=u16::MAX)
+            .map(|i| {
+                let c = i as f64 / 65535.0;
+                (if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }) as f32
+            })
+            .collect()
     })
 }
 
@@ -47,7 +61,24 @@ fn wrap(i: i64, n: u32, mode: Wrap) -> u32 {
 
 #[inline]
 fn texel(tex: &Texture, x: u32, y: u32, srgb: bool) -> Vec4 {
-    let t = tex.texels[(y * tex.width + x) as usize];
+    let i = (y * tex.width + x) as usize;
+    let t = match &tex.texels {
+        Texels::Rgba8(texels) => texels[i],
+        Texels::Rgba16(texels) => {
+            let t = texels[i];
+            return if srgb {
+                let table = srgb_table16();
+                Vec4::new(
+                    table[t[0] as usize],
+                    table[t[1] as usize],
+                    table[t[2] as usize],
+                    t[3] as f32 / 65535.0,
+                )
+            } else {
+                Vec4::new(t[0] as f32, t[1] as f32, t[2] as f32, t[3] as f32) / 65535.0
+            };
+        }
+    };
     if srgb {
         let table = srgb_table();
         Vec4::new(
@@ -152,6 +183,29 @@ mod tests {
             Texture { width: 1, height: 1, texels: vec![[188, 188, 188, 255]].into(), ..checker() };
         let v = lookup(&grey, Vec2::splat(0.5), true).x;
         assert!((v - 0.5029).abs() < 1e-3, "sRGB 188 is linear 0.503, got {v}");
+    }
+
+    /// 16-bit texels are read at 16 bits: linear values are value / 65535, colour values decode
+    /// by the sRGB curve at that precision (agreeing with the 8-bit table where both have the
+    /// value), and bilinear filtering blends them as it blends 8-bit ones.
+    #[test]
+    fn sixteen_bit_texels_keep_their_precision() {
+        let t = Texture {
+            width: 2,
+            height: 1,
+            texels: Texels::Rgba16(vec![[1, 32768, 65535, 0], [257 * 188, 0, 65535, 65535]].into()),
+            ..checker()
+        };
+        let a = lookup(&t, Vec2::new(0.25, 0.5), false);
+        assert_eq!(a, Vec4::new(1.0, 32768.0, 65535.0, 0.0) / 65535.0);
+        let b = lookup(&t, Vec2::new(0.75, 0.5), true);
+        assert!((b.x - srgb_table()[188]).abs() < 1e-6, "sRGB 188 x 257: {}", b.x);
+        assert_eq!((b.z, b.w), (1.0, 1.0));
+        let mut smooth = t.clone();
+        smooth.nearest = false;
+        let mid = lookup(&smooth, Vec2::new(0.5, 0.5), false);
+        assert!((mid.w - 0.5).abs() < 1e-6 && (mid.y - 16384.0 / 65535.0).abs() < 1e-6, "{mid}");
+        assert!(mean(&t, false).x > 0.0);
     }
 
     #[test]
