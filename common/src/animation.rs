@@ -180,6 +180,28 @@ impl Animation {
         m
     }
 
+    /// [`Animation::world`] remembering every node's world transform it works out in `memo`
+    /// (for time `t` only), so that posing many joints of one skeleton walks each node once.
+    pub fn world_memo(
+        &self,
+        node: usize,
+        t: f64,
+        memo: &mut std::collections::HashMap<usize, DMat4>,
+    ) -> DMat4 {
+        let mut chain = Vec::new();
+        let mut at = Some(node);
+        while let Some(n) = at.filter(|n| !memo.contains_key(n)) {
+            chain.push(n);
+            at = self.nodes[n].parent;
+        }
+        let mut m = at.map_or(DMat4::IDENTITY, |n| memo[&n]);
+        for &n in chain.iter().rev() {
+            m *= self.local(n, t);
+            memo.insert(n, m);
+        }
+        m
+    }
+
     /// The node's morph target weights at time `t`, when a `weights` channel animates them.
     pub fn weights(&self, node: usize, t: f64) -> Option<Vec<f64>> {
         let curves = self.nodes.get(node)?.weights.as_ref()?;
@@ -291,6 +313,10 @@ mod tests {
         // The child, one unit out, follows the parent's spin along the arc: at t = 0.5 it is at +y.
         let p = anim.world(1, 0.5).transform_point3(DVec3::ZERO);
         assert!((p - DVec3::Y).length() < 1e-12, "{p}");
+        let mut memo = std::collections::HashMap::new();
+        assert_eq!(anim.world_memo(1, 0.5, &mut memo), anim.world(1, 0.5));
+        assert_eq!(memo.len(), 2);
+        assert_eq!(anim.world_memo(0, 0.5, &mut memo), anim.world(0, 0.5));
         assert!(anim.moves(1) && anim.moves(0));
     }
 }

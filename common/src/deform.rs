@@ -21,8 +21,22 @@ impl Deform {
     /// Whether `anim` changes the pose over time: it moves a joint of the skin, or animates the
     /// node's weights (of a mesh with morph targets).
     pub fn animated(&self, anim: &Animation) -> bool {
-        (!self.targets.is_empty() && anim.animates_weights(self.node))
-            || self.skin.as_ref().is_some_and(|s| s.joints.iter().any(|&j| anim.moves(j)))
+        if !self.targets.is_empty() && anim.animates_weights(self.node) {
+            return true;
+        }
+        let Some(skin) = &self.skin else { return false };
+        // Each node of the skeleton is looked at once, however many joints lie under it.
+        let mut seen = std::collections::HashSet::new();
+        for &joint in &skin.joints {
+            let mut at = Some(joint);
+            while let Some(n) = at.filter(|&n| seen.insert(n)) {
+                if anim.nodes[n].motion.is_some() {
+                    return true;
+                }
+                at = anim.nodes[n].parent;
+            }
+        }
+        false
     }
 
     /// The morph target weights at time `t`: the animated ones, else the defaults.
@@ -192,5 +206,37 @@ mod tests {
         assert!((mesh.normals.as_ref().unwrap()[0] - Vec3::Z).length() < 1e-6);
         let t = mesh.tangents.as_ref().unwrap()[0];
         assert!((t - Vec4::new(0.0, 1.0, 0.0, -1.0)).length() < 1e-6, "{t}");
+    }
+
+    #[test]
+    fn a_non_uniform_scale_carries_normals_by_the_inverse_transpose() {
+        // A joint scaling x by 2: a normal along (1, 1) leans toward y, (1, 2) / sqrt 5, where
+        // the matrix itself would lean it toward x; a tangent along (1, 1) goes to (2, 1).
+        let d = Vec3::new(1.0, 1.0, 0.0).normalize();
+        let deform = Deform {
+            rest_positions: vec![Vec3::ZERO],
+            rest_normals: Some(vec![d]),
+            rest_tangents: Some(vec![d.extend(-1.0)]),
+            skin: Some(Skin {
+                joints: vec![0],
+                inverse_binds: vec![DMat4::IDENTITY],
+                influences: 4,
+                vertex_joints: vec![0; 4],
+                vertex_weights: vec![1.0, 0.0, 0.0, 0.0],
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        let mut mesh = Mesh {
+            positions: vec![Vec3::ZERO],
+            normals: Some(vec![Vec3::ZERO]),
+            tangents: Some(vec![Vec4::ZERO]),
+            ..Default::default()
+        };
+        deform.pose(&[], |_| DMat4::from_scale(DVec3::new(2.0, 1.0, 1.0)), &mut mesh);
+        let n = mesh.normals.as_ref().unwrap()[0];
+        assert!((n - Vec3::new(1.0, 2.0, 0.0).normalize()).length() < 1e-6, "{n}");
+        let t = mesh.tangents.as_ref().unwrap()[0];
+        assert!((t - Vec3::new(2.0, 1.0, 0.0).normalize().extend(-1.0)).length() < 1e-6, "{t}");
     }
 }

@@ -571,11 +571,16 @@ impl Scene {
                 inst.transform = anim.world(inst.node, t) * inst.offset;
             }
         }
+        // The world transforms of the joints, each node worked out once for all skins.
+        let mut worlds = std::collections::HashMap::new();
         for mesh in &mut self.meshes {
             let Some(deform) = mesh.deform.take() else { continue };
             if deform.animated(anim) {
                 let weights = deform.weights_at(Some(anim), t);
-                deform.pose(&weights, |joint| anim.world(joint, t), mesh);
+                for &j in deform.skin.iter().flat_map(|s| &s.joints) {
+                    anim.world_memo(j, t, &mut worlds);
+                }
+                deform.pose(&weights, |joint| worlds[&joint], mesh);
             }
             mesh.deform = Some(deform);
         }

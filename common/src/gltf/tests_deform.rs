@@ -394,3 +394,25 @@ fn meshes_that_do_not_deform_are_unchanged() {
     assert_eq!(scene.instances[1].transform, DMat4::from_translation(DVec3::new(0.0, 0.0, 10.0)));
     assert_eq!(scene.meshes[0].positions[1], Vec3::X);
 }
+
+#[test]
+fn real_assets_without_skins_load_as_before() {
+    let real = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/assets/real");
+    let scene = load_path(&real.join("Box/glTF/Box.gltf")).expect("loads");
+    assert_eq!((scene.meshes.len(), scene.instances.len()), (1, 1));
+    assert!(scene.meshes[0].deform.is_none());
+    // The root's matrix (y up to z up), and no offset.
+    let expected = DMat4::from_cols_array(&[
+        1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+    ]);
+    assert_eq!(scene.instances[0].transform, expected);
+    assert_eq!(scene.instances[0].offset, DMat4::IDENTITY);
+    assert!(!scene.is_animated());
+    let mut animated = load_path(&real.join("BoxAnimated/glTF/BoxAnimated.gltf")).expect("loads");
+    assert!(animated.meshes.iter().all(|m| m.deform.is_none()));
+    assert!(animated.is_animated());
+    let before: Vec<Vec<Vec3>> = animated.meshes.iter().map(|m| m.positions.clone()).collect();
+    animated.set_time(1.0);
+    let after: Vec<Vec<Vec3>> = animated.meshes.iter().map(|m| m.positions.clone()).collect();
+    assert_eq!(before, after, "set_time moves placements, never the vertices of rigid meshes");
+}
