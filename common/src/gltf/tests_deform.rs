@@ -204,6 +204,13 @@ fn an_animated_skin_is_posed_again_at_any_time() {
     blur.shutter.close = 0.5;
     let e = scene.check_time(&blur).unwrap_err();
     assert_names(&e, &["node 0", "deforms", "closed shutter"]);
+    // Frames whose shutters all open after the last key (t = 1) see a still pose: no refusal.
+    // At 24 fps frame 24 opens at t = 1; frame 23's shutter closes at 23.5 / 24 < 1.
+    blur.frames.start = 24;
+    blur.frames.end = 30;
+    assert_eq!(scene.check_time(&blur), Ok(()));
+    blur.frames.start = 23;
+    assert!(scene.check_time(&blur).is_err());
 }
 
 #[test]
