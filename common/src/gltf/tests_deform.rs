@@ -99,6 +99,16 @@ fn assert_at(scene: &Scene, i: usize, expected: &[[f64; 3]]) {
 /// own transform (translation 100, scale 3), which glTF says must be ignored. Accessors: 0
 /// POSITION, 1 indices, 2 JOINTS_0 (unsigned byte), 3 WEIGHTS_0, 4 inverseBindMatrices, 5 NORMAL.
 fn skinned_quad(joints: [[u8; 4]; 4], weights: [[f32; 4]; 4], animated: bool) -> Value {
+    let (bin, doc) = skinned_quad_parts(joints, weights, animated);
+    bin.finish(doc)
+}
+
+/// [`skinned_quad`] before its buffer is closed, for tests that add accessors.
+fn skinned_quad_parts(
+    joints: [[u8; 4]; 4],
+    weights: [[f32; 4]; 4],
+    animated: bool,
+) -> (Bin, Value) {
     let mut bin = Bin::default();
     bin.floats(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0], 4, "VEC3");
     let indices: Vec<u8> = [0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()).collect();
@@ -139,7 +149,7 @@ fn skinned_quad(joints: [[u8; 4]; 4], weights: [[f32; 4]; 4], animated: bool) ->
             "samplers": [{"input": times, "output": hip}, {"input": times, "output": knee}]
         }]);
     }
-    bin.finish(doc)
+    (bin, doc)
 }
 
 const HIP: [u8; 4] = [0, 0, 0, 0];
@@ -276,6 +286,37 @@ fn skin_weights_are_normalised_and_bad_skins_named() {
     doc["nodes"][0]["extensions"] =
         json!({"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 0}}});
     assert_names(&load_err(&doc), &["node 0", "skin 0", "EXT_mesh_gpu_instancing"]);
+}
+
+#[test]
+fn every_joints_and_weights_set_counts_and_quantised_weights_read_as_the_spec_says() {
+    // Set 0 as normalised unsigned bytes (vertex 2: 128 / 255 hip, 127 / 255 knee); set 1
+    // moves vertex 3's weight to the knee half and half with set 0's hip.
+    let (mut bin, mut doc) = skinned_quad_parts([HIP, KNEE, BOTH, HIP], [ONE; 4], false);
+    let bytes = [[255u8, 0, 0, 0], [255, 0, 0, 0], [128, 127, 0, 0], [128, 0, 0, 0]];
+    let weights0 = bin.accessor(bytes.as_flattened(), 5121, 4, "VEC4", json!({"normalized": true}));
+    let joints1 =
+        bin.accessor([[0u8; 4], [0; 4], [0; 4], KNEE].as_flattened(), 5121, 4, "VEC4", json!({}));
+    let weights1 = bin.floats(
+        &[[0.0f32; 4], [0.0; 4], [0.0; 4], [127.0 / 255.0, 0.0, 0.0, 0.0]].concat(),
+        4,
+        "VEC4",
+    );
+    let attributes = &mut doc["meshes"][0]["primitives"][0]["attributes"];
+    attributes["WEIGHTS_0"] = json!(weights0);
+    attributes["JOINTS_1"] = json!(joints1);
+    attributes["WEIGHTS_1"] = json!(weights1);
+    let scene = load(&bin.finish(doc)).expect("loads");
+    let skin = scene.meshes[0].deform.as_ref().unwrap().skin.as_ref().unwrap();
+    assert_eq!((skin.influences, skin.renormalised), (8, 0));
+    // Vertex 2: 128/255 (1, 3, 0) + 127/255 (0, 2, 0). Vertex 3 (0, 1): the hip's (0, 3, 0)
+    // and the knee's ((-1, 1) turned to (-1, -1), plus (1, 2): (0, 1, 0)).
+    let (a, b) = (128.0 / 255.0, 127.0 / 255.0);
+    assert_at(
+        &scene,
+        0,
+        &[[0.0, 2.0, 0.0], [1.0, 2.0, 0.0], [a, 3.0 * a + 2.0 * b, 0.0], [0.0, 3.0 * a + b, 0.0]],
+    );
 }
 
 /// One triangle with two morph targets: target 0 lifts every vertex by (0, 0, 1); target 1
