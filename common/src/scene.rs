@@ -13,7 +13,8 @@ use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 /// A loaded scene: meshes, where they are placed, materials, textures, cameras and lights.
 #[derive(Clone, Debug, Default)]
 pub struct Scene {
-    /// Triangle meshes in their local space; one per glTF primitive that has triangles.
+    /// Triangle meshes in their local space; one per glTF primitive that has triangles, shared
+    /// by the nodes that place it, except that each deforming placement has its own.
     pub meshes: Vec<Mesh>,
     /// Placements of meshes in the world (a glTF node that references a mesh).
     pub instances: Vec<Instance>,
