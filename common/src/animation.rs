@@ -1,7 +1,8 @@
 //! Node animation: the glTF node tree with each node's rest transform and, for animated nodes,
 //! translation / rotation / scale curves (STEP, LINEAR, CUBICSPLINE; rotations by slerp), so that
-//! any node's world transform can be evaluated at any time. Times outside a curve's keys clamp
-//! to its first or last key. Every animation of the file plays at once.
+//! any node's world transform can be evaluated at any time; and morph target weight curves, one
+//! per target, for nodes whose `weights` are animated. Times outside a curve's keys clamp to its
+//! first or last key. Every animation of the file plays at once.
 
 use glam::{DMat4, DQuat, DVec3};
 
@@ -43,6 +44,15 @@ pub trait Keyframe: Copy {
 impl Keyframe for DVec3 {
     fn lerp(a: Self, b: Self, s: f64) -> Self {
         a.lerp(b, s)
+    }
+    fn combine(a: f64, x: Self, b: f64, y: Self) -> Self {
+        a * x + b * y
+    }
+}
+
+impl Keyframe for f64 {
+    fn lerp(a: Self, b: Self, s: f64) -> Self {
+        a + (b - a) * s
     }
     fn combine(a: f64, x: Self, b: f64, y: Self) -> Self {
         a * x + b * y
@@ -131,6 +141,10 @@ pub struct AnimNode {
     pub rest_trs: Trs,
     /// Curves, when the node is animated.
     pub motion: Option<NodeMotion>,
+    /// Morph target weight curves (a `weights` channel), one per target of the node's mesh, all
+    /// with the channel's key times; kept apart from `motion` because they deform the node's
+    /// mesh without moving the node.
+    pub weights: Option<Vec<Curve<f64>>>,
 }
 
 /// Every node of the file, so that transforms can be evaluated at any time.
@@ -164,6 +178,39 @@ impl Animation {
             at = self.nodes[p].parent;
         }
         m
+    }
+
+    /// [`Animation::world`] remembering every node's world transform it works out in `memo`
+    /// (for time `t` only), so that posing many joints of one skeleton walks each node once.
+    pub fn world_memo(
+        &self,
+        node: usize,
+        t: f64,
+        memo: &mut std::collections::HashMap<usize, DMat4>,
+    ) -> DMat4 {
+        let mut chain = Vec::new();
+        let mut at = Some(node);
+        while let Some(n) = at.filter(|n| !memo.contains_key(n)) {
+            chain.push(n);
+            at = self.nodes[n].parent;
+        }
+        let mut m = at.map_or(DMat4::IDENTITY, |n| memo[&n]);
+        for &n in chain.iter().rev() {
+            m *= self.local(n, t);
+            memo.insert(n, m);
+        }
+        m
+    }
+
+    /// The node's morph target weights at time `t`, when a `weights` channel animates them.
+    pub fn weights(&self, node: usize, t: f64) -> Option<Vec<f64>> {
+        let curves = self.nodes.get(node)?.weights.as_ref()?;
+        Some(curves.iter().map(|c| c.sample(t)).collect())
+    }
+
+    /// Whether a `weights` channel animates the node's morph target weights.
+    pub fn animates_weights(&self, node: usize) -> bool {
+        self.nodes.get(node).is_some_and(|n| n.weights.is_some())
     }
 
     /// Whether the node or one of its ancestors is animated.
@@ -245,12 +292,19 @@ mod tests {
         let child_rest = DMat4::from_translation(DVec3::X);
         let anim = Animation {
             nodes: vec![
-                AnimNode { parent: None, rest: DMat4::IDENTITY, rest_trs: trs, motion: Some(spin) },
+                AnimNode {
+                    parent: None,
+                    rest: DMat4::IDENTITY,
+                    rest_trs: trs,
+                    motion: Some(spin),
+                    weights: None,
+                },
                 AnimNode {
                     parent: Some(0),
                     rest: child_rest,
                     rest_trs: Trs { translation: DVec3::X, ..trs },
                     motion: None,
+                    weights: None,
                 },
             ],
             start: 0.0,
@@ -259,6 +313,10 @@ mod tests {
         // The child, one unit out, follows the parent's spin along the arc: at t = 0.5 it is at +y.
         let p = anim.world(1, 0.5).transform_point3(DVec3::ZERO);
         assert!((p - DVec3::Y).length() < 1e-12, "{p}");
+        let mut memo = std::collections::HashMap::new();
+        assert_eq!(anim.world_memo(1, 0.5, &mut memo), anim.world(1, 0.5));
+        assert_eq!(memo.len(), 2);
+        assert_eq!(anim.world_memo(0, 0.5, &mut memo), anim.world(0, 0.5));
         assert!(anim.moves(1) && anim.moves(0));
     }
 }

@@ -4,6 +4,7 @@
 //! - [`scene`]: the scene model (plain data, f64 placements).
 //! - [`gltf`]: glTF 2.0 loading and validation into a [`scene::Scene`].
 //! - [`animation`]: node animation curves and world transforms at any time.
+//! - [`deform`]: posing skinned and morphing meshes (linear blend skinning, morph targets).
 //! - [`bundle`]: uploaded scene bundles (`.glb`, `.gltf`, `.zip`) resolved only inside themselves.
 //! - [`budget`]: what loading one scene may cost (inflated bytes, texels, triangles).
 //! - [`settings`]: render settings (the JSON of PRODUCT.md) with validation.
@@ -21,6 +22,7 @@
 pub mod animation;
 pub mod budget;
 pub mod bundle;
+pub mod deform;
 pub mod envmap;
 pub mod error;
 pub mod film;

@@ -3,6 +3,9 @@
 //! Geometry stays in each mesh's local space (f32, as glTF stores it) and every placement of a
 //! mesh carries its world transform in f64, so that the renderer can move the world next to the
 //! camera before rounding to f32 (a scene 1e6 units from the origin renders like one at it).
+//! A mesh that deforms (a glTF skin, morph targets) carries a [`Deform`] record: its rest data,
+//! from which [`Scene::set_time`] poses it again at any time; a skinned mesh's vertices are posed
+//! in world space (relative to [`Skin::origin`]), so its instance carries only that translation.
 //! Nothing here knows about rays, BVHs or sampling.
 
 use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
@@ -10,7 +13,8 @@ use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 /// A loaded scene: meshes, where they are placed, materials, textures, cameras and lights.
 #[derive(Clone, Debug, Default)]
 pub struct Scene {
-    /// Triangle meshes in their local space; one per glTF primitive that has triangles.
+    /// Triangle meshes in their local space; one per glTF primitive that has triangles, shared
+    /// by the nodes that place it, except that each deforming placement has its own.
     pub meshes: Vec<Mesh>,
     /// Placements of meshes in the world (a glTF node that references a mesh).
     pub instances: Vec<Instance>,
@@ -26,9 +30,6 @@ pub struct Scene {
     /// Node animation, when the file animates a node; instances and cameras are posed at its
     /// rest pose until [`Scene::set_time`] poses them at another time.
     pub animation: Option<crate::animation::Animation>,
-    /// Nodes whose meshes would deform (skins, morph targets): rendered in their rest pose,
-    /// which is only right for a still image.
-    pub deforming: Vec<String>,
     /// `KHR_materials_variants`: the names of the material variants, in file order
     /// (`Mesh::variant_materials` refers to them by index).
     pub variants: Vec<String>,
@@ -57,6 +58,73 @@ pub struct Mesh {
     /// `Scene::materials`), the material the mesh takes in that variant (`material` in the
     /// others).
     pub variant_materials: Vec<(usize, usize)>,
+    /// How the mesh deforms, for a placement with a skin or morph targets (`None`, costing
+    /// nothing, for every other mesh). `positions`, `normals` and `tangents` then hold the
+    /// current pose; each deforming placement has a mesh of its own, since two nodes may pose
+    /// one glTF mesh differently.
+    pub deform: Option<Box<Deform>>,
+}
+
+/// What a deforming mesh needs to be posed again at any time: its rest geometry, its morph
+/// targets and weights, and its skin. Morph targets apply first, then the skin (glTF 2.0,
+/// 3.7.3.3).
+#[derive(Clone, Debug, Default)]
+pub struct Deform {
+    /// The glTF node that places the mesh: its `weights` (and their animation) and its skin
+    /// apply.
+    pub node: usize,
+    /// That node as messages name it, e.g. `node 3 (arm)`.
+    pub node_name: String,
+    /// POSITION as the file gives it.
+    pub rest_positions: Vec<Vec3>,
+    /// NORMAL as loaded (unit length), when the mesh has normals.
+    pub rest_normals: Option<Vec<Vec3>>,
+    /// TANGENT as loaded, when the mesh keeps tangents.
+    pub rest_tangents: Option<Vec<Vec4>>,
+    /// The primitive's morph targets, in file order.
+    pub targets: Vec<MorphTarget>,
+    /// The weights when nothing animates them: the node's `weights`, else the mesh's, else 0;
+    /// one per target.
+    pub weights: Vec<f32>,
+    /// The skin, for a node with one.
+    pub skin: Option<Skin>,
+}
+
+/// One morph target's per-vertex displacements (each as long as the mesh's vertices, or `None`
+/// where the target does not move that attribute).
+#[derive(Clone, Debug, Default)]
+pub struct MorphTarget {
+    /// POSITION displacements.
+    pub positions: Option<Vec<Vec3>>,
+    /// NORMAL displacements.
+    pub normals: Option<Vec<Vec3>>,
+    /// TANGENT displacements (xyz; the handedness never changes).
+    pub tangents: Option<Vec<Vec3>>,
+}
+
+/// A glTF skin as one placement uses it: linear blend skinning, each vertex moved by
+/// sum_i w_i (jointWorld_i x inverseBind_i).
+#[derive(Clone, Debug, Default)]
+pub struct Skin {
+    /// The glTF skin's index, for messages.
+    pub index: usize,
+    /// The joints' glTF node indices.
+    pub joints: Vec<usize>,
+    /// One inverse bind matrix per joint (the identity where the file gives none).
+    pub inverse_binds: Vec<DMat4>,
+    /// Joint influences per vertex: 4 per JOINTS_n / WEIGHTS_n set.
+    pub influences: usize,
+    /// `influences` indices into `joints` per vertex, vertex after vertex.
+    pub vertex_joints: Vec<u16>,
+    /// The matching weights, not negative, summing to 1 per vertex (or all 0 for a vertex
+    /// bound to nothing, which keeps its bind-pose position).
+    pub vertex_weights: Vec<f32>,
+    /// The world point the posed vertices are relative to (the first joint's rest position):
+    /// the instance's transform is this translation, so that f32 vertices keep their precision
+    /// far from the world origin.
+    pub origin: DVec3,
+    /// How many vertices' weights did not sum to one and were normalised (or were all 0).
+    pub renormalised: usize,
 }
 
 /// A mesh placed in the world by a node.
@@ -554,12 +622,30 @@ pub struct PunctualLight {
 impl Scene {
     /// Poses animated instances, cameras and punctual lights at time `t` (seconds). Nothing
     /// moves in a scene without animation.
+    ///
+    /// Deforming meshes that the animation drives (a joint that moves, animated weights) are
+    /// posed again: a renderer must rebuild what it built from their vertices. A skinned mesh's
+    /// instance never moves with its node (glTF ignores the skinned node's transform).
     pub fn set_time(&mut self, t: f64) {
         let Some(anim) = &self.animation else { return };
+        let meshes = &self.meshes;
         for inst in &mut self.instances {
-            if anim.moves(inst.node) {
+            if anim.moves(inst.node) && !meshes[inst.mesh].skinned() {
                 inst.transform = anim.world(inst.node, t) * inst.offset;
             }
+        }
+        // The world transforms of the joints, each node worked out once for all skins.
+        let mut worlds = std::collections::HashMap::new();
+        for mesh in &mut self.meshes {
+            let Some(deform) = mesh.deform.take() else { continue };
+            if deform.animated(anim) {
+                let weights = deform.weights_at(Some(anim), t);
+                for &j in deform.skin.iter().flat_map(|s| &s.joints) {
+                    anim.world_memo(j, t, &mut worlds);
+                }
+                deform.pose(&weights, |joint| worlds[&joint], mesh);
+            }
+            mesh.deform = Some(deform);
         }
         for light in &mut self.lights {
             if let Some(node) = light.node.filter(|&n| anim.moves(n)) {
@@ -646,17 +732,41 @@ impl Scene {
         Ok(())
     }
 
-    /// Refuses settings that would show time passing (several frames, or an open shutter) in an
-    /// animated scene with deforming meshes, which would render frozen in their rest pose.
+    /// Refuses an open shutter (motion blur within a frame) where the animation deforms a mesh
+    /// (moves a joint of its skin, or animates its morph target weights) while the shutter is
+    /// open: each frame is posed at its time, but a deformation within the shutter would render
+    /// frozen at the frame's time. Several frames are fine, and so are deforming meshes that
+    /// nothing animates, and shutters that all open after the last key or close before the
+    /// first (every curve holds its end value there).
     pub fn check_time(&self, settings: &crate::settings::RenderSettings) -> Result<(), String> {
-        let shows_time = settings.frames.end > settings.frames.start
-            || settings.shutter.open < settings.shutter.close;
-        match self.deforming.first() {
-            Some(node) if shows_time && self.animation.is_some() => Err(format!(
-                "{node}: skins and morph targets are not supported, so this animated scene cannot be rendered over time (several frames or an open shutter) without freezing it; render one frame with a closed shutter"
-            )),
-            _ => Ok(()),
+        let Some(anim) = &self.animation else { return Ok(()) };
+        let (open, close) = (settings.shutter.open, settings.shutter.close);
+        if open >= close {
+            return Ok(());
         }
+        // The times any shutter of the job is open: from the first frame's opening to the
+        // last frame's closing.
+        let fps = settings.frames.fps;
+        let first = (settings.frames.start as f64 + open) / fps;
+        let last = (settings.frames.end as f64 + close) / fps;
+        if last <= anim.start || first >= anim.end {
+            return Ok(());
+        }
+        let deforming = self.meshes.iter().filter_map(|m| m.deform.as_deref());
+        match deforming.into_iter().find(|d| d.animated(anim)) {
+            Some(d) => Err(format!(
+                "{}: the animation deforms its mesh (a skin joint moves or morph target weights are animated) while the shutter is open, and motion blur of a deforming mesh is not supported yet; render with a closed shutter (shutter.open equal to shutter.close), each frame posed at its time",
+                d.node_name
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// Whether instance `inst` moves with its node's animation (a skinned mesh never does: its
+    /// vertices are posed in world space).
+    pub fn instance_moves(&self, inst: &Instance) -> bool {
+        self.animation.as_ref().is_some_and(|a| a.moves(inst.node))
+            && !self.meshes[inst.mesh].skinned()
     }
 
     /// Gives every mesh the material its `KHR_materials_variants` mapping names for variant
@@ -685,10 +795,12 @@ impl Scene {
         Ok(index)
     }
 
-    /// Whether anything in the scene moves over time.
+    /// Whether anything in the scene moves or deforms over time (a renderer prepares such a
+    /// scene again for each frame).
     pub fn is_animated(&self) -> bool {
         self.animation.as_ref().is_some_and(|a| {
-            self.instances.iter().any(|i| a.moves(i.node))
+            self.instances.iter().any(|i| self.instance_moves(i))
+                || self.meshes.iter().any(|m| m.deform.as_ref().is_some_and(|d| d.animated(a)))
                 || self.cameras.iter().any(|c| c.node.is_some_and(|n| a.moves(n)))
                 || self.lights.iter().any(|l| l.node.is_some_and(|n| a.moves(n)))
         })

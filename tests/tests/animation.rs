@@ -369,32 +369,55 @@ fn moving_the_camera_equals_moving_the_world_the_other_way() {
 }
 
 #[test]
-fn deforming_meshes_are_refused_over_time_naming_the_node() {
+fn morphing_meshes_are_posed_per_frame_and_their_motion_blur_refused_naming_the_node() {
     let dir = temp_dir("anim-deform");
     let path = moving_square(&dir);
     let mut gltf: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    // One morph target displacing each vertex by its own position, its weight animated from 0
+    // (t = 0) to 2 (t = 2) by the key times themselves (accessor 2): the square is (1 + t)
+    // times its size at time t.
     gltf["meshes"][0]["primitives"][0]["targets"] = json!([{"POSITION": 0}]);
+    gltf["animations"][0]["samplers"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"input": 2, "output": 2, "interpolation": "LINEAR"}));
+    gltf["animations"][0]["channels"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"sampler": 1, "target": {"node": 0, "path": "weights"}}));
     let morphing = dir.join("morphing.gltf");
     std::fs::write(&morphing, gltf.to_string()).unwrap();
-    let settings = dir.join("settings.json");
-    std::fs::write(&settings, json!({"width": 16, "height": 16, "spp": 1}).to_string()).unwrap();
-    let render = |frames: &str| {
-        Command::new(bin_dir().join("coordinator"))
-            .arg("render")
-            .arg(&morphing)
-            .arg("-o")
-            .arg(dir.join("morph.exr"))
-            .arg("--settings")
-            .arg(&settings)
-            .args(["--frames", frames])
-            .output()
-            .unwrap()
-    };
-    let over_time = render("0..1");
-    let stderr = String::from_utf8_lossy(&over_time.stderr);
-    assert!(!over_time.status.success());
-    assert!(stderr.contains("node 0 (shape)") && stderr.contains("morph targets"), "{stderr}");
-    // A single still frame is fine: the rest pose is what it shows.
-    assert!(render("1").status.success());
+    // fps 2: frame 2 is t = 1, the square at x = 0 twice its size ([-0.5, 0.5], pixels 20..40
+    // of 0.05 from -1.5); frame 0 is t = 0, at x = -1 at its own size (pixels 5..15).
+    let settings =
+        json!({"width": 60, "height": 60, "spp": 4, "max_depth": 0, "frames": {"fps": 2.0}});
+    let out = dir.join("morph.exr");
+    render_frames(&morphing, &settings, "0..2", 1, &out);
+    for (frame, cols, rows) in [(0i64, (5, 14), (25, 34)), (2, (20, 39), (20, 39))] {
+        let image = red(&std::fs::read(frame_file(&out, frame)).unwrap());
+        let lit: Vec<(usize, usize)> =
+            (0..3600).filter(|&i| image[i] > 0.5).map(|i| (i % 60, i / 60)).collect();
+        let span = |k: fn(&(usize, usize)) -> usize| {
+            (lit.iter().map(k).min().unwrap(), lit.iter().map(k).max().unwrap())
+        };
+        assert_eq!((span(|p| p.0), span(|p| p.1)), (cols, rows), "frame {frame}");
+    }
+    // Motion blur of the morphing square is refused, naming the node.
+    let blur = dir.join("blur.json");
+    let blurred =
+        json!({"width": 16, "height": 16, "spp": 1, "shutter": {"open": 0.0, "close": 0.5}});
+    std::fs::write(&blur, blurred.to_string()).unwrap();
+    let output = Command::new(bin_dir().join("coordinator"))
+        .arg("render")
+        .arg(&morphing)
+        .arg("-o")
+        .arg(dir.join("blur.exr"))
+        .arg("--settings")
+        .arg(&blur)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("node 0 (shape)") && stderr.contains("deforms"), "{stderr}");
 }

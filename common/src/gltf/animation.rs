@@ -1,7 +1,7 @@
 //! glTF animations: samplers (input times, output values, interpolation) and channels that target
-//! a node's translation, rotation or scale, read into [`crate::animation::Animation`]. Morph
-//! target weights are not supported (warned and skipped), nor are channels without a node
-//! (`KHR_animation_pointer`).
+//! a node's translation, rotation, scale or morph target weights, read into
+//! [`crate::animation::Animation`]. Channels without a node (`KHR_animation_pointer`) are
+//! skipped.
 
 use glam::{DMat4, DQuat, DVec3};
 use serde_json::Value;
@@ -23,6 +23,7 @@ impl Loader<'_> {
         let Some(Value::Array(animations)) = animations else { return Ok(None) };
         let n_nodes = self.root.nodes.len();
         let mut motions: Vec<Option<NodeMotion>> = vec![None; n_nodes];
+        let mut weights: Vec<Option<Vec<Curve<f64>>>> = vec![None; n_nodes];
         let (mut start, mut end) = (f64::INFINITY, f64::NEG_INFINITY);
         for (a, anim) in animations.iter().enumerate() {
             let what = || format!("animation {a}");
@@ -38,10 +39,20 @@ impl Loader<'_> {
                     return fail(format!("{}: node {node} does not exist", what()));
                 }
                 let path = target.get("path").and_then(Value::as_str).unwrap_or("");
-                if path == "weights" {
-                    tracing::warn!("{}: morph target weights are not supported; ignored", what());
-                    continue;
-                }
+                // A weights channel has one value per morph target of the node's mesh.
+                let targets = if path == "weights" {
+                    let targets = self.morph_target_count(node);
+                    if targets == 0 {
+                        tracing::warn!(
+                            "{}: animates the weights of node {node}, whose mesh has no morph targets; ignored",
+                            what()
+                        );
+                        continue;
+                    }
+                    targets
+                } else {
+                    1
+                };
                 let Some(s) = index(channel, "sampler") else {
                     return fail(format!("{}: no sampler", what()));
                 };
@@ -78,15 +89,21 @@ impl Loader<'_> {
                 let width = match path {
                     "translation" | "scale" => 3,
                     "rotation" => 4,
+                    "weights" => 1,
                     other => return fail(format!("{}: unknown target path '{other}'", what())),
                 };
-                if info.components() != width || info.count != times.len() * per_key {
+                let expected = times.len() * per_key * targets;
+                if info.components() != width || info.count != expected {
                     return fail(format!(
-                        "{}: output has {} elements of {} components, expected {} of {width}",
+                        "{}: output has {} elements of {} components, expected {expected} of {width}{}",
                         what_s(),
                         info.count,
                         info.components(),
-                        times.len() * per_key
+                        if path == "weights" {
+                            format!(" (node {node}'s mesh has {targets} morph targets)")
+                        } else {
+                            String::new()
+                        }
                     ));
                 }
                 if values.iter().any(|v| !v.is_finite()) {
@@ -94,6 +111,22 @@ impl Loader<'_> {
                 }
                 start = start.min(times[0]);
                 end = end.max(times[times.len() - 1]);
+                if path == "weights" {
+                    // Key after key, `per_key` groups (in-tangents, values, out-tangents for
+                    // CUBICSPLINE) of one value per target: one curve per target.
+                    let curves = (0..targets)
+                        .map(|m| Curve {
+                            times: times.clone(),
+                            values: values
+                                .chunks_exact(targets)
+                                .map(|group| group[m] as f64)
+                                .collect(),
+                            interpolation,
+                        })
+                        .collect();
+                    weights[node] = Some(curves);
+                    continue;
+                }
                 let motion = motions[node].get_or_insert_with(NodeMotion::default);
                 let v3 =
                     |chunk: &[f32]| DVec3::new(chunk[0] as f64, chunk[1] as f64, chunk[2] as f64);
@@ -133,11 +166,11 @@ impl Loader<'_> {
                 }
             }
         }
-        if motions.iter().all(Option::is_none) {
+        if motions.iter().all(Option::is_none) && weights.iter().all(Option::is_none) {
             return Ok(None);
         }
         let mut nodes = Vec::with_capacity(n_nodes);
-        for (i, motion) in motions.into_iter().enumerate() {
+        for (i, (motion, weights)) in motions.into_iter().zip(weights).enumerate() {
             let rest: DMat4 = self.local_transform(i).context(|| format!("node {i}"))?;
             let (scale, rotation, translation) = rest.to_scale_rotation_translation();
             nodes.push(AnimNode {
@@ -145,9 +178,22 @@ impl Loader<'_> {
                 rest,
                 rest_trs: Trs { translation, rotation, scale },
                 motion,
+                weights,
             });
         }
         Ok(Some(Animation { nodes, start, end }))
+    }
+
+    /// How many morph targets node `node`'s mesh has (its first primitive with any; glTF
+    /// requires every primitive to have as many), 0 without a mesh.
+    fn morph_target_count(&self, node: usize) -> usize {
+        let mesh = self.root.nodes[node].mesh.and_then(|m| self.root.meshes.get(m.value()));
+        mesh.into_iter()
+            .flat_map(|m| &m.primitives)
+            .filter_map(|p| p.targets.as_ref())
+            .map(Vec::len)
+            .find(|&n| n > 0)
+            .unwrap_or(0)
     }
 }
 

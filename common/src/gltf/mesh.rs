@@ -39,7 +39,7 @@ impl Loader<'_> {
 
     /// The primitive's `KHR_materials_variants` mappings as (variant, glTF material) pairs; a
     /// variant mapped twice takes its first mapping.
-    fn variant_mappings(
+    pub(crate) fn variant_mappings(
         &self,
         mesh: usize,
         prim: usize,
@@ -73,7 +73,7 @@ impl Loader<'_> {
         Ok(pairs)
     }
 
-    fn build_primitive(
+    pub(crate) fn build_primitive(
         &self,
         mesh_index: usize,
         prim_index: usize,
@@ -226,12 +226,13 @@ impl Loader<'_> {
             indices,
             material: 0,                   // set once the used materials are known
             variant_materials: Vec::new(), // likewise
+            deform: None,                  // set for a deforming placement
         };
         Ok(Some((mesh, material)))
     }
 
     /// Reads an accessor of one of the `allowed` vector types into glam vectors.
-    fn read_vectors<V: FromFloats>(
+    pub(crate) fn read_vectors<V: FromFloats>(
         &self,
         acc: usize,
         allowed: &[Type],
@@ -250,7 +251,7 @@ impl Loader<'_> {
 }
 
 /// glam vectors built from a slice of floats of the right length.
-trait FromFloats {
+pub(crate) trait FromFloats {
     fn from_floats(c: &[f32]) -> Self;
 }
 impl FromFloats for Vec2 {

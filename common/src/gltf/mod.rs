@@ -5,10 +5,12 @@
 // Files: mod.rs (public API, resolvers, loader state), glb.rs (binary container), json.rs (JSON
 // layer, asset and extension checks), uri.rs (data URIs, confinement of file URIs), accessor.rs
 // (buffers, views, accessors), mesh.rs (primitives), material.rs (materials, textures, images),
-// nodes.rs (node tree, instances, cameras, lights, default camera), tests*.rs.
+// nodes.rs (node tree, instances, cameras, lights, default camera), deform.rs (skins and morph
+// targets of deforming placements), animation.rs (animation channels), tests*.rs.
 
 mod accessor;
 mod animation;
+mod deform;
 mod glb;
 mod json;
 mod material;
@@ -21,11 +23,15 @@ mod uri;
 mod tests;
 #[cfg(test)]
 mod tests_assets;
+#[cfg(test)]
+mod tests_deform;
 
 use std::borrow::Cow;
 use std::cell::{Cell, OnceCell};
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
+
+use glam::DMat4;
 
 use crate::{
     budget::{self, SceneBudget},
@@ -245,8 +251,10 @@ struct Loader<'a> {
     triangles_used: Cell<u64>,
     /// The `animations` array of the JSON, as written.
     animations: Option<&'a serde_json::Value>,
-    /// Nodes whose meshes deform (skins, morph targets), for messages.
-    deforming: Vec<String>,
+    /// Each node's parent (set by `load_nodes`), for the joints' rest transforms.
+    parents: Vec<Option<usize>>,
+    /// Rest world transforms of the nodes skins have needed so far.
+    rest_worlds: HashMap<usize, DMat4>,
 }
 
 /// Limits on what one file may make the loader allocate, far above any real scene, so that a
@@ -332,7 +340,8 @@ impl<'a> Loader<'a> {
             texels_used: Cell::new(0),
             triangles_used: Cell::new(0),
             animations: doc.animations.as_ref(),
-            deforming: Vec::new(),
+            parents: Vec::new(),
+            rest_worlds: HashMap::new(),
         }
     }
 
@@ -373,7 +382,6 @@ impl<'a> Loader<'a> {
             textures: std::mem::take(&mut self.textures),
             cameras: std::mem::take(&mut self.cameras),
             lights: std::mem::take(&mut self.lights),
-            deforming: std::mem::take(&mut self.deforming),
             variants: std::mem::take(&mut self.variants),
         };
         if scene.cameras.is_empty() {

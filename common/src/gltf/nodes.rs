@@ -21,6 +21,7 @@ impl Loader<'_> {
     pub(crate) fn load_nodes(&mut self) -> Result<(), SceneError> {
         let root = self.root;
         let parents = node_parents(root)?;
+        self.parents = parents.clone();
         let roots: Vec<usize> = match root.scene {
             Some(s) => scene_roots(root, s.value(), &parents)?,
             None if !root.scenes.is_empty() => scene_roots(root, 0, &parents)?,
@@ -97,24 +98,7 @@ impl Loader<'_> {
                     root.meshes.len()
                 ));
             };
-            if node.skin.is_some() {
-                tracing::warn!(
-                    "{}: skinning is not supported; mesh {mesh} is rendered in its rest pose",
-                    node_name()
-                );
-                self.deforming.push(format!("{} (skinned mesh {mesh})", node_name()));
-            }
-            if gltf_mesh
-                .primitives
-                .iter()
-                .any(|p| p.targets.as_ref().is_some_and(|t| !t.is_empty()))
-            {
-                tracing::warn!(
-                    "{}: mesh {mesh} has morph targets, which are not supported; rendered without them",
-                    node_name()
-                );
-                self.deforming.push(format!("{} (mesh {mesh} with morph targets)", node_name()));
-            }
+            let skin = node.skin.map(|s| s.value());
             // Each placement relative to the node (EXT_mesh_gpu_instancing), so that an animated
             // node can be placed again at any time. The placements are counted (from their
             // accessor) and charged before they are read.
@@ -126,9 +110,22 @@ impl Loader<'_> {
                     .context(|| format!("node {index}: EXT_mesh_gpu_instancing"))?,
                 None => 1,
             };
+            if let (Some(skin), Some(_)) = (skin, instancing) {
+                return fail(format!(
+                    "{}: a skinned mesh (skin {skin}) with EXT_mesh_gpu_instancing is not supported: the skin poses the mesh in world space, where the instances' placements have no meaning",
+                    node_name()
+                ));
+            }
             let mut placed = Vec::new();
-            for prim in 0..gltf_mesh.primitives.len() {
-                if let Some(scene_mesh) = self.mesh_index(mesh, prim)? {
+            for (prim, primitive) in gltf_mesh.primitives.iter().enumerate() {
+                // A placement that deforms gets a mesh of its own; the others share theirs.
+                let morphs = primitive.targets.as_ref().is_some_and(|t| !t.is_empty());
+                let scene_mesh = if skin.is_some() || morphs {
+                    self.deformed_mesh(index, &node_name(), mesh, prim, skin)?
+                } else {
+                    self.mesh_index(mesh, prim)?
+                };
+                if let Some(scene_mesh) = scene_mesh {
                     self.charge(
                         placements as u64,
                         |b| &mut b.instances,
@@ -150,6 +147,11 @@ impl Loader<'_> {
                 None => vec![DMat4::IDENTITY],
             };
             for scene_mesh in placed {
+                // A skinned mesh is posed in world space (relative to its skin's origin): the
+                // node's own transform does not place it (glTF 2.0, 3.7.3.3).
+                let posed_by =
+                    self.meshes[scene_mesh].deform.as_ref().and_then(|d| d.skin.as_ref());
+                let world = posed_by.map_or(world, |s| DMat4::from_translation(s.origin));
                 self.instances.extend(offsets.iter().map(|&offset| Instance {
                     mesh: scene_mesh,
                     node: index,

@@ -9,7 +9,7 @@ use std::{sync::Arc, time::Instant};
 
 use common::{
     envmap::EnvMap,
-    scene::{AlphaMode, Material, Projection, PunctualKind, Scene, Texture},
+    scene::{AlphaMode, Instance, Material, Projection, PunctualKind, Scene, Texture},
     settings::{Environment, Integrator, RenderSettings},
 };
 use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
@@ -406,10 +406,7 @@ fn prepare_inner(
     let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
     let mut colors: Vec<Vec4> = Vec::new();
     // With a shutter, placements that move are kept apart (object space, see `motion`).
-    let moves = |node: usize| match (shutter, &scene.animation) {
-        (Some(_), Some(anim)) => anim.moves(node),
-        _ => false,
-    };
+    let moves = |inst: &Instance| shutter.is_some() && scene.instance_moves(inst);
     let mut moving = Vec::new();
     // Which placement of which mesh each static triangle comes from: an emitter, for the light
     // choice (`LightSampler`).
@@ -425,7 +422,7 @@ fn prepare_inner(
         if invisible && material.base_color_texture.is_none() {
             continue; // Entirely cut out (a vertex colour only scales alpha down).
         }
-        if moves(inst.node) {
+        if moves(inst) {
             moving.push(inst);
             continue;
         }
