@@ -30,7 +30,10 @@ fn main() -> anyhow::Result<()> {
             t.wrap_t,
             t.nearest,
             worker::render::texture::mean(t, true),
-            &t.texels[..4]
+            match &t.texels {
+                common::scene::Texels::Rgba8(x) => format!("{:?}", &x[..x.len().min(4)]),
+                common::scene::Texels::Rgba16(x) => format!("{:?} (16-bit)", &x[..x.len().min(4)]),
+            }
         );
     }
     for c in &scene.cameras {

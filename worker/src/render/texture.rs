@@ -62,33 +62,25 @@ fn wrap(i: i64, n: u32, mode: Wrap) -> u32 {
 #[inline]
 fn texel(tex: &Texture, x: u32, y: u32, srgb: bool) -> Vec4 {
     let i = (y * tex.width + x) as usize;
-    let t = match &tex.texels {
-        Texels::Rgba8(texels) => texels[i],
-        Texels::Rgba16(texels) => {
-            let t = texels[i];
-            return if srgb {
-                let table = srgb_table16();
-                Vec4::new(
-                    table[t[0] as usize],
-                    table[t[1] as usize],
-                    table[t[2] as usize],
-                    t[3] as f32 / 65535.0,
-                )
-            } else {
-                Vec4::new(t[0] as f32, t[1] as f32, t[2] as f32, t[3] as f32) / 65535.0
-            };
-        }
-    };
+    match &tex.texels {
+        Texels::Rgba8(texels) => to_linear(texels[i].map(u16::from), srgb_table(), 255.0, srgb),
+        Texels::Rgba16(texels) => to_linear(texels[i], srgb_table16(), 65535.0, srgb),
+    }
+}
+
+/// A texel's values of at most `max` as numbers in [0, 1]: RGB through the sRGB `table` for a
+/// colour texture, alpha always linear.
+#[inline]
+fn to_linear(t: [u16; 4], table: &[f32], max: f32, srgb: bool) -> Vec4 {
     if srgb {
-        let table = srgb_table();
         Vec4::new(
             table[t[0] as usize],
             table[t[1] as usize],
             table[t[2] as usize],
-            t[3] as f32 / 255.0,
+            t[3] as f32 / max,
         )
     } else {
-        Vec4::new(t[0] as f32, t[1] as f32, t[2] as f32, t[3] as f32) / 255.0
+        Vec4::new(t[0] as f32, t[1] as f32, t[2] as f32, t[3] as f32) / max
     }
 }
 
