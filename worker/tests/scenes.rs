@@ -431,9 +431,10 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         }
     });
     // Materials the wavefront hands to the scalar path tracer beside ones it shades: a glass
-    // tall block (a refractive, absorbing volume) and a short block under a clear coat and
-    // sheen; and thin-walled walls it shades, a glossy green one that passes half its light
-    // through and a red one that diffuses some through.
+    // tall block (a refractive, absorbing volume); layered ones it shades lane by lane, a short
+    // block under a clear coat and sheen and white walls with a thin film and anisotropy; and
+    // thin-walled walls, a glossy green one that passes half its light through and a red one
+    // that diffuses some through.
     let handed_over = edited_scene("cornell-box", "glass-and-layers", |json| {
         let materials = json["materials"].as_array_mut().unwrap();
         materials.push(json!({
@@ -452,6 +453,14 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 "KHR_materials_sheen": {"sheenColorFactor": [0.5, 0.5, 0.9], "sheenRoughnessFactor": 0.4}
             }
         }));
+        materials.push(json!({
+            "name": "film",
+            "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.9, 0.8, 1.0], "metallicFactor": 0.5, "roughnessFactor": 0.35},
+            "extensions": {
+                "KHR_materials_iridescence": {"iridescenceFactor": 1.0, "iridescenceThicknessMaximum": 450.0},
+                "KHR_materials_anisotropy": {"anisotropyStrength": 0.6, "anisotropyRotation": 0.5}
+            }
+        }));
         json["materials"][1]["extensions"]["KHR_materials_transmission"] =
             json!({"transmissionFactor": 0.5});
         json["materials"][1]["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.4);
@@ -462,11 +471,14 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         });
         json["meshes"][4]["primitives"][0]["material"] = json!(4);
         json["meshes"][3]["primitives"][0]["material"] = json!(5);
+        json["meshes"][0]["primitives"][0]["material"] = json!(6);
         for ext in [
             "KHR_materials_transmission",
             "KHR_materials_volume",
             "KHR_materials_clearcoat",
             "KHR_materials_sheen",
+            "KHR_materials_iridescence",
+            "KHR_materials_anisotropy",
             "KHR_materials_diffuse_transmission",
         ] {
             json["extensionsUsed"].as_array_mut().unwrap().push(json!(ext));
@@ -547,6 +559,10 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             assert!(wavefront.wavefront().is_some(), "{name}: the wavefront applies");
             let hands_over = wavefront.wavefront().and_then(|t| t.note.as_deref());
             assert_eq!(hands_over.is_some(), *name == "glass and layers", "{name}: {hands_over:?}");
+            if let Some(note) = hands_over {
+                // The layered materials stay on the wavefront; only the glass hands over.
+                assert!(note.ends_with("materials 'glass' (a volume)"), "{note}");
+            }
             assert_eq!(wavefront.alpha_tested, *name == "cut-outs", "{name}");
             if *name == "punctual lights" {
                 let punctual = wavefront

@@ -1,5 +1,6 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
-//! prepared: the BSDF (Lambert, or the glTF metal-rough BSDF) and emission of each material,
+//! prepared: the BSDF (Lambert, the glTF metal-rough BSDF, or per point for a textured or
+//! layered one) and emission of each material,
 //! which materials hand their paths to the scalar path tracer, and the emissive triangles (with
 //! the mixture's probabilities where the scene chooses by it).
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
@@ -34,8 +35,9 @@ pub struct Tables {
     pub(super) albedo: Vec<Vec3>,
     /// The metal-rough BSDF per material, for the glossy ones.
     pub(super) glossy: Vec<Option<MetalRough>>,
-    /// Per material, whether it has textures: its BSDF, shading frame (normal map) and emission
-    /// are then those of each point, found one lane at a time by the scalar renderer's calls.
+    /// Per material, whether it has textures or layers: its BSDF, shading frame (normal map,
+    /// anisotropy) and emission are then those of each point, found one lane at a time by the
+    /// scalar renderer's calls.
     pub(super) textured: Vec<bool>,
     /// Emitted radiance per material.
     pub(super) emission: Vec<Vec3>,
@@ -88,7 +90,7 @@ impl Tables {
                 Shade::Lambert(_) | Shade::Glossy(_) if per_point => Shade::Textured,
                 other => other,
             };
-            textured.push(bsdf == Shade::Textured);
+            textured.push(matches!(bsdf, Shade::Textured | Shade::Layered));
             match bsdf {
                 Shade::Lambert(a) => {
                     albedo.push(a);
@@ -98,7 +100,7 @@ impl Tables {
                     albedo.push(Vec3::ZERO);
                     glossy.push(Some(b));
                 }
-                Shade::Textured | Shade::Scalar(_) => {
+                Shade::Textured | Shade::Layered | Shade::Scalar(_) => {
                     albedo.push(Vec3::ZERO);
                     glossy.push(None);
                 }
@@ -150,6 +152,9 @@ enum Shade {
     Glossy(MetalRough),
     /// Textured: Lambertian or metal-rough (thin-walled) at each point, as its textures say.
     Textured,
+    /// The layered glTF BSDF (clear coat, sheen, anisotropy, iridescence), textured or not:
+    /// found at each point, as a textured material's BSDF is.
+    Layered,
     /// Shaded by the scalar path tracer, which takes over the paths that meet it, for the
     /// reason given.
     Scalar(&'static str),
@@ -215,24 +220,26 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
     if volume.is_some() && m.bounds_medium() {
         return Err("a volume");
     }
-    if clearcoat.is_some() || sheen.is_some() || anisotropy.is_some() || iridescence.is_some() {
-        return Err("a layer (clear coat, sheen, anisotropy or iridescence)");
-    }
     if *unlit {
         return Err("KHR_materials_unlit");
     }
+    // What textures do not change: whether the surface is a refractive boundary, and whether
+    // light passes through it (only the factors can make it; textures scale them).
+    if m.extended() && m.refracts() {
+        return Err("a refractive boundary");
+    }
+    if clearcoat.is_some() || sheen.is_some() || anisotropy.is_some() || iridescence.is_some() {
+        // The layered BSDF, found at each point as a textured material's is.
+        return Ok(Shade::Layered);
+    }
     if textured {
-        // What textures do not change: whether the surface is a refractive boundary, and
-        // whether light passes through it (only the factors can make it; textures scale them).
-        if m.extended() && m.refracts() {
-            return Err("a refractive boundary");
-        }
         return Ok(Shade::Textured);
     }
     match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
         Bsdf::Diffuse(d) => Ok(Shade::Lambert(d.albedo)),
         Bsdf::MetalRough(b) => Ok(Shade::Glossy(b)),
-        Bsdf::Layered(_) => Err("a layer (clear coat, sheen, anisotropy or iridescence)"),
+        // A layered or refracting BSDF comes only from the extensions checked above.
+        Bsdf::Layered(_) => Ok(Shade::Layered),
         Bsdf::Dielectric(_) => Err("a refractive boundary"),
     }
 }
@@ -247,9 +254,10 @@ mod tests {
         Material { metallic: 0.0, specular: 0.0, ..Material::default() }
     }
 
-    /// Lambertian and reflecting metal-rough materials pass, textured or not (a textured one is
-    /// shaded per point); layers, transmission and unlit hand their paths to the scalar path
-    /// tracer (with the reason), and what the whole scene needs of it keeps the wavefront off.
+    /// Lambertian, reflecting metal-rough and layered materials pass, textured or not (a textured
+    /// or layered one is shaded per point); refraction, volumes and unlit hand their paths to the
+    /// scalar path tracer (with the reason), and what the whole scene needs of it keeps the
+    /// wavefront off.
     #[test]
     fn the_wavefront_takes_only_what_it_renders() {
         assert!(matches!(wavefront_shade(&[], &lambert()), Ok(Shade::Lambert(_))));
@@ -278,6 +286,39 @@ mod tests {
         // A full metal passes no light through, whatever its transmission factor.
         let metal = Material { transmission: 0.5, ..Material::default() };
         assert!(matches!(wavefront_shade(&[], &metal), Ok(Shade::Glossy(_))));
+        // Layers, textured or not, are shaded per point.
+        use common::scene::{Anisotropy, Clearcoat, Iridescence, Sheen};
+        let coat = Clearcoat {
+            factor: 1.0,
+            texture: None,
+            roughness: 0.1,
+            roughness_texture: None,
+            normal_texture: None,
+        };
+        let sheen = Sheen {
+            color: Vec3::ONE,
+            color_texture: None,
+            roughness: 0.5,
+            roughness_texture: None,
+        };
+        let anisotropy = Anisotropy { strength: 0.5, rotation: 0.0, texture: None };
+        let film = Iridescence {
+            factor: 1.0,
+            texture: None,
+            ior: 1.3,
+            thickness_min: 100.0,
+            thickness_max: 400.0,
+            thickness_texture: None,
+        };
+        let layered = [
+            Material { clearcoat: Some(coat), ..lambert() },
+            Material { sheen: Some(sheen), ..Material::default() },
+            Material { anisotropy: Some(anisotropy), ..Material::default() },
+            Material { iridescence: Some(film), base_color_texture: texture, ..lambert() },
+        ];
+        for m in &layered {
+            assert_eq!(wavefront_shade(&[], m), Ok(Shade::Layered), "{m:?}");
+        }
         let unlit = Material { unlit: true, ..lambert() };
         assert_eq!(wavefront_shade(&[], &unlit), Err("KHR_materials_unlit"));
         // Thin-walled transmission: the metal-rough BSDF's far side.

@@ -7,8 +7,11 @@
 //! `bsdf::metal_rough`, thin-walled transmission included), textured, normal-mapped,
 //! vertex-coloured and alpha-tested or not, under any lights and environment, chosen by the
 //! mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and the
-//! damaged helmet among them). A path that meets any other material (glass, volumes, layers,
-//! unlit: `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
+//! damaged helmet among them). A layered material (a clear coat, sheen, anisotropy,
+//! iridescence) keeps its paths: its BSDF at the point is found, evaluated, weighed and sampled
+//! one lane at a time by the scalar `Bsdf` (`shared::surface_bsdf`), and the rest of the bounce
+//! runs on the vectors. A path that meets any other material (glass, volumes, unlit:
+//! `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
 //! continues it on the scalar path tracer from that hit, with the lane's throughput, radiance,
 //! depth, MIS state and sampler dimension, so its sum is the one `path::li` makes, and the lane
 //! takes the next sample. At a textured (or vertex-coloured) material, the point's
@@ -60,7 +63,8 @@ use super::{
     shared::{
         environment_hit,
         generic::{power_heuristic, roulette_end, same_side},
-        hit_weight, light_radiance, shading_frame, Stats, RR_MIN_DEPTH, SHADOW_T_MAX, UNWEIGHTED,
+        hit_weight, light_radiance, mis_pdf, shading_frame, surface_bsdf, Stats, RR_MIN_DEPTH,
+        SHADOW_T_MAX, UNWEIGHTED,
     },
 };
 
@@ -300,6 +304,10 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     // triangle each lane hit.
     let mut textured = [false; MAX_LANES];
     let mut prims = [0u32; MAX_LANES];
+    // The lanes whose BSDF is layered (clear coat, sheen, anisotropy, iridescence): evaluated,
+    // weighed and sampled one lane at a time by the scalar renderer's `Bsdf`.
+    let mut layered = [false; MAX_LANES];
+    let mut layers = [None::<Bsdf>; MAX_LANES];
     let mut lobes = Lobes {
         base: z3,
         metallic: zero,
@@ -432,6 +440,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 prims[i] = hit.prim;
                 textured[i] = tables.textured[shading.material as usize];
                 glossy[i] = false;
+                layered[i] = false;
                 transmits[i] = false;
                 if let Some(b) = &tables.glossy[shading.material as usize] {
                     glossy[i] = true;
@@ -522,19 +531,26 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 }
             }
             let ng_i = if front { ng_i } else { -ng_i };
-            let (frame, _) = shading_frame(scene, prim, corners, b, ng_i, &sp, None);
+            let (frame, ns_surface) = shading_frame(scene, prim, corners, b, ng_i, &sp, None);
             fx.set_lane(i, frame.x);
             fy.set_lane(i, frame.y);
             ns.set_lane(i, frame.z);
-            match material::bsdf(&scene.textures, m, &sp, front, [1.0; 2], shading.extended) {
+            let at = (prim, corners, b);
+            match surface_bsdf(scene, at, (&sp, front, [1.0; 2]), (&frame, ns_surface), None) {
                 Bsdf::Diffuse(d) => albedo.set_lane(i, d.albedo),
                 Bsdf::MetalRough(b) => {
                     glossy[i] = true;
                     transmits[i] = b.transmits();
                     set_lobes(&mut lobes, &mut alpha, i, &b);
                 }
-                // `Tables::new` takes no material that makes another BSDF.
-                Bsdf::Dielectric(_) | Bsdf::Layered(_) => unreachable!("a BSDF off the wavefront"),
+                bsdf @ Bsdf::Layered(_) => {
+                    layered[i] = true;
+                    transmits[i] = bsdf.transmits();
+                    albedo.set_lane(i, Vec3::ZERO);
+                    layers[i] = Some(bsdf);
+                }
+                // `Tables::new` takes no material that refracts.
+                Bsdf::Dielectric(_) => unreachable!("a refractive boundary on the wavefront"),
             }
         }
         let wo_z = wo.dot(ns);
@@ -548,13 +564,16 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // the metal-rough arithmetic is not done.
         let any_transmits = (0..lanes).any(|i| transmits[i] && live[i]);
         let transm = M::from_bools(s, &transmits);
-        let wo_l = if any_glossy { V3::new(wo.dot(fx), wo.dot(fy), wo_z) } else { z3 };
+        // The layered lanes, shaded one at a time (none in most batches).
+        let any_layered = (0..lanes).any(|i| layered[i] && live[i]);
+        let local_frame = any_glossy || any_layered;
+        let wo_l = if local_frame { V3::new(wo.dot(fx), wo.dot(fy), wo_z) } else { z3 };
 
         // The bounce's numbers, in `path::li`'s dimensions: the light's pair, the lobe's
         // number (a diffuse BSDF has one lobe: not drawn), the direction's pair, roulette's
         // number (drawn where roulette plays).
         let (u_light_x, u_light_y) = paths.draws.draw_2d(0);
-        let u_lobe = if any_glossy { paths.draws.draw_1d(1) } else { zero };
+        let u_lobe = if local_frame { paths.draws.draw_1d(1) } else { zero };
         let (ub_x, ub_y) = paths.draws.draw_2d(2);
         let u_rr = paths.draws.draw_1d(3);
         // The light choice.
@@ -633,13 +652,20 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let is_delta = other & M::from_bools(s, &delta);
         let wi_z = wi.dot(ns);
         let f = lambert::eval(albedo, wo_z, wi_z).scale(wi_z.abs());
-        let wi_l = if any_glossy { V3::new(wi.dot(fx), wi.dot(fy), wi_z) } else { z3 };
-        let f = if any_glossy {
+        let wi_l = if local_frame { V3::new(wi.dot(fx), wi.dot(fy), wi_z) } else { z3 };
+        let mut f = if any_glossy {
             let fg = metal_rough::eval(&lobes, alpha, wo_l, wi_l, any_transmits).scale(wi_z.abs());
             glossym.select3(fg, f)
         } else {
             f
         };
+        if any_layered {
+            for i in (0..lanes).filter(|&i| layered[i] && cont[i] && has_light[i]) {
+                let bsdf = layers[i].as_ref().expect("a layered lane's BSDF");
+                let (wo_i, wi_i) = (wo_l.lane(i), wi_l.lane(i));
+                f.set_lane(i, bsdf.eval(wo_i, wi_i) * wi_i.z.abs());
+            }
+        }
         let shadowm = contm
             & M::from_bools(s, &has_light)
             & sampled
@@ -668,11 +694,17 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         }
         let nee_pdf = light_pdf * choice_pdf;
         let bsdf_pdf = lambert::pdf(wo_z, wi_z);
-        let bsdf_pdf = if any_glossy {
+        let mut bsdf_pdf = if any_glossy {
             glossym.select(metal_rough::pdf(&lobes, alpha, wo_l, wi_l, any_transmits), bsdf_pdf)
         } else {
             bsdf_pdf
         };
+        if any_layered {
+            for i in (0..lanes).filter(|&i| layered[i] && unblocked[i]) {
+                let bsdf = layers[i].as_ref().expect("a layered lane's BSDF");
+                bsdf_pdf.set_lane(i, bsdf.pdf(wo_l.lane(i), wi_l.lane(i)));
+            }
+        }
         let w = is_delta.select(one, power_heuristic(nee_pdf, bsdf_pdf));
         let nee = paths.radiance + paths.beta.mul(f).mul(li).scale(w / nee_pdf);
         paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
@@ -691,6 +723,26 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         } else {
             (local, f, pdf, sampled)
         };
+        // The density MIS weighs the next hit by (`shared::mis_pdf`).
+        let mut mis = pdf;
+        let (mut local, mut f, mut pdf, mut sampled) = (local, f, pdf, sampled);
+        if any_layered {
+            let mut ok = [false; MAX_LANES];
+            sampled.to_bools(&mut ok);
+            for i in (0..lanes).filter(|&i| layered[i] && cont[i]) {
+                let bsdf = layers[i].as_ref().expect("a layered lane's BSDF");
+                let u = Vec2::new(ub_x.lane(i), ub_y.lane(i));
+                ok[i] = false;
+                if let Some(bs) = bsdf.sample(wo_l.lane(i), u_lobe.lane(i), u) {
+                    ok[i] = true;
+                    local.set_lane(i, bs.wi);
+                    f.set_lane(i, bs.f);
+                    pdf.set_lane(i, bs.pdf);
+                    mis.set_lane(i, mis_pdf(&bs));
+                }
+            }
+            sampled = M::from_bools(s, &ok);
+        }
         let wi = fx.scale(local.x) + fy.scale(local.y) + ns.scale(local.z);
         let beta = paths.beta.mul(f.scale(local.z.abs() / pdf));
         let ok = contm
@@ -707,7 +759,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.beta = go_on.select3(beta, paths.beta);
         paths.origin = go_on.select3(origin, paths.origin);
         paths.dir = go_on.select3(wi, paths.dir);
-        paths.prev_bsdf_pdf = go_on.select(pdf, paths.prev_bsdf_pdf);
+        paths.prev_bsdf_pdf = go_on.select(mis, paths.prev_bsdf_pdf);
         if mixture.is_none() {
             paths.prev_p = go_on.select3(p, paths.prev_p);
             paths.prev_n = go_on.select3(ns, paths.prev_n);
