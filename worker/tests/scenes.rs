@@ -433,8 +433,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     // Materials the wavefront hands to the scalar path tracer beside ones it shades: a glass
     // tall block (a refractive, absorbing volume); layered ones it shades lane by lane, a short
     // block under a clear coat and sheen and white walls with a thin film and anisotropy; and
-    // thin-walled walls, a glossy green one that passes half its light through and a red one
-    // that diffuses some through.
+    // thin-walled walls, a glossy green one under a clear coat that passes half its light
+    // through and a red one that diffuses some through.
     let handed_over = edited_scene("cornell-box", "glass-and-layers", |json| {
         let materials = json["materials"].as_array_mut().unwrap();
         materials.push(json!({
@@ -465,6 +465,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             json!({"transmissionFactor": 0.5});
         json["materials"][1]["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.4);
         json["materials"][1]["extensions"]["KHR_materials_specular"] = json!({});
+        json["materials"][1]["extensions"]["KHR_materials_clearcoat"] =
+            json!({"clearcoatFactor": 0.7, "clearcoatRoughnessFactor": 0.2});
         json["materials"][2]["extensions"]["KHR_materials_diffuse_transmission"] = json!({
             "diffuseTransmissionFactor": 0.4,
             "diffuseTransmissionColorFactor": [0.9, 0.5, 0.3]

@@ -147,6 +147,100 @@ pub(crate) mod generic {
         R::select(wo.z.le(zero), zero, g1 * ggx_d(alpha, h) / (alpha.konst(4.0) * wo.z))
     }
 
+    /// Anisotropic GGX's D(h) for roughnesses `ax` along x and `ay` along y (`super::AnisoGgx`).
+    #[inline(always)]
+    pub(crate) fn aniso_d<R: Real>(ax: R, ay: R, h: V3<R>) -> R {
+        let (x, y) = (h.x / ax, h.y / ay);
+        let t = x * x + y * y + h.z * h.z;
+        let d = ax.konst(1.0) / (ax.konst(PI) * ax * ay * t * t);
+        R::select(h.z.le(ax.konst(0.0)), ax.konst(0.0), d)
+    }
+
+    /// Anisotropic GGX's Smith Lambda(w) (`super::AnisoGgx::lambda`).
+    #[inline(always)]
+    pub(crate) fn aniso_lambda<R: Real>(ax: R, ay: R, w: V3<R>) -> R {
+        let c = |v: f32| ax.konst(v);
+        let (a, b) = (ax * w.x, ay * w.y);
+        let num = a * a + b * b;
+        let lambda = c(0.5) * (c(-1.0) + (c(1.0) + num / (w.z * w.z)).sqrt());
+        R::select(num.eq(c(0.0)), c(0.0), lambda)
+    }
+
+    /// Anisotropic GGX's height-correlated masking-shadowing G2(wo, wi).
+    #[inline(always)]
+    pub(crate) fn aniso_g2<R: Real>(ax: R, ay: R, wo: V3<R>, wi: V3<R>) -> R {
+        let one = ax.konst(1.0);
+        one / (one + aniso_lambda(ax, ay, wo) + aniso_lambda(ax, ay, wi))
+    }
+
+    /// Anisotropic GGX's density of the direction reflected about a visible normal `h`:
+    /// G1(wo) D(h) / (4 wo.z), 0 for `wo.z <= 0`.
+    #[inline(always)]
+    pub(crate) fn aniso_reflection_pdf<R: Real>(ax: R, ay: R, wo: V3<R>, h: V3<R>) -> R {
+        let (zero, one) = (ax.konst(0.0), ax.konst(1.0));
+        let g1 = one / (one + aniso_lambda(ax, ay, wo));
+        R::select(wo.z.le(zero), zero, g1 * aniso_d(ax, ay, h) / (ax.konst(4.0) * wo.z))
+    }
+
+    /// A microfacet distribution for every lane, as the generic BSDFs read it: isotropic GGX
+    /// ([`Iso`], whose arithmetic is `super::Ggx`'s) or anisotropic ([`Aniso`], `super::AnisoGgx`'s).
+    pub(crate) trait Facets<R: Real>: Copy {
+        /// D(h).
+        fn d(&self, h: V3<R>) -> R;
+        /// G2(wo, wi).
+        fn g2(&self, wo: V3<R>, wi: V3<R>) -> R;
+        /// A visible normal for `wo`.
+        fn visible_normal(&self, wo: V3<R>, ux: R, uy: R) -> V3<R>;
+        /// The density of `wo` reflected about the visible normal `h`.
+        fn reflection_pdf(&self, wo: V3<R>, h: V3<R>) -> R;
+    }
+
+    /// Isotropic GGX of roughness alpha.
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Iso<R>(pub(crate) R);
+
+    /// Anisotropic GGX of roughnesses alpha_x and alpha_y.
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Aniso<R>(pub(crate) R, pub(crate) R);
+
+    impl<R: Real> Facets<R> for Iso<R> {
+        #[inline(always)]
+        fn d(&self, h: V3<R>) -> R {
+            ggx_d(self.0, h)
+        }
+        #[inline(always)]
+        fn g2(&self, wo: V3<R>, wi: V3<R>) -> R {
+            ggx_g2(self.0, wo, wi)
+        }
+        #[inline(always)]
+        fn visible_normal(&self, wo: V3<R>, ux: R, uy: R) -> V3<R> {
+            ggx_visible_normal(self.0, self.0, wo, ux, uy)
+        }
+        #[inline(always)]
+        fn reflection_pdf(&self, wo: V3<R>, h: V3<R>) -> R {
+            ggx_reflection_pdf(self.0, wo, h)
+        }
+    }
+
+    impl<R: Real> Facets<R> for Aniso<R> {
+        #[inline(always)]
+        fn d(&self, h: V3<R>) -> R {
+            aniso_d(self.0, self.1, h)
+        }
+        #[inline(always)]
+        fn g2(&self, wo: V3<R>, wi: V3<R>) -> R {
+            aniso_g2(self.0, self.1, wo, wi)
+        }
+        #[inline(always)]
+        fn visible_normal(&self, wo: V3<R>, ux: R, uy: R) -> V3<R> {
+            ggx_visible_normal(self.0, self.1, wo, ux, uy)
+        }
+        #[inline(always)]
+        fn reflection_pdf(&self, wo: V3<R>, h: V3<R>) -> R {
+            aniso_reflection_pdf(self.0, self.1, wo, h)
+        }
+    }
+
     /// A visible normal of GGX with roughness `ax` along x and `ay` along y (equal for the
     /// isotropic one) for `wo` (wo.z > 0), Heitz 2018: `wo` stretched to the hemisphere
     /// configuration, a point on the projected half disk, stretched back.
@@ -379,12 +473,7 @@ impl AnisoGgx {
     /// Smith Lambda(w).
     #[inline]
     pub fn lambda(&self, w: Vec3) -> f32 {
-        let (ax, ay) = (self.alpha_x * w.x, self.alpha_y * w.y);
-        let num = ax * ax + ay * ay;
-        if num == 0.0 {
-            return 0.0;
-        }
-        0.5 * (-1.0 + (1.0 + num / (w.z * w.z)).sqrt())
+        generic::aniso_lambda(self.alpha_x, self.alpha_y, w.into())
     }
 
     /// Smith masking G1(w).
@@ -397,17 +486,12 @@ impl AnisoGgx {
 impl Microfacet for AnisoGgx {
     #[inline]
     fn d(&self, h: Vec3) -> f32 {
-        if h.z <= 0.0 {
-            return 0.0;
-        }
-        let (x, y) = (h.x / self.alpha_x, h.y / self.alpha_y);
-        let t = x * x + y * y + h.z * h.z;
-        1.0 / (PI * self.alpha_x * self.alpha_y * t * t)
+        generic::aniso_d(self.alpha_x, self.alpha_y, h.into())
     }
 
     #[inline]
     fn g2(&self, wo: Vec3, wi: Vec3) -> f32 {
-        1.0 / (1.0 + self.lambda(wo) + self.lambda(wi))
+        generic::aniso_g2(self.alpha_x, self.alpha_y, wo.into(), wi.into())
     }
 
     #[inline]
@@ -417,10 +501,7 @@ impl Microfacet for AnisoGgx {
 
     #[inline]
     fn reflection_pdf(&self, wo: Vec3, h: Vec3) -> f32 {
-        if wo.z <= 0.0 {
-            return 0.0;
-        }
-        self.g1(wo) * self.d(h) / (4.0 * wo.z)
+        generic::aniso_reflection_pdf(self.alpha_x, self.alpha_y, wo.into(), h.into())
     }
 }
 

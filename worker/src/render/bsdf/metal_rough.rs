@@ -320,9 +320,7 @@ pub(crate) mod generic {
     use crate::render::{
         geometry::generic::reflect,
         lanes::{Real, V3},
-        sampling::generic::{
-            ggx_d, ggx_g2, ggx_reflection_pdf, ggx_visible_normal, sample_cosine_hemisphere,
-        },
+        sampling::generic::{sample_cosine_hemisphere, Facets},
     };
 
     /// The BSDF's parameters but the microfacet distribution (`MetalRough`'s fields).
@@ -482,27 +480,27 @@ pub(crate) mod generic {
         V3::new(w.x, w.y, -w.z)
     }
 
-    /// `MetalRough::eval` with isotropic GGX of roughness `alpha`, for every lane; `transmits`
-    /// says whether any lane may transmit (when none does, the far side's branch is not
-    /// computed: it is zero in every lane).
+    /// `MetalRough::eval` with the microfacets `m`, for every lane; `transmits` says whether
+    /// any lane may transmit (when none does, the far side's branch is not computed: it is zero
+    /// in every lane).
     #[inline(always)]
     pub(crate) fn eval<R: Real>(
         l: &Lobes<R>,
-        alpha: R,
+        m: impl Facets<R>,
         wo: V3<R>,
         wi: V3<R>,
         transmits: bool,
     ) -> V3<R> {
-        let zero = alpha.konst(0.0);
+        let zero = wo.z.konst(0.0);
         let z3 = V3::new(zero, zero, zero);
         let h = (wo + wi).normalize();
-        let spec = specular(ggx_d(alpha, h), ggx_g2(alpha, wo, wi), wo.z, wi.z);
+        let spec = specular(m.d(h), m.g2(wo, wi), wo.z, wi.z);
         let (f_d, f_m) = schlick_fresnel(l, wo.dot(h));
         let above = reflected(l, f_d, f_m, spec);
         let below = if transmits {
             let wm = mirror(wi);
             let h = (wo + wm).normalize();
-            let spec_t = specular(ggx_d(alpha, h), ggx_g2(alpha, wo, wm), wo.z, wm.z);
+            let spec_t = specular(m.d(h), m.g2(wo, wm), wo.z, wm.z);
             let (f_d, _) = schlick_fresnel(l, wo.dot(h));
             V3::select(lane_transmits(l), transmitted(l, f_d, spec_t), z3)
         } else {
@@ -519,29 +517,35 @@ pub(crate) mod generic {
         (l.transmission.gt(zero) | l.diffuse_transmission.gt(zero)) & l.metallic.lt(one)
     }
 
-    /// `MetalRough::pdf` with isotropic GGX of roughness `alpha`, for every lane (`transmits`
-    /// as for [`eval`]).
+    /// `MetalRough::pdf` with the microfacets `m`, for every lane (`transmits` as for
+    /// [`eval`]).
     #[inline(always)]
-    pub(crate) fn pdf<R: Real>(l: &Lobes<R>, alpha: R, wo: V3<R>, wi: V3<R>, transmits: bool) -> R {
-        pdf_given(alpha, wo, wi, probabilities(lobe_weights(l, wo.z)), transmits)
+    pub(crate) fn pdf<R: Real>(
+        l: &Lobes<R>,
+        m: impl Facets<R>,
+        wo: V3<R>,
+        wi: V3<R>,
+        transmits: bool,
+    ) -> R {
+        pdf_given(m, wo, wi, probabilities(lobe_weights(l, wo.z)), transmits)
     }
 
     /// [`pdf`] with the lobe probabilities for `wo` already found.
     #[inline(always)]
     fn pdf_given<R: Real>(
-        alpha: R,
+        m: impl Facets<R>,
         wo: V3<R>,
         wi: V3<R>,
         probabilities: (R, R, R),
         transmits: bool,
     ) -> R {
-        let zero = alpha.konst(0.0);
+        let zero = wo.z.konst(0.0);
         let (_, p_trans, p_dtrans) = probabilities;
         let h = (wo + wi).normalize();
-        let above = reflection_pdf(probabilities, ggx_reflection_pdf(alpha, wo, h), wi.z);
+        let above = reflection_pdf(probabilities, m.reflection_pdf(wo, h), wi.z);
         let below = if transmits {
             let h = (wo + mirror(wi)).normalize();
-            let through = p_trans * ggx_reflection_pdf(alpha, wo, h);
+            let through = p_trans * m.reflection_pdf(wo, h);
             let with_far = plus_far_cosine(through, p_dtrans, wi.z);
             let below = R::select(p_dtrans.le(zero), through, with_far);
             R::select(p_trans.le(zero) & p_dtrans.le(zero), zero, below)
@@ -552,22 +556,22 @@ pub(crate) mod generic {
         R::select(wo.z.le(zero) | wi.z.eq(zero), zero, p)
     }
 
-    /// `MetalRough::sample` with isotropic GGX of roughness `alpha`, for every lane: the
-    /// direction, f, its density, whether it went to the far side, and whether there is a
-    /// sample (`transmits` as for [`eval`]).
+    /// `MetalRough::sample` with the microfacets `m`, for every lane: the direction, f, its
+    /// density, whether it went to the far side, and whether there is a sample (`transmits` as
+    /// for [`eval`]).
     #[inline(always)]
     pub(crate) fn sample<R: Real>(
         l: &Lobes<R>,
-        alpha: R,
+        m: impl Facets<R>,
         wo: V3<R>,
         u_lobe: R,
         (ux, uy): (R, R),
         transmits: bool,
     ) -> (V3<R>, V3<R>, R, R::Mask, R::Mask) {
-        let zero = alpha.konst(0.0);
+        let zero = wo.z.konst(0.0);
         let chances = probabilities(lobe_weights(l, wo.z));
         let (p_spec, p_trans, p_dtrans) = chances;
-        let glossy = reflect(wo, ggx_visible_normal(alpha, alpha, wo, ux, uy));
+        let glossy = reflect(wo, m.visible_normal(wo, ux, uy));
         let diffuse = sample_cosine_hemisphere(ux, uy);
         let spec_lobe = u_lobe.lt(p_spec);
         let trans_lobe = !spec_lobe & u_lobe.lt(p_spec + p_trans);
@@ -586,8 +590,8 @@ pub(crate) mod generic {
             & !(trans_lobe & glossy.z.le(zero))
             & !wi.z.eq(zero)
             & !(wi.z.lt(zero) & !far);
-        let pdf = pdf_given(alpha, wo, wi, chances, transmits);
-        let f = eval(l, alpha, wo, wi, transmits);
+        let pdf = pdf_given(m, wo, wi, chances, transmits);
+        let f = eval(l, m, wo, wi, transmits);
         (wi, f, pdf, far, ok & pdf.gt(zero))
     }
 }

@@ -8,7 +8,7 @@
 
 mod dielectric;
 pub(crate) mod diffuse;
-mod layered;
+pub(crate) mod layered;
 pub(crate) mod metal_rough;
 mod sheen;
 mod thin_film;

@@ -7,10 +7,11 @@
 //! `bsdf::metal_rough`, thin-walled transmission included), textured, normal-mapped,
 //! vertex-coloured and alpha-tested or not, under any lights and environment, chosen by the
 //! mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and the
-//! damaged helmet among them). A layered material (a clear coat, sheen, anisotropy,
-//! iridescence) keeps its paths: its BSDF at the point is found, evaluated, weighed and sampled
-//! one lane at a time by the scalar `Bsdf` (`shared::surface_bsdf`), and the rest of the bounce
-//! runs on the vectors. A path that meets any other material (glass, volumes, unlit:
+//! damaged helmet among them). A layered material keeps its paths: a clear coat over the
+//! (anisotropic or isotropic) metal-rough base is shaded on the vectors
+//! (`bsdf::layered::generic::Coated`); with a sheen or a thin film the BSDF at the point is
+//! evaluated, weighed and sampled one lane at a time by the scalar `Bsdf`
+//! (`shared::surface_bsdf`), and the rest of the bounce runs on the vectors. A path that meets any other material (glass, volumes, unlit:
 //! `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
 //! continues it on the scalar path tracer from that hit, with the lane's throughput, radiance,
 //! depth, MIS state and sampler dimension, so its sum is the one `path::li` makes, and the lane
@@ -42,6 +43,7 @@ use super::{
     super::{
         bsdf::{
             diffuse::generic as lambert,
+            layered::generic::{CoatLanes, Coated},
             metal_rough::generic::{self as metal_rough, Lobes},
             Bsdf, MetalRough,
         },
@@ -56,6 +58,7 @@ use super::{
         },
         material,
         sampler::{LaneSampler, Sampler},
+        sampling::generic::{Aniso, Iso},
         scene::PreparedScene,
         wavefront_tables::Tables,
     },
@@ -304,8 +307,14 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     // triangle each lane hit.
     let mut textured = [false; MAX_LANES];
     let mut prims = [0u32; MAX_LANES];
-    // The lanes whose BSDF is layered (clear coat, sheen, anisotropy, iridescence): evaluated,
-    // weighed and sampled one lane at a time by the scalar renderer's `Bsdf`.
+    // The lanes whose BSDF is a clear coat (or none) over an anisotropic metal-rough base, in
+    // `lobes` (`layered::generic::Coated`), and their coats.
+    let mut coated = [false; MAX_LANES];
+    let mut has_coat = [false; MAX_LANES];
+    let (mut alpha_x, mut alpha_y) = (one, one);
+    let mut coat = CoatLanes { weight: zero, alpha: one, normal: z3 };
+    // The lanes whose BSDF is layered with a sheen or a thin film: evaluated, weighed and
+    // sampled one lane at a time by the scalar renderer's `Bsdf`.
     let mut layered = [false; MAX_LANES];
     let mut layers = [None::<Bsdf>; MAX_LANES];
     let mut lobes = Lobes {
@@ -440,6 +449,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 prims[i] = hit.prim;
                 textured[i] = tables.textured[shading.material as usize];
                 glossy[i] = false;
+                coated[i] = false;
                 layered[i] = false;
                 transmits[i] = false;
                 if let Some(b) = &tables.glossy[shading.material as usize] {
@@ -543,6 +553,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     transmits[i] = b.transmits();
                     set_lobes(&mut lobes, &mut alpha, i, &b);
                 }
+                Bsdf::Layered(l) if l.sheen.is_none() && l.iridescence.is_none() => {
+                    coated[i] = true;
+                    transmits[i] = l.transmits();
+                    set_base(&mut lobes, i, &l.base.lobes());
+                    alpha_x.set_lane(i, l.base.ggx.alpha_x);
+                    alpha_y.set_lane(i, l.base.ggx.alpha_y);
+                    has_coat[i] = l.coat.is_some();
+                    let c = l.coat.map_or(NO_COAT, |c| c.lanes());
+                    coat.weight.set_lane(i, c.weight);
+                    coat.alpha.set_lane(i, c.alpha);
+                    coat.normal.set_lane(i, c.normal.into());
+                }
                 bsdf @ Bsdf::Layered(_) => {
                     layered[i] = true;
                     transmits[i] = bsdf.transmits();
@@ -564,9 +586,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // the metal-rough arithmetic is not done.
         let any_transmits = (0..lanes).any(|i| transmits[i] && live[i]);
         let transm = M::from_bools(s, &transmits);
-        // The layered lanes, shaded one at a time (none in most batches).
+        // The coated lanes, and the layered ones shaded one at a time (none in most batches).
+        let any_coated = (0..lanes).any(|i| coated[i] && live[i]);
+        let coatedm = M::from_bools(s, &coated);
+        let coated_bsdf = Coated {
+            base: &lobes,
+            facets: Aniso(alpha_x, alpha_y),
+            coat: &coat,
+            has_coat: M::from_bools(s, &has_coat),
+            transmits: any_transmits,
+        };
         let any_layered = (0..lanes).any(|i| layered[i] && live[i]);
-        let local_frame = any_glossy || any_layered;
+        let local_frame = any_glossy || any_coated || any_layered;
         let wo_l = if local_frame { V3::new(wo.dot(fx), wo.dot(fy), wo_z) } else { z3 };
 
         // The bounce's numbers, in `path::li`'s dimensions: the light's pair, the lobe's
@@ -654,11 +685,15 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let f = lambert::eval(albedo, wo_z, wi_z).scale(wi_z.abs());
         let wi_l = if local_frame { V3::new(wi.dot(fx), wi.dot(fy), wi_z) } else { z3 };
         let mut f = if any_glossy {
-            let fg = metal_rough::eval(&lobes, alpha, wo_l, wi_l, any_transmits).scale(wi_z.abs());
+            let fg =
+                metal_rough::eval(&lobes, Iso(alpha), wo_l, wi_l, any_transmits).scale(wi_z.abs());
             glossym.select3(fg, f)
         } else {
             f
         };
+        if any_coated {
+            f = coatedm.select3(coated_bsdf.eval(wo_l, wi_l).scale(wi_z.abs()), f);
+        }
         if any_layered {
             for i in (0..lanes).filter(|&i| layered[i] && cont[i] && has_light[i]) {
                 let bsdf = layers[i].as_ref().expect("a layered lane's BSDF");
@@ -695,10 +730,14 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let nee_pdf = light_pdf * choice_pdf;
         let bsdf_pdf = lambert::pdf(wo_z, wi_z);
         let mut bsdf_pdf = if any_glossy {
-            glossym.select(metal_rough::pdf(&lobes, alpha, wo_l, wi_l, any_transmits), bsdf_pdf)
+            glossym
+                .select(metal_rough::pdf(&lobes, Iso(alpha), wo_l, wi_l, any_transmits), bsdf_pdf)
         } else {
             bsdf_pdf
         };
+        if any_coated {
+            bsdf_pdf = coatedm.select(coated_bsdf.pdf(wo_l, wi_l), bsdf_pdf);
+        }
         if any_layered {
             for i in (0..lanes).filter(|&i| layered[i] && unblocked[i]) {
                 let bsdf = layers[i].as_ref().expect("a layered lane's BSDF");
@@ -713,7 +752,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let (local, f, pdf, sampled) = lambert::sample(albedo, wo_z, (ub_x, ub_y));
         let (local, f, pdf, sampled) = if any_glossy {
             let (g_wi, g_f, g_pdf, _, g_ok) =
-                metal_rough::sample(&lobes, alpha, wo_l, u_lobe, (ub_x, ub_y), any_transmits);
+                metal_rough::sample(&lobes, Iso(alpha), wo_l, u_lobe, (ub_x, ub_y), any_transmits);
             (
                 glossym.select3(g_wi, local),
                 glossym.select3(g_f, f),
@@ -723,7 +762,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         } else {
             (local, f, pdf, sampled)
         };
-        // The density MIS weighs the next hit by (`shared::mis_pdf`).
+        let (local, f, pdf, sampled) = if any_coated {
+            let (c_wi, c_f, c_pdf, _, c_ok) = coated_bsdf.sample(wo_l, u_lobe, (ub_x, ub_y));
+            (
+                coatedm.select3(c_wi, local),
+                coatedm.select3(c_f, f),
+                coatedm.select(c_pdf, pdf),
+                coatedm.select_m(c_ok, sampled),
+            )
+        } else {
+            (local, f, pdf, sampled)
+        };
+        // The density MIS weighs the next hit by (`shared::mis_pdf`: no lobe here is a delta).
         let mut mis = pdf;
         let (mut local, mut f, mut pdf, mut sampled) = (local, f, pdf, sampled);
         if any_layered {
@@ -780,10 +830,20 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     (tile, stats)
 }
 
+/// A lane's coat where it has none (its values are never used).
+const NO_COAT: CoatLanes<f32> =
+    CoatLanes { weight: 0.0, alpha: 1.0, normal: V3 { x: 0.0, y: 0.0, z: 1.0 } };
+
 /// Puts the metal-rough BSDF `b` in lane `i` of `lobes` and `alpha`.
 #[inline(always)]
 fn set_lobes<S: Simd>(lobes: &mut Lobes<F<S>>, alpha: &mut F<S>, i: usize, b: &MetalRough) {
-    let l = b.lobes();
+    set_base(lobes, i, &b.lobes());
+    alpha.set_lane(i, b.ggx.alpha);
+}
+
+/// Puts a metal-rough BSDF's parameters but its microfacets in lane `i` of `lobes`.
+#[inline(always)]
+fn set_base<S: Simd>(lobes: &mut Lobes<F<S>>, i: usize, l: &Lobes<f32>) {
     lobes.base.set_lane(i, l.base.into());
     lobes.metallic.set_lane(i, l.metallic);
     lobes.f0.set_lane(i, l.f0.into());
@@ -791,5 +851,4 @@ fn set_lobes<S: Simd>(lobes: &mut Lobes<F<S>>, alpha: &mut F<S>, i: usize, b: &M
     lobes.transmission.set_lane(i, l.transmission);
     lobes.diffuse_transmission.set_lane(i, l.diffuse_transmission);
     lobes.diffuse_transmission_color.set_lane(i, l.diffuse_transmission_color.into());
-    alpha.set_lane(i, b.ggx.alpha);
 }
