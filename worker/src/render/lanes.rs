@@ -439,11 +439,19 @@ pub(crate) trait Real:
     fn bits_sub(a: Self::Bits, b: Self::Bits) -> Self::Bits;
     /// Lane by lane `if m { a } else { b }` on bit patterns.
     fn select_bits(m: Self::Mask, a: Self::Bits, b: Self::Bits) -> Self::Bits;
+    /// `f(self, o)` lane by lane: a scalar function (a math library's `exp` or `powf`, a table
+    /// lookup) on every lane, so that each lane has the scalar instance's bits.
+    fn each2(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self;
 }
 
 impl Real for f32 {
     type Mask = bool;
     type Bits = u32;
+
+    #[inline(always)]
+    fn each2(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
+        f(self, o)
+    }
 
     #[inline(always)]
     fn konst(self, x: f32) -> Self {
@@ -533,6 +541,15 @@ impl Real for f32 {
 impl<S: Simd> Real for F<S> {
     type Mask = M<S>;
     type Bits = U<S>;
+
+    #[inline(always)]
+    fn each2(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
+        let mut out = self;
+        for i in 0..S::F32_LANES {
+            out.set_lane(i, f(self.lane(i), o.lane(i)));
+        }
+        out
+    }
 
     #[inline(always)]
     fn konst(self, x: f32) -> Self {

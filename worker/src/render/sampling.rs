@@ -81,6 +81,17 @@ pub(crate) mod generic {
         (sin, cos)
     }
 
+    /// `super::sample_uniform_hemisphere` of `(ux, uy)` (the math library's sine and cosine,
+    /// lane by lane).
+    #[inline(always)]
+    pub(crate) fn sample_uniform_hemisphere<R: Real>(ux: R, uy: R) -> V3<R> {
+        let z = ux;
+        let r = (ux.konst(1.0) - z * z).max0().sqrt();
+        let phi = ux.konst(2.0 * PI) * uy;
+        let (cos, sin) = (phi.each2(phi, |a, _| a.cos()), phi.each2(phi, |a, _| a.sin()));
+        V3::new(r * cos, r * sin, z)
+    }
+
     /// `super::sample_cosine_hemisphere` of `(ux, uy)`.
     #[inline(always)]
     pub(crate) fn sample_cosine_hemisphere<R: Real>(ux: R, uy: R) -> V3<R> {
@@ -300,10 +311,7 @@ pub fn uniform_sphere_pdf() -> f32 {
 /// Uniform direction on the hemisphere around +z.
 #[inline]
 pub fn sample_uniform_hemisphere(u: Vec2) -> Vec3 {
-    let z = u.x;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
-    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+    generic::sample_uniform_hemisphere(u.x, u.y).into()
 }
 
 /// Density of `sample_uniform_hemisphere` per solid angle (on the upper hemisphere).

@@ -215,9 +215,13 @@ pub fn anisotropic(base: MetalRough, strength: f32) -> MetalRough<AnisoGgx> {
 /// layers are a coat over an anisotropic or isotropic base).
 pub(crate) mod generic {
     use crate::render::{
+        bsdf::sheen::generic as sheen,
         geometry::generic::{frame_from_z, reflect},
         lanes::{Real, V3},
-        sampling::generic::{Facets, Iso},
+        sampling::{
+            generic::{sample_uniform_hemisphere, Facets, Iso},
+            uniform_hemisphere_pdf,
+        },
     };
 
     use super::super::metal_rough::generic::{
@@ -342,36 +346,65 @@ pub(crate) mod generic {
         }
     }
 
-    /// The layered BSDF of the lanes whose layers are a coat (where `has_coat`) over the base
-    /// `l` with microfacets `m` (no sheen, no thin film), as the wavefront holds it.
+    /// A sheen, for every lane: its colour and roughness (`Sheen`'s fields).
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct SheenLanes<R: Real> {
+        pub(crate) color: V3<R>,
+        pub(crate) alpha: R,
+    }
+
+    /// The layered BSDF of the lanes without a thin film: a coat (where `has_coat`) over a sheen
+    /// (where `has_sheen`) over the base `base` with microfacets `facets`, as the wavefront
+    /// holds it. `Layered`'s arithmetic, lane for lane.
     #[derive(Clone, Copy, Debug)]
     pub(crate) struct Coated<'a, R: Real, M> {
         pub(crate) base: &'a Lobes<R>,
         pub(crate) facets: M,
         pub(crate) coat: &'a CoatLanes<R>,
         pub(crate) has_coat: R::Mask,
+        pub(crate) sheen: &'a SheenLanes<R>,
+        pub(crate) has_sheen: R::Mask,
+        /// Whether any lane has a sheen (when none does, its arithmetic is not done).
+        pub(crate) sheens: bool,
         /// Whether any lane's base may transmit (`metal_rough::eval`'s `transmits`).
         pub(crate) transmits: bool,
     }
 
     impl<R: Real, M: Facets<R>> Coated<'_, R, M> {
-        /// (c F_c(wo), or 0 without a coat; the probabilities of the coat and the sheen).
+        /// `Layered::scalings`: c F_c(wo) (0 without a coat) and the sheen's scaling of the
+        /// base (1 without a sheen).
         #[inline(always)]
-        fn choice(&self, wo: V3<R>) -> (R, (R, R)) {
-            let one = wo.z.konst(1.0);
-            let weight = R::select(self.has_coat, coat_weight(self.coat, wo), wo.z.konst(0.0));
-            let albedo = lobe_weights(self.base, wo.z).3;
-            (weight, lobe_probabilities(weight, one, albedo))
+        fn scalings(&self, wo: V3<R>) -> (R, R) {
+            let (zero, one) = (wo.z.konst(0.0), wo.z.konst(1.0));
+            let weight = R::select(self.has_coat, coat_weight(self.coat, wo), zero);
+            if !self.sheens {
+                return (weight, one);
+            }
+            let s = self.sheen;
+            let scaling = sheen::scaling(s.color.max_element(), s.alpha, wo.z);
+            (weight, R::select(self.has_sheen, scaling, one))
+        }
+
+        /// The probabilities of the coat and the sheen for `wo` (`Layered::lobe_probabilities`).
+        #[inline(always)]
+        fn choice(&self, wo: V3<R>) -> (R, R) {
+            let (weight, scaling) = self.scalings(wo);
+            lobe_probabilities(weight, scaling, lobe_weights(self.base, wo.z).3)
         }
 
         /// `Layered::eval`.
         #[inline(always)]
         pub(crate) fn eval(&self, wo: V3<R>, wi: V3<R>) -> V3<R> {
             let zero = wo.z.konst(0.0);
+            let (weight, scaling) = self.scalings(wo);
             let base = metal_rough::eval(self.base, self.facets, wo, wi, self.transmits);
-            // What lies under the coat: the base times the (absent) sheen's scaling, 1.
-            let under = base.scale(wo.z.konst(1.0));
-            let weight = R::select(self.has_coat, coat_weight(self.coat, wo), zero);
+            let under = base.scale(scaling);
+            let under = if self.sheens {
+                let sheen = self.sheen.color.scale(sheen::brdf(self.sheen.alpha, wo, wi));
+                V3::select(self.has_sheen, under + sheen, under)
+            } else {
+                under
+            };
             let with = layers_f(under, Some((weight, coat_specular(self.coat, wo, wi))));
             let f = V3::select(self.has_coat, with, layers_f(under, None));
             V3::select(wo.z.le(zero) | wi.z.eq(zero), V3::new(zero, zero, zero), f)
@@ -383,15 +416,18 @@ pub(crate) mod generic {
             let zero = wo.z.konst(0.0);
             let base_pdf = metal_rough::pdf(self.base, self.facets, wo, wi, self.transmits);
             let pdf = base_share(p_coat, p_sheen) * base_pdf;
+            let above = wi.z.gt(zero);
+            let hemisphere = wo.z.konst(uniform_hemisphere_pdf());
+            let pdf = R::select(self.has_sheen & above, pdf + p_sheen * hemisphere, pdf);
             let with = plus_coat_pdf(pdf, p_coat, self.coat, wo, wi);
-            let pdf = R::select(self.has_coat & wi.z.gt(zero), with, pdf);
+            let pdf = R::select(self.has_coat & above, with, pdf);
             R::select(wo.z.le(zero) | wi.z.eq(zero), zero, pdf)
         }
 
         /// `Layered::pdf`.
         #[inline(always)]
         pub(crate) fn pdf(&self, wo: V3<R>, wi: V3<R>) -> R {
-            self.pdf_given(wo, wi, self.choice(wo).1)
+            self.pdf_given(wo, wi, self.choice(wo))
         }
 
         /// `Layered::sample`: the direction, f, its density, whether it went to the far side,
@@ -404,17 +440,19 @@ pub(crate) mod generic {
             (ux, uy): (R, R),
         ) -> (V3<R>, V3<R>, R, R::Mask, R::Mask) {
             let zero = wo.z.konst(0.0);
-            let (_, choice) = self.choice(wo);
+            let choice = self.choice(wo);
             let (p_coat, p_sheen) = choice;
             let (coat_wi, coat_ok) = sample_coat(self.coat, wo, ux, uy);
+            let sheen_wi = if self.sheens { sample_uniform_hemisphere(ux, uy) } else { wo };
             let u_base = base_number(u_lobe, p_coat, p_sheen);
             let (base_wi, _, _, base_far, base_ok) =
                 metal_rough::sample(self.base, self.facets, wo, u_base, (ux, uy), self.transmits);
-            // The sheen's share is 0 here, so the coat takes the numbers below its own.
             let coat = u_lobe.lt(p_coat);
-            let wi = V3::select(coat, coat_wi, base_wi);
-            let far = !coat & base_far;
-            let ok = (coat & coat_ok & self.has_coat) | (!coat & base_ok);
+            let sheen = !coat & u_lobe.lt(p_coat + p_sheen);
+            let base = !coat & !sheen;
+            let wi = V3::select(coat, coat_wi, V3::select(sheen, sheen_wi, base_wi));
+            let far = base & base_far;
+            let ok = (coat & coat_ok & self.has_coat) | (sheen & self.has_sheen) | (base & base_ok);
             let ok = ok & wo.z.gt(zero) & !wi.z.eq(zero) & !(wi.z.lt(zero) & !far);
             let pdf = self.pdf_given(wo, wi, choice);
             let f = self.eval(wo, wi);
@@ -429,11 +467,11 @@ mod tests {
 
     use super::{
         anisotropic,
-        generic::{CoatLanes, Coated},
+        generic::{CoatLanes, Coated, SheenLanes},
         Coat, Layered,
     };
     use crate::render::{
-        bsdf::MetalRough,
+        bsdf::{MetalRough, Sheen},
         sampling::{generic::Aniso, Ggx},
     };
 
@@ -455,9 +493,10 @@ mod tests {
         Vec3::new(r * phi.cos(), r * phi.sin(), z)
     }
 
-    /// The generic coat over an anisotropic base (`Coated`, which the wavefront runs on vectors)
-    /// gives `Layered`'s values, densities and samples bit for bit, with and without a coat,
-    /// transmitting or not, at grazing angles and with the coat's normal tilted.
+    /// The generic layers over an anisotropic base (`Coated`, which the wavefront runs on
+    /// vectors) give `Layered`'s values, densities and samples bit for bit, with and without a
+    /// coat and a sheen, transmitting or not, at grazing angles and with the coat's normal
+    /// tilted.
     #[test]
     fn the_generic_coat_is_the_layered_bsdf_bit_for_bit() {
         let mut u = numbers(7);
@@ -481,16 +520,25 @@ mod tests {
                 ggx: Ggx::new(u() * u()),
                 normal: (Vec3::Z + direction(&mut u, true) * 0.4 * u()).normalize(),
             });
-            let layered = Layered { base, sheen: None, coat, iridescence: None };
+            let sheen = (case % 4 != 1).then(|| Sheen::new(Vec3::new(u(), u(), u()), u()));
+            let layered = Layered { base, sheen, coat, iridescence: None };
             let lanes = coat
                 .map_or(CoatLanes { weight: 0.0, alpha: 1.0, normal: Vec3::Z.into() }, |c| {
                     c.lanes()
+                });
+            let sheen_lanes =
+                sheen.map_or(SheenLanes { color: Vec3::ZERO.into(), alpha: 1.0 }, |s| SheenLanes {
+                    color: s.color.into(),
+                    alpha: s.alpha,
                 });
             let generic = Coated {
                 base: &base.lobes(),
                 facets: Aniso(base.ggx.alpha_x, base.ggx.alpha_y),
                 coat: &lanes,
                 has_coat: coat.is_some(),
+                sheen: &sheen_lanes,
+                has_sheen: sheen.is_some(),
+                sheens: sheen.is_some(),
                 transmits: true,
             };
             for _ in 0..20 {

@@ -10,7 +10,7 @@ mod dielectric;
 pub(crate) mod diffuse;
 pub(crate) mod layered;
 pub(crate) mod metal_rough;
-mod sheen;
+pub(crate) mod sheen;
 mod thin_film;
 
 pub use dielectric::{fresnel_dielectric, refract, Dielectric};

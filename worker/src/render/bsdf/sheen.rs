@@ -44,7 +44,7 @@ impl Sheen {
     /// What the layer lets through to the layers below for `wo`: 1 - max(color) * E(wo.z).
     #[inline]
     pub fn scaling(&self, cos_wo: f32) -> f32 {
-        (1.0 - self.color.max_element() * albedo(cos_wo, self.alpha)).max(0.0)
+        generic::scaling(self.color.max_element(), self.alpha, cos_wo)
     }
 
     /// f_sheen(wo, wi) for both directions above the surface (0 otherwise).
@@ -89,12 +89,32 @@ fn lambda(cos: f32, alpha: f32) -> f32 {
 /// The white sheen BRDF D G / (4 |n.wo| |n.wi|) (0 unless both directions are above).
 #[inline]
 pub(crate) fn brdf(alpha: f32, wo: Vec3, wi: Vec3) -> f32 {
-    if wo.z <= 0.0 || wi.z <= 0.0 {
-        return 0.0;
+    generic::brdf(alpha, wo.into(), wi.into())
+}
+
+/// The sheen written once over `Real`, for one path (`f32`, through [`Sheen`] and [`brdf`])
+/// and for a vector of them (the wavefront): the arithmetic in the lanes, the distribution's
+/// power, the visibility's exponentials and the albedo table's lookup lane by lane
+/// (`Real::each2`), which keeps every lane's bits those of the scalar instance.
+pub(crate) mod generic {
+    use crate::render::lanes::{Real, V3};
+
+    /// `super::Sheen::scaling` for a sheen whose colour's largest channel is `color_max`.
+    #[inline(always)]
+    pub(crate) fn scaling<R: Real>(color_max: R, alpha: R, cos_wo: R) -> R {
+        let e = cos_wo.each2(alpha, super::albedo);
+        (color_max.konst(1.0) - color_max * e).max0()
     }
-    let h = (wo + wi).normalize();
-    let g = 1.0 / (1.0 + lambda(wo.z, alpha) + lambda(wi.z, alpha));
-    distribution(alpha, h.z) * g / (4.0 * wo.z * wi.z)
+
+    /// `super::brdf`.
+    #[inline(always)]
+    pub(crate) fn brdf<R: Real>(alpha: R, wo: V3<R>, wi: V3<R>) -> R {
+        let (zero, one) = (alpha.konst(0.0), alpha.konst(1.0));
+        let h = (wo + wi).normalize();
+        let g = one / (one + wo.z.each2(alpha, super::lambda) + wi.z.each2(alpha, super::lambda));
+        let f = alpha.each2(h.z, super::distribution) * g / (alpha.konst(4.0) * wo.z * wi.z);
+        R::select(wo.z.le(zero) | wi.z.le(zero), zero, f)
+    }
 }
 
 /// Cosines of `wo` in the albedo table: (i / (N_MU - 1))², crowded toward grazing, where E

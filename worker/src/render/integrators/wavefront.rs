@@ -7,9 +7,9 @@
 //! `bsdf::metal_rough`, thin-walled transmission included), textured, normal-mapped,
 //! vertex-coloured and alpha-tested or not, under any lights and environment, chosen by the
 //! mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and the
-//! damaged helmet among them). A layered material keeps its paths: a clear coat over the
-//! (anisotropic or isotropic) metal-rough base is shaded on the vectors
-//! (`bsdf::layered::generic::Coated`); with a sheen or a thin film the BSDF at the point is
+//! damaged helmet among them). A layered material keeps its paths: a clear coat and a sheen
+//! over the (anisotropic or isotropic) metal-rough base are shaded on the vectors
+//! (`bsdf::layered::generic::Coated`); with a thin film the BSDF at the point is
 //! evaluated, weighed and sampled one lane at a time by the scalar `Bsdf`
 //! (`shared::surface_bsdf`), and the rest of the bounce runs on the vectors. A path that meets any other material (glass, volumes, unlit:
 //! `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
@@ -43,7 +43,7 @@ use super::{
     super::{
         bsdf::{
             diffuse::generic as lambert,
-            layered::generic::{CoatLanes, Coated},
+            layered::generic::{CoatLanes, Coated, SheenLanes},
             metal_rough::generic::{self as metal_rough, Lobes},
             Bsdf, MetalRough,
         },
@@ -307,14 +307,16 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     // triangle each lane hit.
     let mut textured = [false; MAX_LANES];
     let mut prims = [0u32; MAX_LANES];
-    // The lanes whose BSDF is a clear coat (or none) over an anisotropic metal-rough base, in
-    // `lobes` (`layered::generic::Coated`), and their coats.
+    // The lanes whose BSDF is layered without a thin film: a clear coat and a sheen (or
+    // neither) over an anisotropic metal-rough base in `lobes` (`layered::generic::Coated`),
+    // and their coats and sheens.
     let mut coated = [false; MAX_LANES];
-    let mut has_coat = [false; MAX_LANES];
+    let (mut has_coat, mut has_sheen) = ([false; MAX_LANES], [false; MAX_LANES]);
     let (mut alpha_x, mut alpha_y) = (one, one);
     let mut coat = CoatLanes { weight: zero, alpha: one, normal: z3 };
-    // The lanes whose BSDF is layered with a sheen or a thin film: evaluated, weighed and
-    // sampled one lane at a time by the scalar renderer's `Bsdf`.
+    let mut sheen = SheenLanes { color: z3, alpha: one };
+    // The lanes whose BSDF is layered with a thin film: evaluated, weighed and sampled one
+    // lane at a time by the scalar renderer's `Bsdf`.
     let mut layered = [false; MAX_LANES];
     let mut layers = [None::<Bsdf>; MAX_LANES];
     let mut lobes = Lobes {
@@ -553,7 +555,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     transmits[i] = b.transmits();
                     set_lobes(&mut lobes, &mut alpha, i, &b);
                 }
-                Bsdf::Layered(l) if l.sheen.is_none() && l.iridescence.is_none() => {
+                Bsdf::Layered(l) if l.iridescence.is_none() => {
                     coated[i] = true;
                     transmits[i] = l.transmits();
                     set_base(&mut lobes, i, &l.base.lobes());
@@ -564,6 +566,11 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     coat.weight.set_lane(i, c.weight);
                     coat.alpha.set_lane(i, c.alpha);
                     coat.normal.set_lane(i, c.normal.into());
+                    has_sheen[i] = l.sheen.is_some();
+                    let (color, sheen_alpha) =
+                        l.sheen.map_or((Vec3::ZERO, 1.0), |s| (s.color, s.alpha));
+                    sheen.color.set_lane(i, color);
+                    sheen.alpha.set_lane(i, sheen_alpha);
                 }
                 bsdf @ Bsdf::Layered(_) => {
                     layered[i] = true;
@@ -594,6 +601,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             facets: Aniso(alpha_x, alpha_y),
             coat: &coat,
             has_coat: M::from_bools(s, &has_coat),
+            sheen: &sheen,
+            has_sheen: M::from_bools(s, &has_sheen),
+            sheens: (0..lanes).any(|i| coated[i] && has_sheen[i] && live[i]),
             transmits: any_transmits,
         };
         let any_layered = (0..lanes).any(|i| layered[i] && live[i]);
