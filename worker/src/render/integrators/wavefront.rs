@@ -759,29 +759,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.radiance = M::from_bools(s, &unblocked).select3(nee, paths.radiance);
 
         // BSDF sampling, the next ray, Russian roulette.
-        let (local, f, pdf, sampled) = lambert::sample(albedo, wo_z, (ub_x, ub_y));
-        let (local, f, pdf, sampled) = if any_glossy {
-            let (g_wi, g_f, g_pdf, _, g_ok) =
+        let sample = lambert::sample(albedo, wo_z, (ub_x, ub_y));
+        let sample = if any_glossy {
+            let g =
                 metal_rough::sample(&lobes, Iso(alpha), wo_l, u_lobe, (ub_x, ub_y), any_transmits);
-            (
-                glossym.select3(g_wi, local),
-                glossym.select3(g_f, f),
-                glossym.select(g_pdf, pdf),
-                glossym.select_m(g_ok, sampled),
-            )
+            take_sample(glossym, g, sample)
         } else {
-            (local, f, pdf, sampled)
+            sample
         };
         let (local, f, pdf, sampled) = if any_coated {
-            let (c_wi, c_f, c_pdf, _, c_ok) = coated_bsdf.sample(wo_l, u_lobe, (ub_x, ub_y));
-            (
-                coatedm.select3(c_wi, local),
-                coatedm.select3(c_f, f),
-                coatedm.select(c_pdf, pdf),
-                coatedm.select_m(c_ok, sampled),
-            )
+            take_sample(coatedm, coated_bsdf.sample(wo_l, u_lobe, (ub_x, ub_y)), sample)
         } else {
-            (local, f, pdf, sampled)
+            sample
         };
         // The density MIS weighs the next hit by (`shared::mis_pdf`: no lobe here is a delta).
         let mut mis = pdf;
@@ -838,6 +827,20 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         }
     }
     (tile, stats)
+}
+
+/// A BSDF sample in every lane: the local direction, f, its density, whether there is one.
+type LaneSample<S> = (V3<F<S>>, V3<F<S>>, F<S>, M<S>);
+
+/// `current` with the lanes `m` marks taken from a BSDF's `sample` (its direction, f,
+/// density, whether it went to the far side, whether there is one).
+#[inline(always)]
+fn take_sample<S: Simd>(
+    m: M<S>,
+    (wi, f, pdf, _, ok): (V3<F<S>>, V3<F<S>>, F<S>, M<S>, M<S>),
+    (c_wi, c_f, c_pdf, c_ok): LaneSample<S>,
+) -> LaneSample<S> {
+    (m.select3(wi, c_wi), m.select3(f, c_f), m.select(pdf, c_pdf), m.select_m(ok, c_ok))
 }
 
 /// A lane's coat where it has none (its values are never used).
