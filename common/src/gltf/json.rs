@@ -31,6 +31,8 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_mesh_quantization",
     // Instances of a node's mesh from per-instance TRS accessors.
     "EXT_mesh_gpu_instancing",
+    // Buffer views decoded from meshoptimizer-compressed bytes; fallback buffers may lack a uri.
+    "EXT_meshopt_compression",
 ];
 
 /// A parsed glTF document: typed JSON plus the raw tree (node transforms are read from it in
@@ -87,7 +89,7 @@ pub(crate) fn ignored_extensions(root: &json::Root) -> Vec<String> {
             "KHR_materials_pbrSpecularGlossiness" => {
                 format!("{ext} (archived: its materials render by their metallic-roughness values)")
             }
-            "KHR_draco_mesh_compression" | "EXT_meshopt_compression" => {
+            "KHR_draco_mesh_compression" => {
                 format!("{ext} (the uncompressed fallback buffers are read where there are any)")
             }
             "KHR_texture_basisu" | "EXT_texture_avif" => {

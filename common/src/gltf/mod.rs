@@ -4,7 +4,7 @@
 
 // Files: mod.rs (public API, resolvers, loader state), glb.rs (binary container), json.rs (JSON
 // layer, asset and extension checks), uri.rs (data URIs, confinement of file URIs), accessor.rs
-// (buffers, views, accessors), mesh.rs (primitives), material.rs (materials, textures, images),
+// (buffers, views, accessors), meshopt.rs (EXT_meshopt_compression views), mesh.rs (primitives), material.rs (materials, textures, images),
 // nodes.rs (node tree, instances, cameras, lights, default camera), deform.rs (skins and morph
 // targets of deforming placements), animation.rs (animation channels), tests*.rs.
 
@@ -15,6 +15,7 @@ mod glb;
 mod json;
 mod material;
 mod mesh;
+mod meshopt;
 pub(crate) mod nodes;
 pub use nodes::rigid;
 mod uri;
@@ -23,6 +24,8 @@ mod uri;
 mod tests;
 #[cfg(test)]
 mod tests_assets;
+#[cfg(test)]
+mod tests_compression;
 #[cfg(test)]
 mod tests_deform;
 
@@ -221,6 +224,8 @@ struct Loader<'a> {
     bin: Option<&'a [u8]>,
     files: &'a dyn Resolver,
     buffers: Vec<OnceCell<Cow<'a, [u8]>>>,
+    /// The decoded bytes of each `EXT_meshopt_compression` buffer view, on first use.
+    decoded_views: Vec<OnceCell<Vec<u8>>>,
     images: HashMap<usize, Image>,
     /// The images to decode once the materials are read, and which texture takes which.
     pending_images: Vec<PendingImage>,
@@ -249,6 +254,9 @@ struct Loader<'a> {
     scene_budget: SceneBudget,
     texels_used: Cell<u64>,
     triangles_used: Cell<u64>,
+    /// Bytes decoded from compressed buffer views (charged to `inflated_bytes`, apart from what
+    /// a `.zip` bundle inflated to).
+    decoded_bytes: Cell<u64>,
     /// The `animations` array of the JSON, as written.
     animations: Option<&'a serde_json::Value>,
     /// Each node's parent (set by `load_nodes`), for the joints' rest transforms.
@@ -274,7 +282,7 @@ impl Budget {
 }
 
 impl Loader<'_> {
-    /// Counts `amount` texels or triangles against the scene's budget; `at` names the object
+    /// Counts `amount` texels, triangles or decoded bytes against the scene's budget; `at` names the object
     /// that takes the count over.
     fn charge_scene(
         &self,
@@ -285,7 +293,8 @@ impl Loader<'_> {
         let (used, limit) = match line {
             budget::Line::Texels => (&self.texels_used, self.scene_budget.texels),
             budget::Line::Triangles => (&self.triangles_used, self.scene_budget.triangles),
-            _ => unreachable!("the loader charges texels and triangles only"),
+            budget::Line::InflatedBytes => (&self.decoded_bytes, self.scene_budget.inflated_bytes),
+            budget::Line::Entries => unreachable!("the loader opens no archive"),
         };
         let total = used.get().saturating_add(amount);
         if total > limit {
@@ -321,6 +330,7 @@ impl<'a> Loader<'a> {
             bin,
             files,
             buffers: (0..doc.root.buffers.len()).map(|_| OnceCell::new()).collect(),
+            decoded_views: (0..doc.root.buffer_views.len()).map(|_| OnceCell::new()).collect(),
             images: HashMap::new(),
             pending_images: Vec::new(),
             texture_images: Vec::new(),
@@ -339,6 +349,7 @@ impl<'a> Loader<'a> {
             scene_budget: SceneBudget::default(),
             texels_used: Cell::new(0),
             triangles_used: Cell::new(0),
+            decoded_bytes: Cell::new(0),
             animations: doc.animations.as_ref(),
             parents: Vec::new(),
             rest_worlds: HashMap::new(),
