@@ -534,3 +534,53 @@ fn meshopt_views_are_charged_before_decoding() {
     let budget = SceneBudget { inflated_bytes: 36 + 6, ..SceneBudget::default() };
     load_slice_within(doc.to_string().as_bytes(), &NoFiles, &budget).expect("fits");
 }
+
+/// A scene's triangles in world space: three (position, normal) corners each.
+fn world_triangles(s: &Scene) -> Vec<[(Vec3, Vec3); 3]> {
+    let mut out = Vec::new();
+    for inst in &s.instances {
+        let mesh = &s.meshes[inst.mesh];
+        let normals = mesh.normals.as_ref().expect("normals");
+        let m = inst.transform;
+        for t in &mesh.indices {
+            out.push(t.map(|i| {
+                let p = m.transform_point3(mesh.positions[i as usize].as_dvec3()).as_vec3();
+                let n = m.transform_vector3(normals[i as usize].as_dvec3()).normalize().as_vec3();
+                (p, n)
+            }));
+        }
+    }
+    out
+}
+
+/// Files written by the real gltfpack (`tests/assets/gltfpack/`, Box compressed with its
+/// filters) load to Box's triangles (the same winding, in any order, from any corner) within
+/// the quantisation error.
+#[test]
+fn meshopt_files_from_gltfpack_load_to_their_source() {
+    let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/assets");
+    let source = load_path(&assets.join("real/Box/glTF/Box.gltf")).expect("Box.gltf");
+    let want = world_triangles(&source);
+    assert_eq!(want.len(), 12);
+    // (file, position tolerance: 14-bit over the unit box, or 12 float mantissa bits; normal
+    // tolerance: 8- or 12-bit octahedral; the box's normals are axis-aligned, so nearly exact).
+    for (file, dp, dn) in [("Box-cc.glb", 1e-4, 1e-2), ("Box-cc-vpf-vn12.glb", 2e-4, 1e-3)] {
+        let s = load_path(&assets.join("gltfpack").join(file))
+            .unwrap_or_else(|e| panic!("{file}: {e}"));
+        let got = world_triangles(&s);
+        assert_eq!(got.len(), want.len(), "{file}");
+        let close = |a: &[(Vec3, Vec3); 3], b: &[(Vec3, Vec3); 3]| {
+            (0..3).any(|r| {
+                (0..3).all(|k| {
+                    let (pa, na) = a[k];
+                    let (pb, nb) = b[(k + r) % 3];
+                    (pa - pb).abs().max_element() <= dp && (na - nb).abs().max_element() <= dn
+                })
+            })
+        };
+        for (i, w) in want.iter().enumerate() {
+            let matches = got.iter().filter(|g| close(w, g)).count();
+            assert_eq!(matches, 1, "{file}: Box triangle {i} {w:?} is matched {matches} times");
+        }
+    }
+}
