@@ -4,12 +4,14 @@
 
 // Files: mod.rs (public API, resolvers, loader state), glb.rs (binary container), json.rs (JSON
 // layer, asset and extension checks), uri.rs (data URIs, confinement of file URIs), accessor.rs
-// (buffers, views, accessors), meshopt.rs (EXT_meshopt_compression views), mesh.rs (primitives), material.rs (materials, textures, images),
+// (buffers, views, accessors), meshopt.rs (EXT_meshopt_compression views), mesh.rs (primitives), material.rs (materials, textures, images), basisu.rs (KTX2
+// images of KHR_texture_basisu),
 // nodes.rs (node tree, instances, cameras, lights, default camera), deform.rs (skins and morph
 // targets of deforming placements), animation.rs (animation channels), tests*.rs.
 
 mod accessor;
 mod animation;
+mod basisu;
 mod deform;
 mod glb;
 mod json;
@@ -211,9 +213,18 @@ struct Image {
 struct PendingImage {
     index: usize,
     bytes: Vec<u8>,
-    format: image::ImageFormat,
+    format: ImageFormat,
     width: u32,
     height: u32,
+}
+
+/// How an image's bytes are encoded.
+#[derive(Clone, Copy, Debug)]
+enum ImageFormat {
+    /// PNG, JPEG or WebP, decoded by the `image` crate.
+    Image(image::ImageFormat),
+    /// KTX2 with Basis Universal data (`KHR_texture_basisu`).
+    Ktx2,
 }
 
 /// The loader's state: the parsed document, lazily loaded buffers and images, and the scene

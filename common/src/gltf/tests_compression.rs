@@ -1,8 +1,11 @@
-//! `EXT_meshopt_compression`: scenes compressed here with meshoptimizer's encoders load to the
-//! same geometry as their uncompressed source (bit for bit without a filter, within the
-//! quantisation error with one), fallback buffers without a uri are accepted, and corrupt,
-//! truncated or inconsistent streams, unknown modes and filters, and views too large for the
-//! budget are refused with errors that name the buffer view and the extension.
+//! Compressed files. `EXT_meshopt_compression`: scenes compressed here with meshoptimizer's
+//! encoders, and by gltfpack itself, load to the same geometry as their uncompressed source
+//! (bit for bit without a filter, within the quantisation error with one), fallback buffers
+//! without a uri are accepted, and corrupt, truncated or inconsistent streams, unknown modes and
+//! filters, and views too large for the budget are refused with errors that name the buffer view
+//! and the extension. `KHR_texture_basisu`: KTX2 images written by Basis Universal's `basisu`
+//! (ETC1S, UASTC, UASTC with Zstandard) transcode to their source's texels within the codec's
+//! error, damaged ones are refused naming the image, and the budget is charged from the header.
 
 use base64::Engine as _;
 use glam::{Vec2, Vec3};
@@ -583,4 +586,146 @@ fn meshopt_files_from_gltfpack_load_to_their_source() {
             assert_eq!(matches, 1, "{file}: Box triangle {i} {w:?} is matched {matches} times");
         }
     }
+}
+
+fn ktx2_asset(name: &str) -> Vec<u8> {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/assets/ktx2").join(name);
+    std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// A triangle whose material's base colour is texture 0: the KTX2 `ktx2` by
+/// `KHR_texture_basisu` (image 0), with a 2x2 PNG fallback (image 1).
+fn ktx2_doc(ktx2: &[u8]) -> Value {
+    let positions = f32s(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+    let mut png = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut png)
+        .write_image(&[9; 16], 2, 2, image::ExtendedColorType::Rgba8)
+        .expect("png");
+    let uri = |mime: &str, bytes: &[u8]| {
+        format!("data:{mime};base64,{}", base64::engine::general_purpose::STANDARD.encode(bytes))
+    };
+    json!({
+        "asset": {"version": "2.0"},
+        "extensionsUsed": ["KHR_texture_basisu"],
+        "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+        "textures": [{"source": 1, "extensions": {"KHR_texture_basisu": {"source": 0}}}],
+        "images": [{"uri": uri("image/ktx2", ktx2)}, {"uri": uri("image/png", &png)}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36, "uri": data_uri(&positions)}]
+    })
+}
+
+fn ktx2_texels(doc: &Value) -> Vec<[u8; 4]> {
+    let s = load(doc).expect("loads");
+    let t = &s.textures[0];
+    assert_eq!((t.width, t.height), (32, 32), "the KTX2 image, not the 2x2 fallback");
+    t.texels.rgba8().expect("8-bit").to_vec()
+}
+
+use image::ImageEncoder as _;
+
+/// ETC1S, UASTC and UASTC with Zstandard, written by `basisu` from `gradient.png` (an RGBA
+/// gradient with an alpha checkerboard): each transcodes to the source's texels within the
+/// codec's error, alpha included; the Zstandard file to exactly the texels of the plain UASTC
+/// one (the same blocks), and a KTX2 without a fallback loads as well.
+#[test]
+fn ktx2_textures_transcode_to_their_source_texels() {
+    let source = image::load_from_memory(&ktx2_asset("gradient.png")).expect("png").into_rgba8();
+    let source: Vec<[u8; 4]> = source.pixels().map(|p| p.0).collect();
+    let mut uastc = Vec::new();
+    // (file, mean and largest absolute error per channel allowed: ETC1S is a low-bitrate codec,
+    // UASTC a high-quality one).
+    for (file, mean, max) in
+        [("etc1s.ktx2", 12.0, 96), ("uastc.ktx2", 4.0, 28), ("uastc-zstd.ktx2", 4.0, 28)]
+    {
+        let texels = ktx2_texels(&ktx2_doc(&ktx2_asset(file)));
+        let diffs: Vec<i32> = texels
+            .iter()
+            .zip(&source)
+            .flat_map(|(a, b)| (0..4).map(move |c| (a[c] as i32 - b[c] as i32).abs()))
+            .collect();
+        let got_mean = diffs.iter().sum::<i32>() as f64 / diffs.len() as f64;
+        let got_max = *diffs.iter().max().unwrap();
+        println!("{file}: mean abs error {got_mean:.3}, largest {got_max}");
+        assert!(got_mean <= mean && got_max <= max, "{file}: mean {got_mean}, max {got_max}");
+        assert!(texels.iter().any(|t| t[3] < 255), "{file}: alpha is kept");
+        if file.starts_with("uastc") {
+            uastc.push(texels);
+        }
+    }
+    assert_eq!(uastc[0], uastc[1], "Zstandard changes the storage, not the blocks");
+    // ETC1S exactly as basisu itself unpacks it (through ETC2 RGBA, which holds ETC1S's colour
+    // and alpha blocks without loss).
+    let etc1s = ktx2_texels(&ktx2_doc(&ktx2_asset("etc1s.ktx2")));
+    let unpacked = image::load_from_memory(&ktx2_asset("etc1s-unpacked-by-basisu.png"))
+        .expect("png")
+        .into_rgba8();
+    assert!(etc1s.iter().zip(unpacked.pixels()).all(|(a, b)| *a == b.0), "ETC1S as basisu");
+    // No fallback at all: the texture has only the extension's source.
+    let mut only = ktx2_doc(&ktx2_asset("etc1s.ktx2"));
+    only["textures"][0].as_object_mut().unwrap().remove("source");
+    only["images"].as_array_mut().unwrap().pop();
+    ktx2_texels(&only);
+}
+
+/// Damaged KTX2 files are refused naming the image and the extension; random damage is an
+/// error or a texture, never a panic; the texels are charged from the header before anything
+/// is decoded, so that a header claiming a huge image costs nothing.
+#[test]
+fn ktx2_damage_and_budget() {
+    let err = |bytes: &[u8]| -> String {
+        let e = load_err(&ktx2_doc(bytes));
+        assert_names(&e, &["image 0", "KHR_texture_basisu"]);
+        e
+    };
+    for file in ["etc1s.ktx2", "uastc.ktx2", "uastc-zstd.ktx2"] {
+        let good = ktx2_asset(file);
+        // Cut short: the container no longer holds its levels.
+        err(&good[..good.len() - 10]);
+        err(&good[..100]);
+        // Not Basis Universal: an RGBA8 vkFormat.
+        let mut raw = good.clone();
+        raw[12..16].copy_from_slice(&37u32.to_le_bytes());
+        assert_names(&err(&raw), &["vkFormat"]);
+        // Too large a side, and a header claiming more texels than the budget.
+        let mut big = good.clone();
+        big[20..24].copy_from_slice(&16385u32.to_le_bytes());
+        assert_names(&err(&big), &["16385", "at most 16384"]);
+        let mut huge = good.clone();
+        huge[20..28].copy_from_slice(&[0, 64, 0, 0, 0, 64, 0, 0]);
+        assert_names(&load_err(&ktx2_doc(&huge)), &["image 0, 16384x16384", "decoded texels"]);
+        // The level's bytes damaged at random.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ good.len() as u64;
+        let level_at = u64::from_le_bytes(good[80..88].try_into().unwrap()) as usize;
+        for _ in 0..300 {
+            let mut damaged = good.clone();
+            for _ in 0..4 {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                let at = (state % damaged.len() as u64) as usize;
+                damaged[at] ^= (state >> 40) as u8 | 1;
+            }
+            let _ = load(&ktx2_doc(&damaged));
+            // Damage within the level data only (the headers intact).
+            let mut level = good.clone();
+            let at = level_at + (state % (good.len() - level_at) as u64) as usize;
+            level[at] ^= 0x5a;
+            let _ = load(&ktx2_doc(&level));
+        }
+    }
+    // A Zstandard level that does not inflate.
+    let mut zstd = ktx2_asset("uastc-zstd.ktx2");
+    let level_at = u64::from_le_bytes(zstd[80..88].try_into().unwrap()) as usize;
+    zstd[level_at..level_at + 4].copy_from_slice(b"junk");
+    assert_names(&err(&zstd), &["Zstandard"]);
+    // A budget one texel short refuses the image from its header.
+    let budget = SceneBudget { texels: 32 * 32 - 1, ..SceneBudget::default() };
+    let doc = ktx2_doc(&ktx2_asset("etc1s.ktx2")).to_string();
+    let e = load_slice_within(doc.as_bytes(), &NoFiles, &budget).expect_err("over budget");
+    assert_names(&e.0, &["image 0, 32x32", "decoded texels"]);
 }
