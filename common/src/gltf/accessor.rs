@@ -77,7 +77,7 @@ fn component_name(c: ComponentType) -> &'static str {
     }
 }
 
-fn component_size(c: ComponentType) -> usize {
+pub(crate) fn component_size(c: ComponentType) -> usize {
     match c {
         ComponentType::I8 | ComponentType::U8 => 1,
         ComponentType::I16 | ComponentType::U16 => 2,
@@ -327,7 +327,19 @@ impl<'a> Loader<'a> {
             || format!("accessor {index}"),
         )?;
         let mut out: Vec<T>;
-        if let Some(view_index) = acc.buffer_view {
+        let draco = self.draco.borrow().get(&index).cloned();
+        if let Some(bytes) = draco {
+            // Decoded from the primitive's Draco stream: tightly packed, `count` elements.
+            if bytes.len() != info.count * elem_size {
+                return fail(format!("accessor {index}: Draco data of the wrong size"));
+            }
+            out = Vec::with_capacity(info.count * n);
+            for element in bytes.chunks_exact(elem_size) {
+                for &o in &offsets {
+                    out.push(T::decode(info.component, info.normalized, &element[o..o + csize]));
+                }
+            }
+        } else if let Some(view_index) = acc.buffer_view {
             let (bytes, stride) =
                 self.view(view_index.value()).context(|| format!("accessor {index}"))?;
             let stride = stride.unwrap_or(elem_size);

@@ -36,6 +36,8 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     // A texture's KTX2 image (Basis Universal ETC1S or UASTC) in place of its PNG or JPEG
     // fallback, transcoded to RGBA8.
     "KHR_texture_basisu",
+    // Primitives decoded from Draco streams.
+    "KHR_draco_mesh_compression",
 ];
 
 /// A parsed glTF document: typed JSON plus the raw tree (node transforms are read from it in
@@ -91,9 +93,6 @@ pub(crate) fn ignored_extensions(root: &json::Root) -> Vec<String> {
         ignored.push(match ext.as_str() {
             "KHR_materials_pbrSpecularGlossiness" => {
                 format!("{ext} (archived: its materials render by their metallic-roughness values)")
-            }
-            "KHR_draco_mesh_compression" => {
-                format!("{ext} (the uncompressed fallback buffers are read where there are any)")
             }
             "EXT_texture_avif" => {
                 format!("{ext} (the PNG or JPEG fallback image is read where there is one)")

@@ -4,7 +4,8 @@
 
 // Files: mod.rs (public API, resolvers, loader state), glb.rs (binary container), json.rs (JSON
 // layer, asset and extension checks), uri.rs (data URIs, confinement of file URIs), accessor.rs
-// (buffers, views, accessors), meshopt.rs (EXT_meshopt_compression views), mesh.rs (primitives), material.rs (materials, textures, images), basisu.rs (KTX2
+// (buffers, views, accessors), meshopt.rs (EXT_meshopt_compression views), draco.rs
+// (KHR_draco_mesh_compression primitives), mesh.rs (primitives), material.rs (materials, textures, images), basisu.rs (KTX2
 // images of KHR_texture_basisu),
 // nodes.rs (node tree, instances, cameras, lights, default camera), deform.rs (skins and morph
 // targets of deforming placements), animation.rs (animation channels), tests*.rs.
@@ -13,6 +14,7 @@ mod accessor;
 mod animation;
 mod basisu;
 mod deform;
+mod draco;
 mod glb;
 mod json;
 mod material;
@@ -32,7 +34,7 @@ mod tests_compression;
 mod tests_deform;
 
 use std::borrow::Cow;
-use std::cell::{Cell, OnceCell};
+use std::cell::{Cell, OnceCell, RefCell};
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
 
@@ -237,6 +239,9 @@ struct Loader<'a> {
     buffers: Vec<OnceCell<Cow<'a, [u8]>>>,
     /// The decoded bytes of each `EXT_meshopt_compression` buffer view, on first use.
     decoded_views: Vec<OnceCell<Vec<u8>>>,
+    /// The bytes of each accessor decoded from a `KHR_draco_mesh_compression` stream, tightly
+    /// packed in the accessor's component type.
+    draco: RefCell<HashMap<usize, std::rc::Rc<[u8]>>>,
     images: HashMap<usize, Image>,
     /// The images to decode once the materials are read, and which texture takes which.
     pending_images: Vec<PendingImage>,
@@ -342,6 +347,7 @@ impl<'a> Loader<'a> {
             files,
             buffers: (0..doc.root.buffers.len()).map(|_| OnceCell::new()).collect(),
             decoded_views: (0..doc.root.buffer_views.len()).map(|_| OnceCell::new()).collect(),
+            draco: RefCell::new(HashMap::new()),
             images: HashMap::new(),
             pending_images: Vec::new(),
             texture_images: Vec::new(),

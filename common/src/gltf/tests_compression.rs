@@ -6,6 +6,8 @@
 //! and the extension. `KHR_texture_basisu`: KTX2 images written by Basis Universal's `basisu`
 //! (ETC1S, UASTC, UASTC with Zstandard) transcode to their source's texels within the codec's
 //! error, damaged ones are refused naming the image, and the budget is charged from the header.
+//! `KHR_draco_mesh_compression`: the Khronos sample Box's Draco variant loads to Box's triangles
+//! within Draco's quantisation, and damaged streams are errors, never panics.
 
 use base64::Engine as _;
 use glam::{Vec2, Vec3};
@@ -554,6 +556,83 @@ fn world_triangles(s: &Scene) -> Vec<[(Vec3, Vec3); 3]> {
         }
     }
     out
+}
+
+/// Box's triangles match `want`'s (the same winding, in any order, from any corner) within
+/// `dp` in position and `dn` in normal, each exactly once.
+fn assert_same_triangles(what: &str, got: &Scene, want: &Scene, dp: f32, dn: f32) {
+    let (got, want) = (world_triangles(got), world_triangles(want));
+    assert_eq!(got.len(), want.len(), "{what}");
+    let close = |a: &[(Vec3, Vec3); 3], b: &[(Vec3, Vec3); 3]| {
+        (0..3).any(|r| {
+            (0..3).all(|k| {
+                let (pa, na) = a[k];
+                let (pb, nb) = b[(k + r) % 3];
+                (pa - pb).abs().max_element() <= dp && (na - nb).abs().max_element() <= dn
+            })
+        })
+    };
+    for (i, w) in want.iter().enumerate() {
+        let matches = got.iter().filter(|g| close(w, g)).count();
+        assert_eq!(matches, 1, "{what}: triangle {i} {w:?} is matched {matches} times");
+    }
+}
+
+/// The Khronos sample Box's Draco variant (`real/Box/glTF-Draco`, written by the glTF pipeline's
+/// Draco encoder) loads to Box's triangles within its quantisation (positions on 14 bits over
+/// the unit box, normals on 10); damaged streams are errors naming the extension, never panics;
+/// the decoded size is charged to the budget before decoding.
+#[test]
+fn draco_box_loads_to_box() {
+    let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/assets/real/Box");
+    let source = load_path(&assets.join("glTF/Box.gltf")).expect("Box.gltf");
+    let draco = load_path(&assets.join("glTF-Draco/Box.gltf")).expect("Box-Draco");
+    assert_same_triangles("Box-Draco", &draco, &source, 1e-4, 2e-3);
+
+    // The stream damaged at random, in a copy with its buffer inlined.
+    let dir = assets.join("glTF-Draco");
+    let mut doc: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("Box.gltf")).expect("gltf")).expect("json");
+    let bin = std::fs::read(dir.join(doc["buffers"][0]["uri"].as_str().unwrap())).expect("bin");
+    let ext = doc["meshes"][0]["primitives"][0]["extensions"]["KHR_draco_mesh_compression"].clone();
+    let view = &doc["bufferViews"][ext["bufferView"].as_u64().unwrap() as usize];
+    let at = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+    let len = view["byteLength"].as_u64().unwrap() as usize;
+    doc["buffers"][0]["uri"] = json!(data_uri(&bin));
+    load(&doc).expect("inlined");
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let (mut errors, mut loaded) = (0, 0);
+    for i in 0..2000 {
+        let mut damaged = bin.clone();
+        for _ in 0..1 + i % 3 {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            damaged[at + (state % len as u64) as usize] ^= (state >> 40) as u8 | 1;
+        }
+        let mut d = doc.clone();
+        d["buffers"][0]["uri"] = json!(data_uri(&damaged));
+        match load(&d) {
+            Ok(_) => loaded += 1,
+            Err(e) => {
+                errors += 1;
+                assert!(e.0.contains("KHR_draco_mesh_compression") || e.0.contains("index"), "{e}");
+            }
+        }
+    }
+    assert!(errors > 0, "{loaded} loaded, {errors} refused");
+    // A stream cut short; an attribute id the stream lacks.
+    let mut cut = doc.clone();
+    cut["bufferViews"][ext["bufferView"].as_u64().unwrap() as usize]["byteLength"] = json!(len / 2);
+    assert_names(&load_err(&cut), &["mesh 0 primitive 0", "KHR_draco_mesh_compression", "decode"]);
+    let mut bad = doc.clone();
+    bad["meshes"][0]["primitives"][0]["extensions"]["KHR_draco_mesh_compression"]["attributes"]
+        ["NORMAL"] = json!(9);
+    assert_names(&load_err(&bad), &["KHR_draco_mesh_compression", "no attribute 9"]);
+    // Too small a budget for the accessors' sizes: refused before decoding.
+    let budget = SceneBudget { inflated_bytes: 100, ..SceneBudget::default() };
+    let e = load_slice_within(doc.to_string().as_bytes(), &NoFiles, &budget).expect_err("budget");
+    assert_names(&e.0, &["KHR_draco_mesh_compression", "bytes unpacked", "24 points"]);
 }
 
 /// Files written by the real gltfpack (`tests/assets/gltfpack/`, Box compressed with its
