@@ -14,7 +14,8 @@ use crate::gltf::SceneError;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SceneBudget {
-    /// Bytes a `.zip` bundle may inflate to, over all its files.
+    /// Bytes a `.zip` bundle may inflate to, over all its files; and, counted apart, bytes the
+    /// compressed buffer views of its glTF (`EXT_meshopt_compression`) may decode to.
     pub inflated_bytes: u64,
     /// Files a `.zip` bundle may hold.
     pub entries: u64,

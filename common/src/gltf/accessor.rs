@@ -8,8 +8,10 @@ use ::gltf::json;
 use json::accessor::{ComponentType, Type};
 use json::validation::Checked;
 
+use super::meshopt;
 use super::uri::{self, Source};
 use super::{fail, Context, Loader, SceneError};
+use crate::budget;
 
 /// The most components (not bytes) one accessor may expand to; guards allocations of accessors
 /// whose elements are not backed by a buffer (all zeros, or sparse).
@@ -75,7 +77,7 @@ fn component_name(c: ComponentType) -> &'static str {
     }
 }
 
-fn component_size(c: ComponentType) -> usize {
+pub(crate) fn component_size(c: ComponentType) -> usize {
     match c {
         ComponentType::I8 | ComponentType::U8 => 1,
         ComponentType::I16 | ComponentType::U16 => 2,
@@ -171,6 +173,12 @@ impl<'a> Loader<'a> {
             (Some(uri), _, _) => Cow::Owned(self.fetch(uri)?),
             (None, 0, Some(bin)) => Cow::Borrowed(bin),
             (None, 0, None) if declared == 0 => Cow::Borrowed(&[]),
+            (None, _, _) if meshopt_fallback(buffer) => {
+                return fail(format!(
+                    "is an {} fallback buffer without a uri: only buffer views that carry the extension may refer to it",
+                    meshopt::EXTENSION
+                ))
+            }
             (None, 0, None) => return fail("has no uri and the file has no GLB BIN chunk"),
             (None, _, _) => return fail("has no uri (only buffer 0 of a .glb may omit it)"),
         };
@@ -209,6 +217,12 @@ impl<'a> Loader<'a> {
                 self.root.buffer_views.len()
             ));
         };
+        if let Some(ext) = view.extensions.as_ref().and_then(|e| e.others.get(meshopt::EXTENSION)) {
+            let bytes = self
+                .decoded_view(index, view, ext)
+                .context(|| format!("buffer view {index}: {}", meshopt::EXTENSION))?;
+            return Ok((bytes, view.byte_stride.map(|s| s.0)));
+        }
         let buffer = self.buffer(view.buffer.value())?;
         let offset = view.byte_offset.map_or(0, |o| o.0);
         let length = view.byte_length.0;
@@ -222,6 +236,37 @@ impl<'a> Loader<'a> {
             ));
         };
         Ok((&buffer[offset as usize..end as usize], view.byte_stride.map(|s| s.0)))
+    }
+
+    /// The bytes of buffer view `index` decoded from the compressed bytes its
+    /// `EXT_meshopt_compression` object `ext` names, on first use; the decoded size is charged to
+    /// the scene's budget before anything is decoded.
+    fn decoded_view(
+        &self,
+        index: usize,
+        view: &json::buffer::View,
+        ext: &serde_json::Value,
+    ) -> Result<&[u8], SceneError> {
+        if let Some(bytes) = self.decoded_views[index].get() {
+            return Ok(bytes);
+        }
+        let c = meshopt::parse(ext, view.byte_length.0, view.byte_stride.map(|s| s.0))
+            .map_err(SceneError)?;
+        self.charge_scene(budget::Line::InflatedBytes, c.decoded_len(), || {
+            format!("buffer view {index}, {} x {} bytes decoded", c.count, c.stride)
+        })?;
+        let buffer = self.buffer(c.buffer)?;
+        let Some(src) = slice_checked(buffer, c.offset, c.length) else {
+            return fail(format!(
+                "compressed bytes {}..{} overrun buffer {} ({} bytes)",
+                c.offset,
+                c.offset as u128 + c.length as u128,
+                c.buffer,
+                buffer.len()
+            ));
+        };
+        let decoded = meshopt::decode(&c, src).map_err(SceneError)?;
+        Ok(self.decoded_views[index].get_or_init(|| decoded))
     }
 
     /// The checked header of accessor `index`.
@@ -282,7 +327,19 @@ impl<'a> Loader<'a> {
             || format!("accessor {index}"),
         )?;
         let mut out: Vec<T>;
-        if let Some(view_index) = acc.buffer_view {
+        let draco = self.draco.borrow().get(&index).cloned();
+        if let Some(bytes) = draco {
+            // Decoded from the primitive's Draco stream: tightly packed, `count` elements.
+            if bytes.len() != info.count * elem_size {
+                return fail(format!("accessor {index}: Draco data of the wrong size"));
+            }
+            out = Vec::with_capacity(info.count * n);
+            for element in bytes.chunks_exact(elem_size) {
+                for &o in &offsets {
+                    out.push(T::decode(info.component, info.normalized, &element[o..o + csize]));
+                }
+            }
+        } else if let Some(view_index) = acc.buffer_view {
             let (bytes, stride) =
                 self.view(view_index.value()).context(|| format!("accessor {index}"))?;
             let stride = stride.unwrap_or(elem_size);
@@ -389,6 +446,13 @@ impl<'a> Loader<'a> {
         }
         Ok(())
     }
+}
+
+/// Whether `buffer` is tagged as an `EXT_meshopt_compression` fallback buffer: its bytes exist
+/// only as the decoded views that refer to it.
+fn meshopt_fallback(buffer: &json::Buffer) -> bool {
+    let ext = buffer.extensions.as_ref().and_then(|e| e.others.get(meshopt::EXTENSION));
+    ext.and_then(|e| e.get("fallback")).and_then(serde_json::Value::as_bool) == Some(true)
 }
 
 /// `bytes[offset..offset + len]`, if it fits.

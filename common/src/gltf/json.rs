@@ -31,6 +31,13 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_mesh_quantization",
     // Instances of a node's mesh from per-instance TRS accessors.
     "EXT_mesh_gpu_instancing",
+    // Buffer views decoded from meshoptimizer-compressed bytes; fallback buffers may lack a uri.
+    "EXT_meshopt_compression",
+    // A texture's KTX2 image (Basis Universal ETC1S or UASTC) in place of its PNG or JPEG
+    // fallback, transcoded to RGBA8.
+    "KHR_texture_basisu",
+    // Primitives decoded from Draco streams.
+    "KHR_draco_mesh_compression",
 ];
 
 /// A parsed glTF document: typed JSON plus the raw tree (node transforms are read from it in
@@ -87,10 +94,7 @@ pub(crate) fn ignored_extensions(root: &json::Root) -> Vec<String> {
             "KHR_materials_pbrSpecularGlossiness" => {
                 format!("{ext} (archived: its materials render by their metallic-roughness values)")
             }
-            "KHR_draco_mesh_compression" | "EXT_meshopt_compression" => {
-                format!("{ext} (the uncompressed fallback buffers are read where there are any)")
-            }
-            "KHR_texture_basisu" | "EXT_texture_avif" => {
+            "EXT_texture_avif" => {
                 format!("{ext} (the PNG or JPEG fallback image is read where there is one)")
             }
             _ => ext.clone(),
@@ -264,19 +268,21 @@ mod tests {
     }
 
     /// Every extension in `extensionsUsed` that the loader does not honour is named once, the
-    /// archived specular-glossiness one and the compression ones with what is read instead.
+    /// archived specular-glossiness one and the unsupported image formats with what is read
+    /// instead; the compression extensions the loader decodes are not named.
     #[test]
     fn ignored_extensions_are_named_once() {
         let doc = parse(
             br#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_materials_specular",
-                "KHR_materials_pbrSpecularGlossiness","EXT_foo","EXT_foo","KHR_texture_basisu"]}"#,
+                "KHR_materials_pbrSpecularGlossiness","EXT_foo","EXT_foo","EXT_texture_avif",
+                "KHR_texture_basisu","EXT_meshopt_compression"]}"#,
         )
         .expect("parses: only extensionsRequired is refused");
         let ignored = ignored_extensions(&doc.root);
         assert_eq!(ignored.len(), 3, "{ignored:?}");
         assert!(ignored[0].starts_with("KHR_materials_pbrSpecularGlossiness (archived"));
         assert_eq!(ignored[1], "EXT_foo");
-        assert!(ignored[2].starts_with("KHR_texture_basisu (the PNG or JPEG fallback"));
+        assert!(ignored[2].starts_with("EXT_texture_avif (the PNG or JPEG fallback"));
         let plain =
             parse(br#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_lights_punctual"]}"#);
         assert!(ignored_extensions(&plain.expect("parses").root).is_empty());

@@ -1,7 +1,9 @@
 //! Materials, textures, samplers and images: the metallic-roughness model with the extensions
 //! the renderer honours (emissive strength, specular, ior, transmission, diffuse transmission,
 //! volume, clearcoat, sheen, anisotropy, iridescence, unlit, texture transform), and
-//! PNG/JPEG/WebP decoding into RGBA8 texels (16-bit PNGs into RGBA16), each image decoded once however many textures use it.
+//! PNG/JPEG/WebP decoding into RGBA8 texels (16-bit PNGs into RGBA16) and KTX2 transcoding
+//! (`KHR_texture_basisu`, in `basisu.rs`) into RGBA8, each image decoded once however many
+//! textures use it.
 
 use std::collections::HashMap;
 use std::io::Cursor;
@@ -12,7 +14,7 @@ use json::texture::{MagFilter, WrappingMode};
 use json::validation::Checked;
 use serde_json::Value;
 
-use super::{fail, Context, Image, Loader, PendingImage, SceneError};
+use super::{basisu, fail, Context, Image, ImageFormat, Loader, PendingImage, SceneError};
 use crate::budget;
 use crate::scene::{
     AlphaMode, Anisotropy, Clearcoat, Iridescence, Material, Sheen, TexTransform, Texels, Texture,
@@ -415,9 +417,13 @@ impl Loader<'_> {
                 root.textures.len()
             ));
         };
-        let source = match webp_source(self.raw, index)? {
-            Some(webp) => webp,
-            None => tex.source.value(),
+        let source = match (
+            ext_source(self.raw, index, basisu::EXTENSION)?,
+            ext_source(self.raw, index, "EXT_texture_webp")?,
+        ) {
+            (Some(ktx2), _) => ktx2,
+            (None, Some(webp)) => webp,
+            (None, None) => tex.source.value(),
         };
         let result = if source == u32::MAX as usize {
             tracing::warn!(
@@ -466,14 +472,21 @@ impl Loader<'_> {
             }
             (None, None) => return fail(format!("image {index}: has neither uri nor bufferView")),
         };
-        let format = format_of(&bytes).context(|| format!("image {index}"))?;
         // The texels are charged from the header, before anything is decoded: an image too
         // large for the budget costs its header's bytes, not its decoded size.
-        let (width, height) = image::ImageReader::with_format(Cursor::new(&bytes), format)
-            .into_dimensions()
-            .map_err(|e| {
-                SceneError(format!("image {index}: cannot decode the {format:?} header: {e}"))
-            })?;
+        let (format, (width, height)) = if basisu::is_ktx2(&bytes) {
+            let size = basisu::dimensions(&bytes)
+                .map_err(|e| SceneError(format!("image {index}: {}: {e}", basisu::EXTENSION)))?;
+            (ImageFormat::Ktx2, size)
+        } else {
+            let format = format_of(&bytes).context(|| format!("image {index}"))?;
+            let size = image::ImageReader::with_format(Cursor::new(&bytes), format)
+                .into_dimensions()
+                .map_err(|e| {
+                    SceneError(format!("image {index}: cannot decode the {format:?} header: {e}"))
+                })?;
+            (ImageFormat::Image(format), size)
+        };
         if width == 0 || height == 0 {
             return fail(format!("image {index}: has no texels"));
         }
@@ -520,24 +533,23 @@ impl Loader<'_> {
     }
 }
 
-/// The image texture `index` reads by `EXT_texture_webp` (its `source`), which takes the place
-/// of the texture's own PNG or JPEG fallback; `None` when the texture has no such extension.
-fn webp_source(raw: &Value, index: usize) -> Result<Option<usize>, SceneError> {
-    let Some(ext) =
-        raw["textures"][index].get("extensions").and_then(|e| e.get("EXT_texture_webp"))
-    else {
+/// The image texture `index` reads by extension `name` (`KHR_texture_basisu` or
+/// `EXT_texture_webp`: its `source`), which takes the place of the texture's own PNG or JPEG
+/// fallback; `None` when the texture has no such extension.
+fn ext_source(raw: &Value, index: usize, name: &str) -> Result<Option<usize>, SceneError> {
+    let Some(ext) = raw["textures"][index].get("extensions").and_then(|e| e.get(name)) else {
         return Ok(None);
     };
     match ext.get("source").and_then(Value::as_u64).and_then(|s| usize::try_from(s).ok()) {
         Some(source) if source < u32::MAX as usize => Ok(Some(source)),
-        _ => fail(format!("texture {index}: EXT_texture_webp has no valid source image")),
+        _ => fail(format!("texture {index}: {name} has no valid source image")),
     }
 }
 
 /// The format of image bytes: PNG, JPEG, or WebP (`EXT_texture_webp`).
 fn format_of(bytes: &[u8]) -> Result<image::ImageFormat, SceneError> {
     let format = image::guess_format(bytes).map_err(|_| {
-        SceneError("unrecognised image format (only PNG, JPEG and WebP are supported)".into())
+        SceneError("unrecognised image format (only PNG, JPEG, WebP and KTX2 are supported)".into())
     })?;
     if !matches!(
         format,
@@ -548,13 +560,21 @@ fn format_of(bytes: &[u8]) -> Result<image::ImageFormat, SceneError> {
     Ok(format)
 }
 
-/// Decodes PNG, JPEG or WebP bytes of the size their header gave into RGBA8, allocating no more than
-/// that size needs.
+/// Decodes PNG, JPEG, WebP or KTX2 bytes of the size their header gave into RGBA8 (RGBA16 for
+/// a 16-bit PNG), allocating no more than that size needs.
 fn decode(
     bytes: &[u8],
-    format: image::ImageFormat,
+    format: ImageFormat,
     (width, height): (u32, u32),
 ) -> Result<Texels, SceneError> {
+    let format = match format {
+        ImageFormat::Image(format) => format,
+        ImageFormat::Ktx2 => {
+            let texels = basisu::decode(bytes)
+                .map_err(|e| SceneError(format!("{}: {e}", basisu::EXTENSION)))?;
+            return Ok(Texels::Rgba8(texels.into()));
+        }
+    };
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(width);

@@ -89,6 +89,8 @@ impl Loader<'_> {
             tracing::warn!("mesh {mesh_index} ({mesh_name}) primitive {prim_index}: mode {mode:?} has no triangles; skipped");
             return Ok(None);
         }
+        // A Draco-compressed primitive's accessors are read from its decoded stream.
+        self.decode_draco(mesh_index, prim_index)?;
         let attribute = |s: Semantic| prim.attributes.get(&Checked::Valid(s)).map(|i| i.value());
         let Some(pos_acc) = attribute(Semantic::Positions) else {
             tracing::warn!(

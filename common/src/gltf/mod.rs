@@ -4,17 +4,22 @@
 
 // Files: mod.rs (public API, resolvers, loader state), glb.rs (binary container), json.rs (JSON
 // layer, asset and extension checks), uri.rs (data URIs, confinement of file URIs), accessor.rs
-// (buffers, views, accessors), mesh.rs (primitives), material.rs (materials, textures, images),
+// (buffers, views, accessors), meshopt.rs (EXT_meshopt_compression views), draco.rs
+// (KHR_draco_mesh_compression primitives), mesh.rs (primitives), material.rs (materials, textures, images), basisu.rs (KTX2
+// images of KHR_texture_basisu),
 // nodes.rs (node tree, instances, cameras, lights, default camera), deform.rs (skins and morph
 // targets of deforming placements), animation.rs (animation channels), tests*.rs.
 
 mod accessor;
 mod animation;
+mod basisu;
 mod deform;
+mod draco;
 mod glb;
 mod json;
 mod material;
 mod mesh;
+mod meshopt;
 pub(crate) mod nodes;
 pub use nodes::rigid;
 mod uri;
@@ -24,10 +29,12 @@ mod tests;
 #[cfg(test)]
 mod tests_assets;
 #[cfg(test)]
+mod tests_compression;
+#[cfg(test)]
 mod tests_deform;
 
 use std::borrow::Cow;
-use std::cell::{Cell, OnceCell};
+use std::cell::{Cell, OnceCell, RefCell};
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};
 
@@ -208,9 +215,18 @@ struct Image {
 struct PendingImage {
     index: usize,
     bytes: Vec<u8>,
-    format: image::ImageFormat,
+    format: ImageFormat,
     width: u32,
     height: u32,
+}
+
+/// How an image's bytes are encoded.
+#[derive(Clone, Copy, Debug)]
+enum ImageFormat {
+    /// PNG, JPEG or WebP, decoded by the `image` crate.
+    Image(image::ImageFormat),
+    /// KTX2 with Basis Universal data (`KHR_texture_basisu`).
+    Ktx2,
 }
 
 /// The loader's state: the parsed document, lazily loaded buffers and images, and the scene
@@ -221,6 +237,11 @@ struct Loader<'a> {
     bin: Option<&'a [u8]>,
     files: &'a dyn Resolver,
     buffers: Vec<OnceCell<Cow<'a, [u8]>>>,
+    /// The decoded bytes of each `EXT_meshopt_compression` buffer view, on first use.
+    decoded_views: Vec<OnceCell<Vec<u8>>>,
+    /// The bytes of each accessor decoded from a `KHR_draco_mesh_compression` stream, tightly
+    /// packed in the accessor's component type.
+    draco: RefCell<HashMap<usize, std::rc::Rc<[u8]>>>,
     images: HashMap<usize, Image>,
     /// The images to decode once the materials are read, and which texture takes which.
     pending_images: Vec<PendingImage>,
@@ -249,6 +270,9 @@ struct Loader<'a> {
     scene_budget: SceneBudget,
     texels_used: Cell<u64>,
     triangles_used: Cell<u64>,
+    /// Bytes decoded from compressed buffer views (charged to `inflated_bytes`, apart from what
+    /// a `.zip` bundle inflated to).
+    decoded_bytes: Cell<u64>,
     /// The `animations` array of the JSON, as written.
     animations: Option<&'a serde_json::Value>,
     /// Each node's parent (set by `load_nodes`), for the joints' rest transforms.
@@ -274,7 +298,7 @@ impl Budget {
 }
 
 impl Loader<'_> {
-    /// Counts `amount` texels or triangles against the scene's budget; `at` names the object
+    /// Counts `amount` texels, triangles or decoded bytes against the scene's budget; `at` names the object
     /// that takes the count over.
     fn charge_scene(
         &self,
@@ -285,7 +309,8 @@ impl Loader<'_> {
         let (used, limit) = match line {
             budget::Line::Texels => (&self.texels_used, self.scene_budget.texels),
             budget::Line::Triangles => (&self.triangles_used, self.scene_budget.triangles),
-            _ => unreachable!("the loader charges texels and triangles only"),
+            budget::Line::InflatedBytes => (&self.decoded_bytes, self.scene_budget.inflated_bytes),
+            budget::Line::Entries => unreachable!("the loader opens no archive"),
         };
         let total = used.get().saturating_add(amount);
         if total > limit {
@@ -321,6 +346,8 @@ impl<'a> Loader<'a> {
             bin,
             files,
             buffers: (0..doc.root.buffers.len()).map(|_| OnceCell::new()).collect(),
+            decoded_views: (0..doc.root.buffer_views.len()).map(|_| OnceCell::new()).collect(),
+            draco: RefCell::new(HashMap::new()),
             images: HashMap::new(),
             pending_images: Vec::new(),
             texture_images: Vec::new(),
@@ -339,6 +366,7 @@ impl<'a> Loader<'a> {
             scene_budget: SceneBudget::default(),
             texels_used: Cell::new(0),
             triangles_used: Cell::new(0),
+            decoded_bytes: Cell::new(0),
             animations: doc.animations.as_ref(),
             parents: Vec::new(),
             rest_worlds: HashMap::new(),
