@@ -347,6 +347,9 @@ pub struct Material {
     pub specular_texture: Option<TextureRef>,
     /// `KHR_materials_specular.specularColorTexture` (sRGB encoded).
     pub specular_color_texture: Option<TextureRef>,
+    /// A `KHR_materials_pbrSpecularGlossiness` material's `specularGlossinessTexture`, whose
+    /// alpha scales its glossiness: the roughness at a point is 1 - (1 - `roughness`) x alpha.
+    pub glossiness_texture: Option<TextureRef>,
     /// `KHR_materials_ior.ior` (1.5 without the extension).
     pub ior: f32,
     /// `KHR_materials_transmission.transmissionFactor` (0 without the extension): the share of
@@ -440,6 +443,7 @@ impl Default for Material {
             specular_color: Vec3::ONE,
             specular_texture: None,
             specular_color_texture: None,
+            glossiness_texture: None,
             ior: 1.5,
             transmission: 0.0,
             transmission_texture: None,

@@ -16,6 +16,8 @@ pub(crate) const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_dispersion",
     "KHR_materials_emissive_strength",
     "KHR_materials_specular",
+    // Archived; converted to the metallic-roughness model with `KHR_materials_specular`.
+    "KHR_materials_pbrSpecularGlossiness",
     "KHR_materials_ior",
     "KHR_materials_iridescence",
     "KHR_materials_sheen",
@@ -91,9 +93,6 @@ pub(crate) fn ignored_extensions(root: &json::Root) -> Vec<String> {
         }
         seen.push(ext);
         ignored.push(match ext.as_str() {
-            "KHR_materials_pbrSpecularGlossiness" => {
-                format!("{ext} (archived: its materials render by their metallic-roughness values)")
-            }
             "EXT_texture_avif" => {
                 format!("{ext} (the PNG or JPEG fallback image is read where there is one)")
             }
@@ -279,10 +278,9 @@ mod tests {
         )
         .expect("parses: only extensionsRequired is refused");
         let ignored = ignored_extensions(&doc.root);
-        assert_eq!(ignored.len(), 3, "{ignored:?}");
-        assert!(ignored[0].starts_with("KHR_materials_pbrSpecularGlossiness (archived"));
-        assert_eq!(ignored[1], "EXT_foo");
-        assert!(ignored[2].starts_with("EXT_texture_avif (the PNG or JPEG fallback"));
+        assert_eq!(ignored.len(), 2, "{ignored:?}");
+        assert_eq!(ignored[0], "EXT_foo");
+        assert!(ignored[1].starts_with("EXT_texture_avif (the PNG or JPEG fallback"));
         let plain =
             parse(br#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_lights_punctual"]}"#);
         assert!(ignored_extensions(&plain.expect("parses").root).is_empty());

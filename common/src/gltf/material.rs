@@ -208,7 +208,7 @@ impl Loader<'_> {
             None => None,
         };
 
-        let material = Material {
+        let mut material = Material {
             name: m.name.clone().unwrap_or_else(|| format!("material {index}")),
             base_color: base_color.min(Vec4::ONE),
             base_color_texture,
@@ -238,7 +238,12 @@ impl Loader<'_> {
             unlit: ext.is_some_and(|e| e.others.contains_key("KHR_materials_unlit")),
             alpha_mode,
             double_sided: m.double_sided,
+            glossiness_texture: None,
         };
+        if let Some(v) = ext.and_then(|e| e.others.get("KHR_materials_pbrSpecularGlossiness")) {
+            self.specular_glossiness(v, &mut material)
+                .context(|| "KHR_materials_pbrSpecularGlossiness".into())?;
+        }
         if material.dispersion > 0.0 && !material.refracts() {
             tracing::warn!(
                 "material {index} ({}): KHR_materials_dispersion bends light by colour only in a refractive volume (KHR_materials_volume with full transmission); ignored",
@@ -299,6 +304,44 @@ impl Loader<'_> {
             None => None,
         };
         Ok(Some(Clearcoat { factor, texture, roughness, roughness_texture, normal_texture }))
+    }
+
+    /// A `KHR_materials_pbrSpecularGlossiness` object (archived; older Sketchfab and Blender
+    /// exports) turned into the metallic-roughness model with `KHR_materials_specular`, in
+    /// place of the material's metallic-roughness values: the base colour is `diffuseFactor` x
+    /// `diffuseTexture`, metallic 0, roughness 1 - `glossinessFactor` x the
+    /// `specularGlossinessTexture`'s alpha, and the specular layer's reflectance at normal
+    /// incidence is `specularFactor` x that texture's RGB (sRGB) exactly: `ior` 0 makes the
+    /// dielectric's F0 ((ior - 1) / (ior + 1))² x specular colour the specular colour itself.
+    fn specular_glossiness(&mut self, v: &Value, m: &mut Material) -> Result<(), SceneError> {
+        let diffuse = match v.get("diffuseFactor") {
+            None => Vec4::ONE,
+            Some(Value::Array(c)) if c.len() == 4 => {
+                let c: Vec<f64> = c.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
+                if c.iter().any(|x| !(0.0..=1.0).contains(x)) {
+                    return fail(format!("diffuseFactor {c:?} must lie in [0, 1]"));
+                }
+                Vec4::new(c[0] as f32, c[1] as f32, c[2] as f32, c[3] as f32)
+            }
+            Some(other) => return fail(format!("diffuseFactor must be 4 numbers, not {other}")),
+        };
+        let specular = unit_color(v, "specularFactor")?;
+        let glossiness = unit_number(v, "glossinessFactor", 1.0)?;
+        let diffuse_texture = ext_texture(v, "diffuseTexture")?;
+        let sg_texture = ext_texture(v, "specularGlossinessTexture")?;
+        m.base_color = diffuse;
+        m.base_color_texture = self.texture_info(diffuse_texture.as_ref(), "diffuseTexture")?;
+        m.metallic = 0.0;
+        m.roughness = 1.0 - glossiness;
+        m.metallic_roughness_texture = None;
+        m.specular = 1.0;
+        m.specular_color = specular;
+        m.specular_texture = None;
+        let sg_texture = self.texture_info(sg_texture.as_ref(), "specularGlossinessTexture")?;
+        m.specular_color_texture = sg_texture;
+        m.glossiness_texture = sg_texture;
+        m.ior = 0.0;
+        Ok(())
     }
 
     /// A `KHR_materials_sheen` object: `None` when `sheenColorFactor` is black (the spec's "the

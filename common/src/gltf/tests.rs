@@ -1087,3 +1087,57 @@ fn material_variants_swap_materials_and_unknown_names_are_listed() {
         println!("{pointer}: {err}");
     }
 }
+
+/// `KHR_materials_pbrSpecularGlossiness` becomes the metallic-roughness model with
+/// `KHR_materials_specular`: diffuse as base colour, metallic 0, roughness 1 - glossiness, the
+/// specular colour as the reflectance at normal incidence (ior 0), the specular-glossiness
+/// texture as the specular colour's texture and the glossiness's; the material's own
+/// metallic-roughness values give way. Out-of-range factors are refused naming the key.
+#[test]
+fn specular_glossiness_becomes_metal_rough_with_specular() {
+    let mut png = Vec::new();
+    {
+        let img = image::RgbaImage::from_raw(1, 1, vec![200, 100, 50, 128]).expect("image");
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("encode");
+    }
+    let mut doc = triangle_doc(&TRIANGLE, &[0, 1, 2]);
+    doc["meshes"][0]["primitives"] = json!([
+        {"attributes": {"POSITION": 0}, "indices": 1, "material": 0},
+        {"attributes": {"POSITION": 0}, "indices": 1, "material": 1}
+    ]);
+    doc["extensionsUsed"] = json!(["KHR_materials_pbrSpecularGlossiness"]);
+    doc["materials"] = json!([
+        {"name": "factors",
+         "pbrMetallicRoughness": {"metallicFactor": 1.0, "roughnessFactor": 0.9, "metallicRoughnessTexture": {"index": 0}},
+         "extensions": {"KHR_materials_pbrSpecularGlossiness": {
+            "diffuseFactor": [0.5, 0.25, 1.0, 0.75], "specularFactor": [0.04, 0.5, 1.0], "glossinessFactor": 0.8}}},
+        {"name": "textured",
+         "extensions": {"KHR_materials_pbrSpecularGlossiness": {
+            "diffuseTexture": {"index": 0, "texCoord": 1}, "specularGlossinessTexture": {"index": 0}}}}
+    ]);
+    doc["images"] = json!([{"uri": data_uri(&png)}]);
+    doc["textures"] = json!([{"source": 0}]);
+    let scene = load(&doc).expect("loads");
+    let m = &scene.materials[0];
+    assert_eq!(m.base_color, Vec4::new(0.5, 0.25, 1.0, 0.75));
+    assert_eq!((m.metallic, m.roughness, m.ior, m.specular), (0.0, 1.0 - 0.8, 0.0, 1.0));
+    assert_eq!(m.specular_color, Vec3::new(0.04, 0.5, 1.0));
+    assert!(m.metallic_roughness_texture.is_none(), "the metal-rough values give way");
+    assert!(m.glossiness_texture.is_none() && m.specular_color_texture.is_none());
+    let t = &scene.materials[1];
+    assert_eq!((t.base_color, t.roughness, t.specular_color), (Vec4::ONE, 0.0, Vec3::ONE));
+    assert_eq!(t.base_color_texture.expect("diffuse texture").tex_coord, 1);
+    assert_eq!(t.specular_color_texture, t.glossiness_texture);
+    assert!(t.glossiness_texture.is_some());
+    for (key, value) in [
+        ("diffuseFactor", json!([0.5, 0.5, 0.5, 1.5])),
+        ("diffuseFactor", json!([0.5, 0.5])),
+        ("specularFactor", json!([2.0, 0.0, 0.0])),
+        ("glossinessFactor", json!(-0.5)),
+    ] {
+        let mut bad = doc.clone();
+        bad["materials"][0]["extensions"]["KHR_materials_pbrSpecularGlossiness"][key] = value;
+        let e = load(&bad).expect_err(key);
+        assert!(e.0.contains("KHR_materials_pbrSpecularGlossiness") && e.0.contains(key), "{e}");
+    }
+}

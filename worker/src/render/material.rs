@@ -76,6 +76,10 @@ pub fn bsdf(
         roughness *= t.y;
         metallic *= t.z;
     }
+    if let Some(r) = &m.glossiness_texture {
+        // A specular-glossiness material's: roughness 1 - glossiness x the texture's alpha.
+        roughness = 1.0 - (1.0 - roughness) * texture::sample(textures, r, sp.uvs, false).w;
+    }
     if extended && m.refracts() {
         // The relative index is the far side's over the near side's: `iors` are this volume's
         // and that of the medium on its other side (1 for air), as `media::ior` gives them.
@@ -321,5 +325,48 @@ mod tests {
                 assert_ne!(a.eval(dirs[0].0, dirs[0].1), c.eval(dirs[0].0, dirs[0].1), "case {k}");
             }
         }
+    }
+
+    /// A specular-glossiness material as the loader converts it (metallic 0, specular 1, ior 0,
+    /// the specular colour its `specularFactor`): the reflectance at normal incidence is the
+    /// specular colour exactly, and the glossiness texture's alpha a sets the roughness to
+    /// 1 - glossiness x a (a = 0: fully rough; a = 1: the factor's).
+    #[test]
+    fn specular_glossiness_reflects_its_specular_colour_at_normal_incidence() {
+        let texel = |rgba: [u8; 4]| Texture {
+            width: 1,
+            height: 1,
+            texels: vec![rgba].into(),
+            wrap_s: Wrap::Repeat,
+            wrap_t: Wrap::Repeat,
+            nearest: true,
+        };
+        let textures = [texel([255, 255, 255, 0]), texel([255, 255, 255, 255])];
+        let tex = |i| Some(TextureRef { texture: i, tex_coord: 0, transform: None });
+        let colour = Vec3::new(0.04, 0.5, 0.9);
+        let converted = Material {
+            base_color: glam::Vec4::new(0.2, 0.3, 0.4, 1.0),
+            metallic: 0.0,
+            roughness: 1.0 - 0.7,
+            specular: 1.0,
+            specular_color: colour,
+            ior: 0.0,
+            ..Material::default()
+        };
+        let Bsdf::MetalRough(b) =
+            bsdf(&textures, &converted, &SurfacePoint::PLAIN, true, [1.0; 2], false)
+        else {
+            panic!("a metal-rough BSDF");
+        };
+        assert_eq!(b.schlick_fresnel(1.0).0, colour, "F0 is the specular colour");
+        let roughness =
+            |m: &Material| match bsdf(&textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], false) {
+                Bsdf::MetalRough(b) => b.ggx.alpha,
+                other => panic!("{other:?}"),
+            };
+        let rough = Material { glossiness_texture: tex(0), ..converted.clone() };
+        let glossy = Material { glossiness_texture: tex(1), ..converted.clone() };
+        assert_eq!(roughness(&rough), 1.0, "alpha 0: glossiness 0");
+        assert_eq!(roughness(&glossy), roughness(&converted), "alpha 1: the factor's");
     }
 }

@@ -186,6 +186,7 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         specular_color: _,
         specular_texture,
         specular_color_texture,
+        glossiness_texture,
         ior: _,
         transmission: _,
         diffuse_transmission: _,
@@ -216,7 +217,8 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         || diffuse_transmission_texture.is_some()
         || diffuse_transmission_color_texture.is_some()
         || specular_texture.is_some()
-        || specular_color_texture.is_some();
+        || specular_color_texture.is_some()
+        || glossiness_texture.is_some();
     if volume.is_some() && m.bounds_medium() {
         return Err("a volume");
     }
