@@ -268,20 +268,24 @@ mod tests {
 
     use super::*;
 
-    /// `KHR_materials_specular`'s textures scale its factors: the specular texture's alpha the
-    /// factor (linear), the colour texture's RGB the colour (sRGB): a texel of alpha 0 gives the
-    /// BSDF of factor 0, one of alpha 255 the factor itself, and a colour texel (255, 0, 255) the
-    /// colour with no green, value for value.
-    #[test]
-    fn specular_textures_scale_the_specular_factors() {
-        let texel = |rgba: [u8; 4]| Texture {
+    /// A one-texel texture of `rgba`, looked up without filtering.
+    fn texel(rgba: [u8; 4]) -> Texture {
+        Texture {
             width: 1,
             height: 1,
             texels: vec![rgba].into(),
             wrap_s: Wrap::Repeat,
             wrap_t: Wrap::Repeat,
             nearest: true,
-        };
+        }
+    }
+
+    /// `KHR_materials_specular`'s textures scale its factors: the specular texture's alpha the
+    /// factor (linear), the colour texture's RGB the colour (sRGB): a texel of alpha 0 gives the
+    /// BSDF of factor 0, one of alpha 255 the factor itself, and a colour texel (255, 0, 255) the
+    /// colour with no green, value for value.
+    #[test]
+    fn specular_textures_scale_the_specular_factors() {
         let textures = [texel([9, 9, 9, 0]), texel([9, 9, 9, 255]), texel([255, 0, 255, 7])];
         let tex = |i| Some(TextureRef { texture: i, tex_coord: 0, transform: None });
         let base = Material {
@@ -333,14 +337,6 @@ mod tests {
     /// 1 - glossiness x a (a = 0: fully rough; a = 1: the factor's).
     #[test]
     fn specular_glossiness_reflects_its_specular_colour_at_normal_incidence() {
-        let texel = |rgba: [u8; 4]| Texture {
-            width: 1,
-            height: 1,
-            texels: vec![rgba].into(),
-            wrap_s: Wrap::Repeat,
-            wrap_t: Wrap::Repeat,
-            nearest: true,
-        };
         let textures = [texel([255, 255, 255, 0]), texel([255, 255, 255, 255])];
         let tex = |i| Some(TextureRef { texture: i, tex_coord: 0, transform: None });
         let colour = Vec3::new(0.04, 0.5, 0.9);
