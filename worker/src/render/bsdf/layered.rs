@@ -364,6 +364,8 @@ pub(crate) mod generic {
         pub(crate) has_coat: R::Mask,
         pub(crate) sheen: &'a SheenLanes<R>,
         pub(crate) has_sheen: R::Mask,
+        /// Whether any lane has a coat (when none does, its arithmetic is not done).
+        pub(crate) coats: bool,
         /// Whether any lane has a sheen (when none does, its arithmetic is not done).
         pub(crate) sheens: bool,
         /// Whether any lane's base may transmit (`metal_rough::eval`'s `transmits`).
@@ -376,7 +378,11 @@ pub(crate) mod generic {
         #[inline(always)]
         fn scalings(&self, wo: V3<R>) -> (R, R) {
             let (zero, one) = (wo.z.konst(0.0), wo.z.konst(1.0));
-            let weight = R::select(self.has_coat, coat_weight(self.coat, wo), zero);
+            let weight = if self.coats {
+                R::select(self.has_coat, coat_weight(self.coat, wo), zero)
+            } else {
+                zero
+            };
             if !self.sheens {
                 return (weight, one);
             }
@@ -405,8 +411,13 @@ pub(crate) mod generic {
             } else {
                 under
             };
-            let with = layers_f(under, Some((weight, coat_specular(self.coat, wo, wi))));
-            let f = V3::select(self.has_coat, with, layers_f(under, None));
+            let without = layers_f(under, None);
+            let f = if self.coats {
+                let with = layers_f(under, Some((weight, coat_specular(self.coat, wo, wi))));
+                V3::select(self.has_coat, with, without)
+            } else {
+                without
+            };
             V3::select(wo.z.le(zero) | wi.z.eq(zero), V3::new(zero, zero, zero), f)
         }
 
@@ -419,8 +430,12 @@ pub(crate) mod generic {
             let above = wi.z.gt(zero);
             let hemisphere = wo.z.konst(uniform_hemisphere_pdf());
             let pdf = R::select(self.has_sheen & above, pdf + p_sheen * hemisphere, pdf);
-            let with = plus_coat_pdf(pdf, p_coat, self.coat, wo, wi);
-            let pdf = R::select(self.has_coat & above, with, pdf);
+            let pdf = if self.coats {
+                let with = plus_coat_pdf(pdf, p_coat, self.coat, wo, wi);
+                R::select(self.has_coat & above, with, pdf)
+            } else {
+                pdf
+            };
             R::select(wo.z.le(zero) | wi.z.eq(zero), zero, pdf)
         }
 
@@ -442,7 +457,9 @@ pub(crate) mod generic {
             let zero = wo.z.konst(0.0);
             let choice = self.choice(wo);
             let (p_coat, p_sheen) = choice;
-            let (coat_wi, coat_ok) = sample_coat(self.coat, wo, ux, uy);
+            // Without a coat p_coat is 0, and no lane takes the coat's direction.
+            let (coat_wi, coat_ok) =
+                if self.coats { sample_coat(self.coat, wo, ux, uy) } else { (wo, zero.lt(zero)) };
             let sheen_wi = if self.sheens { sample_uniform_hemisphere(ux, uy) } else { wo };
             let u_base = base_number(u_lobe, p_coat, p_sheen);
             let (base_wi, _, _, base_far, base_ok) =
@@ -538,6 +555,7 @@ mod tests {
                 has_coat: coat.is_some(),
                 sheen: &sheen_lanes,
                 has_sheen: sheen.is_some(),
+                coats: coat.is_some(),
                 sheens: sheen.is_some(),
                 transmits: true,
             };

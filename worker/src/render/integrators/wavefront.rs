@@ -603,6 +603,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             has_coat: M::from_bools(s, &has_coat),
             sheen: &sheen,
             has_sheen: M::from_bools(s, &has_sheen),
+            coats: (0..lanes).any(|i| coated[i] && has_coat[i] && live[i]),
             sheens: (0..lanes).any(|i| coated[i] && has_sheen[i] && live[i]),
             transmits: any_transmits,
         };
