@@ -1120,3 +1120,51 @@ pub fn repo_scene(name: &str) -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name);
     common::gltf::load_path(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
+
+/// An 8-bit greyscale PNG of `width` x `height` texels (`texels` row by row, the top row
+/// first), uncompressed (one stored deflate block: at most 65,535 bytes of scanlines).
+pub fn grey_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
+    fn crc(data: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &b in data {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
+            }
+        }
+        !c
+    }
+    fn chunk(out: &mut Vec<u8>, kind: &[u8], data: &[u8]) {
+        out.extend((data.len() as u32).to_be_bytes());
+        let mut body = kind.to_vec();
+        body.extend(data);
+        out.extend(&body);
+        out.extend(crc(&body).to_be_bytes());
+    }
+    assert_eq!(texels.len(), (width * height) as usize);
+    // Raw scanlines (filter byte 0) in a stored (uncompressed) zlib stream.
+    let raw: Vec<u8> = texels
+        .chunks(width as usize)
+        .flat_map(|row| std::iter::once(0).chain(row.iter().copied()))
+        .collect();
+    let len = u16::try_from(raw.len()).expect("one stored block");
+    let mut zlib = vec![0x78, 0x01, 0x01];
+    zlib.extend(len.to_le_bytes());
+    zlib.extend((!len).to_le_bytes());
+    zlib.extend(&raw);
+    let (mut a, mut b) = (1u32, 0u32);
+    for &x in &raw {
+        a = (a + x as u32) % 65521;
+        b = (b + a) % 65521;
+    }
+    zlib.extend(((b << 16) | a).to_be_bytes());
+    let mut png = vec![0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
+    let mut ihdr = Vec::new();
+    ihdr.extend(width.to_be_bytes());
+    ihdr.extend(height.to_be_bytes());
+    ihdr.extend([8, 0, 0, 0, 0]); // 8-bit greyscale
+    chunk(&mut png, b"IHDR", &ihdr);
+    chunk(&mut png, b"IDAT", &zlib);
+    chunk(&mut png, b"IEND", &[]);
+    png
+}
