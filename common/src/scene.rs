@@ -549,6 +549,13 @@ pub struct Texture {
     pub wrap_t: Wrap,
     /// Nearest filtering (magFilter 9728); bilinear otherwise.
     pub nearest: bool,
+    /// Mipmapped minification (a `minFilter` of the `*_MIPMAP_*` kinds, or none given): the
+    /// renderer filters lookups over a footprint. `minFilter` NEAREST or LINEAR asks for no
+    /// mipmaps.
+    pub mipmaps: bool,
+    /// The mip levels past this one, each half the last's size down to 1x1, where a renderer
+    /// built them (empty as loaded).
+    pub levels: Vec<Texture>,
 }
 
 /// A camera's projection.

@@ -10,7 +10,7 @@ use std::io::Cursor;
 
 use ::gltf::json;
 use glam::{Vec2, Vec3, Vec4};
-use json::texture::{MagFilter, WrappingMode};
+use json::texture::{MagFilter, MinFilter, WrappingMode};
 use json::validation::Checked;
 use serde_json::Value;
 
@@ -474,9 +474,9 @@ impl Loader<'_> {
             );
             None
         } else {
-            let (wrap_s, wrap_t, nearest) = match tex.sampler {
+            let (wrap_s, wrap_t, nearest, mipmaps) = match tex.sampler {
                 Some(s) => sampler(root, s.value()).context(|| format!("texture {index}"))?,
-                None => (Wrap::Repeat, Wrap::Repeat, false),
+                None => (Wrap::Repeat, Wrap::Repeat, false, true),
             };
             self.decode_image(source).context(|| format!("texture {index}"))?;
             let image = &self.images[&source];
@@ -488,6 +488,8 @@ impl Loader<'_> {
                 wrap_s,
                 wrap_t,
                 nearest,
+                mipmaps,
+                levels: Vec::new(),
             });
             self.texture_images.push((self.textures.len() - 1, source));
             Some(self.textures.len() - 1)
@@ -646,8 +648,8 @@ fn decode(
     Ok(Texels::Rgba8(bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw()).into()))
 }
 
-/// Wrap modes and nearest magnification of sampler `index`.
-fn sampler(root: &json::Root, index: usize) -> Result<(Wrap, Wrap, bool), SceneError> {
+/// Wrap modes, nearest magnification and mipmapped minification of sampler `index`.
+fn sampler(root: &json::Root, index: usize) -> Result<(Wrap, Wrap, bool, bool), SceneError> {
     let Some(s) = root.samplers.get(index) else {
         return fail(format!(
             "sampler {index}: does not exist (the file has {} samplers)",
@@ -665,7 +667,12 @@ fn sampler(root: &json::Root, index: usize) -> Result<(Wrap, Wrap, bool), SceneE
         Some(Checked::Invalid) => return fail(format!("sampler {index}: invalid magFilter")),
         _ => false,
     };
-    Ok((wrap(s.wrap_s, "wrapS")?, wrap(s.wrap_t, "wrapT")?, nearest))
+    let mipmaps = match s.min_filter {
+        Some(Checked::Valid(MinFilter::Nearest | MinFilter::Linear)) => false,
+        Some(Checked::Invalid) => return fail(format!("sampler {index}: invalid minFilter")),
+        _ => true,
+    };
+    Ok((wrap(s.wrap_s, "wrapS")?, wrap(s.wrap_t, "wrapT")?, nearest, mipmaps))
 }
 
 /// A `KHR_texture_transform` from raw JSON (texture infos the typed layer does not cover).

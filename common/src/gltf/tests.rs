@@ -492,7 +492,8 @@ fn materials_textures_and_extensions() {
          }}
     ]);
     doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(&png))}]);
-    doc["samplers"] = json!([{"magFilter": 9728, "wrapS": 33071, "wrapT": 33648}]);
+    doc["samplers"] =
+        json!([{"magFilter": 9728, "minFilter": 9729, "wrapS": 33071, "wrapT": 33648}]);
     doc["textures"] = json!([{"source": 0, "sampler": 0}, {"source": 0}]);
     let scene = load(&doc).expect("loads");
     // Used materials in file order (1 "plain", 2 "fancy"), then the default.
@@ -528,11 +529,16 @@ fn materials_textures_and_extensions() {
     assert_eq!((tex.width, tex.height), (2, 1));
     assert_eq!(tex.texels.rgba8().expect("8 bits"), [[255, 0, 0, 255], [0, 0, 255, 128]]);
     assert_eq!(
-        (tex.wrap_s, tex.wrap_t, tex.nearest),
-        (Wrap::ClampToEdge, Wrap::MirroredRepeat, true)
+        (tex.wrap_s, tex.wrap_t, tex.nearest, tex.mipmaps),
+        (Wrap::ClampToEdge, Wrap::MirroredRepeat, true, false),
+        "minFilter LINEAR asks for no mipmaps"
     );
     let other = &scene.textures[normal.texture];
-    assert_eq!((other.wrap_s, other.wrap_t, other.nearest), (Wrap::Repeat, Wrap::Repeat, false));
+    assert_eq!(
+        (other.wrap_s, other.wrap_t, other.nearest, other.mipmaps),
+        (Wrap::Repeat, Wrap::Repeat, false, true),
+        "no sampler: repeat, bilinear, mipmapped"
+    );
     let plain = &scene.materials[0];
     assert_eq!(
         (plain.specular, plain.ior, plain.transmission, plain.metallic),

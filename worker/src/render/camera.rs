@@ -73,6 +73,52 @@ impl Camera {
     }
 }
 
+/// How far apart the points are that neighbouring pixels' samples see near a point, for
+/// filtering textures: pbrt-v4's `CameraBase::Approximate_dp_dxy`, which stands in for ray
+/// differentials carried along every path. The ray from the camera to the point, moved by one
+/// pixel to the right or down (its direction for a perspective camera, its origin for an
+/// orthographic one), meets the surface's plane that far from the point; the lens is ignored.
+/// The distance is scaled by max(1/8, 1/sqrt(spp)), since a pixel's samples spread over it.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelSpread {
+    camera: Camera,
+    /// max(1/8, 1/sqrt(spp)).
+    scale: f32,
+}
+
+impl PixelSpread {
+    /// The spread for `camera` rendering `spp` samples per pixel.
+    pub fn new(camera: &Camera, spp: u32) -> PixelSpread {
+        PixelSpread { camera: *camera, scale: (1.0 / (spp.max(1) as f32).sqrt()).max(0.125) }
+    }
+
+    /// dp/dx and dp/dy at the camera-relative point `p` of a surface with normal `n` (of any
+    /// length): non-finite where the moved ray runs along the plane.
+    #[inline]
+    pub fn dp(&self, p: Vec3, n: Vec3) -> [Vec3; 2] {
+        let c = &self.camera;
+        let axes = [c.to_world.x_axis, c.to_world.y_axis];
+        let step = match c.model {
+            CameraModel::Perspective { tan_half_fov } => 2.0 * tan_half_fov / c.height,
+            CameraModel::Orthographic { ymag } => 2.0 * ymag / c.height,
+        };
+        axes.map(|axis| {
+            let moved = axis * step;
+            let dp = match c.model {
+                CameraModel::Perspective { .. } => {
+                    let dir = p.normalize_or_zero() + moved;
+                    dir * (n.dot(p) / n.dot(dir)) - p
+                }
+                CameraModel::Orthographic { .. } => {
+                    let dir = -c.to_world.z_axis;
+                    moved - dir * (n.dot(moved) / n.dot(dir))
+                }
+            };
+            dp * self.scale
+        })
+    }
+}
+
 /// Where a ray leaving the camera lands on the film, and the camera's importance for it
 /// (bidirectional path tracing's light tracing connects light paths to the camera this way).
 #[derive(Clone, Copy, Debug)]

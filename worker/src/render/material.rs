@@ -2,7 +2,7 @@
 //! `Bsdf`, an emitted radiance, an alpha coverage, a normal-map perturbation (the base's and the
 //! clear coat's) and an anisotropy direction.
 
-use common::scene::{AlphaMode, Material, Texture};
+use common::scene::{AlphaMode, Material, Texture, TextureRef};
 use glam::{Vec2, Vec3, Vec4};
 
 use super::{
@@ -11,18 +11,72 @@ use super::{
     texture,
 };
 
-/// What the material needs to know about the point: texture coordinates and vertex colour.
+/// What the material needs to know about the point: texture coordinates, their footprint and
+/// the vertex colour.
 #[derive(Clone, Copy, Debug)]
 pub struct SurfacePoint {
     /// TEXCOORD_0 and TEXCOORD_1 (zero when absent).
     pub uvs: [Vec2; 2],
+    /// How wide, in each set's coordinates, the texture filter is at the point
+    /// (`PreparedScene::footprint`); 0 reads the full-size texture, as emission, coverage and
+    /// points found other than by a path always do.
+    pub footprint: [f32; 2],
     /// COLOR_0 (white when absent).
     pub color: Vec4,
 }
 
 impl SurfacePoint {
     /// A point with no texture coordinates and a white vertex colour.
-    pub const PLAIN: SurfacePoint = SurfacePoint { uvs: [Vec2::ZERO; 2], color: Vec4::ONE };
+    pub const PLAIN: SurfacePoint =
+        SurfacePoint { uvs: [Vec2::ZERO; 2], footprint: [0.0; 2], color: Vec4::ONE };
+
+    /// The point without a footprint: lookups at the full-size texture.
+    pub fn finest(&self) -> SurfacePoint {
+        SurfacePoint { footprint: [0.0; 2], ..*self }
+    }
+}
+
+/// `texture::sample` at the point's texture coordinates and footprint.
+#[inline]
+fn sample(textures: &[Texture], r: &TextureRef, sp: &SurfacePoint, srgb: bool) -> Vec4 {
+    texture::sample(textures, r, sp.uvs, sp.footprint, srgb)
+}
+
+/// Every texture the material reads through a footprint (`texture::sample` with the point's
+/// footprint; emission reads the full-size texture), and how: `f(texture, decode)`. A lookup
+/// added to this file adds its reference here.
+pub fn filtered_textures(m: &Material, mut f: impl FnMut(usize, texture::Decode)) {
+    use texture::Decode::{self, Alpha, Colour, Linear};
+    let mut each = |r: Option<&TextureRef>, d: Decode| {
+        if let Some(r) = r {
+            f(r.texture, d);
+        }
+    };
+    each(m.base_color_texture.as_ref(), Colour);
+    each(m.metallic_roughness_texture.as_ref(), Linear);
+    each(m.normal_texture.as_ref().map(|(r, _)| r), Linear);
+    each(m.specular_texture.as_ref(), Alpha);
+    each(m.specular_color_texture.as_ref(), Colour);
+    each(m.glossiness_texture.as_ref(), Alpha);
+    each(m.transmission_texture.as_ref(), Linear);
+    each(m.diffuse_transmission_texture.as_ref(), Alpha);
+    each(m.diffuse_transmission_color_texture.as_ref(), Colour);
+    if let Some(c) = &m.clearcoat {
+        each(c.texture.as_ref(), Linear);
+        each(c.roughness_texture.as_ref(), Linear);
+        each(c.normal_texture.as_ref().map(|(r, _)| r), Linear);
+    }
+    if let Some(s) = &m.sheen {
+        each(s.color_texture.as_ref(), Colour);
+        each(s.roughness_texture.as_ref(), Alpha);
+    }
+    if let Some(a) = &m.anisotropy {
+        each(a.texture.as_ref(), Linear);
+    }
+    if let Some(i) = &m.iridescence {
+        each(i.texture.as_ref(), Linear);
+        each(i.thickness_texture.as_ref(), Linear);
+    }
 }
 
 /// Base colour and alpha: factor x texture (sRGB) x vertex colour.
@@ -30,7 +84,7 @@ impl SurfacePoint {
 pub fn base_color(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec4 {
     let mut c = m.base_color * sp.color;
     if let Some(r) = &m.base_color_texture {
-        c *= texture::sample(textures, r, sp.uvs, true);
+        c *= sample(textures, r, sp, true);
     }
     c
 }
@@ -72,13 +126,13 @@ pub fn bsdf(
     let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
     if let Some(r) = &m.metallic_roughness_texture {
-        let t = texture::sample(textures, r, sp.uvs, false);
+        let t = sample(textures, r, sp, false);
         roughness *= t.y;
         metallic *= t.z;
     }
     if let Some(r) = &m.glossiness_texture {
         // A specular-glossiness material's: roughness 1 - glossiness x the texture's alpha.
-        roughness = 1.0 - (1.0 - roughness) * texture::sample(textures, r, sp.uvs, false).w;
+        roughness = 1.0 - (1.0 - roughness) * sample(textures, r, sp, false).w;
     }
     if extended && m.refracts() {
         // The relative index is the far side's over the near side's: `iors` are this volume's
@@ -93,11 +147,11 @@ pub fn bsdf(
     let metallic = metallic.clamp(0.0, 1.0);
     let mut transmission = m.transmission;
     if let Some(r) = &m.transmission_texture {
-        transmission *= texture::sample(textures, r, sp.uvs, false).x;
+        transmission *= sample(textures, r, sp, false).x;
     }
     let mut diffuse_transmission = m.diffuse_transmission;
     if let Some(r) = &m.diffuse_transmission_texture {
-        diffuse_transmission *= texture::sample(textures, r, sp.uvs, false).w;
+        diffuse_transmission *= sample(textures, r, sp, false).w;
     }
     let layered = extended
         && (m.clearcoat.is_some()
@@ -114,17 +168,17 @@ pub fn bsdf(
     }
     let (mut specular, mut specular_color) = (m.specular, m.specular_color);
     if let Some(r) = &m.specular_texture {
-        specular *= texture::sample(textures, r, sp.uvs, false).w;
+        specular *= sample(textures, r, sp, false).w;
     }
     if let Some(r) = &m.specular_color_texture {
-        specular_color *= texture::sample(textures, r, sp.uvs, true).truncate();
+        specular_color *= sample(textures, r, sp, true).truncate();
     }
     let bsdf = MetalRough::new(base, metallic, roughness, m.ior, specular, specular_color);
     let mut bsdf = bsdf.with_transmission(transmission);
     if diffuse_transmission > 0.0 {
         let mut color = m.diffuse_transmission_color;
         if let Some(r) = &m.diffuse_transmission_color_texture {
-            color *= texture::sample(textures, r, sp.uvs, true).truncate();
+            color *= sample(textures, r, sp, true).truncate();
         }
         bsdf = bsdf.with_diffuse_transmission(diffuse_transmission, color);
     }
@@ -140,20 +194,20 @@ fn layers(textures: &[Texture], m: &Material, sp: &SurfacePoint, bsdf: MetalRoug
     let sheen = m.sheen.as_ref().map(|s| {
         let (mut color, mut roughness) = (s.color, s.roughness);
         if let Some(r) = &s.color_texture {
-            color *= texture::sample(textures, r, sp.uvs, true).truncate();
+            color *= sample(textures, r, sp, true).truncate();
         }
         if let Some(r) = &s.roughness_texture {
-            roughness *= texture::sample(textures, r, sp.uvs, false).w;
+            roughness *= sample(textures, r, sp, false).w;
         }
         Sheen::new(color, roughness)
     });
     let coat = m.clearcoat.as_ref().and_then(|c| {
         let (mut weight, mut roughness) = (c.factor, c.roughness);
         if let Some(r) = &c.texture {
-            weight *= texture::sample(textures, r, sp.uvs, false).x;
+            weight *= sample(textures, r, sp, false).x;
         }
         if let Some(r) = &c.roughness_texture {
-            roughness *= texture::sample(textures, r, sp.uvs, false).y;
+            roughness *= sample(textures, r, sp, false).y;
         }
         (weight > 0.0).then(|| Coat {
             weight: weight.min(1.0),
@@ -164,11 +218,11 @@ fn layers(textures: &[Texture], m: &Material, sp: &SurfacePoint, bsdf: MetalRoug
     let iridescence = m.iridescence.as_ref().and_then(|i| {
         let mut weight = i.factor;
         if let Some(r) = &i.texture {
-            weight *= texture::sample(textures, r, sp.uvs, false).x;
+            weight *= sample(textures, r, sp, false).x;
         }
         let thickness = match &i.thickness_texture {
             Some(r) => {
-                let t = texture::sample(textures, r, sp.uvs, false).y;
+                let t = sample(textures, r, sp, false).y;
                 i.thickness_min + (i.thickness_max - i.thickness_min) * t
             }
             None => i.thickness_max,
@@ -192,7 +246,7 @@ pub fn anisotropy(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Opti
     let a = m.anisotropy.as_ref()?;
     let (mut strength, mut direction) = (a.strength, Vec2::X);
     if let Some(r) = &a.texture {
-        let t = texture::sample(textures, r, sp.uvs, false);
+        let t = sample(textures, r, sp, false);
         // A texel with no direction (RG at the middle) keeps the tangent.
         direction = Vec2::new(2.0 * t.x - 1.0, 2.0 * t.y - 1.0).try_normalize().unwrap_or(Vec2::X);
         strength *= t.z;
@@ -212,14 +266,16 @@ pub fn clearcoat_normal_map(
     sp: &SurfacePoint,
 ) -> Option<(Vec3, u32)> {
     let (r, scale) = m.clearcoat.as_ref()?.normal_texture.as_ref()?;
-    Some((tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)?, r.tex_coord))
+    Some((tangent_normal(sample(textures, r, sp, false), *scale)?, r.tex_coord))
 }
 
-/// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB).
+/// Emitted radiance (before the front/back face rule): factor x strength x texture (sRGB), read
+/// at the full-size texture whatever the point's footprint, so that a light seen by a path and
+/// the same light sampled from a point (next-event estimation) emit alike.
 #[inline]
 pub fn emission(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec3 {
     match &m.emissive_texture {
-        Some(r) => m.emissive * texture::sample(textures, r, sp.uvs, true).truncate(),
+        Some(r) => m.emissive * sample(textures, r, &sp.finest(), true).truncate(),
         None => m.emissive,
     }
 }
@@ -241,7 +297,7 @@ pub fn emission_toward(
     let cos = n.dot(w) / (n.length() * w.length());
     let mut factor = coat.factor;
     if let Some(r) = &coat.texture {
-        factor *= texture::sample(textures, r, sp.uvs, false).x;
+        factor *= sample(textures, r, &sp.finest(), false).x;
     }
     let fresnel = 0.04 + 0.96 * (1.0 - cos.abs().min(1.0)).powi(5);
     e * (1.0 - factor.clamp(0.0, 1.0) * fresnel)
@@ -252,7 +308,7 @@ pub fn emission_toward(
 #[inline]
 pub fn normal_map(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Option<(Vec3, u32)> {
     let (r, scale) = m.normal_texture.as_ref()?;
-    Some((tangent_normal(texture::sample(textures, r, sp.uvs, false), *scale)?, r.tex_coord))
+    Some((tangent_normal(sample(textures, r, sp, false), *scale)?, r.tex_coord))
 }
 
 /// A normal-map texel to a tangent-space normal, x and y scaled by `scale`.
@@ -277,6 +333,8 @@ mod tests {
             wrap_s: Wrap::Repeat,
             wrap_t: Wrap::Repeat,
             nearest: true,
+            mipmaps: false,
+            levels: Vec::new(),
         }
     }
 

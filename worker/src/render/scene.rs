@@ -16,7 +16,7 @@ use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 
 use super::{
     accel::{Accel, Hit},
-    camera::{Camera, CameraModel},
+    camera::{Camera, CameraModel, PixelSpread},
     geometry::{interpolation_error, offset_ray_origin, Ray},
     light::{
         DirectionalLight, Environment as EnvironmentLight, Light, LightChoice, LightSampler,
@@ -156,8 +156,12 @@ pub struct PreparedScene {
     pub colors: Vec<Vec4>,
     /// Materials, as loaded.
     pub materials: Vec<Material>,
-    /// Textures, as loaded.
+    /// Textures, as loaded, with mip levels where a material filters them
+    /// (`material::filtered_textures`).
     pub textures: Vec<Texture>,
+    /// The camera's pixel spread for texture footprints (`footprint`), where some texture has
+    /// mip levels (`None`: every lookup reads the full-size texture, at no cost).
+    pub spread: Option<PixelSpread>,
     /// Whether any material is alpha-tested per point (MASK with a texture or vertex colours),
     /// so that rays must ask the material before accepting a hit.
     pub alpha_tested: bool,
@@ -715,6 +719,13 @@ fn prepare_inner(
         }
         other => other,
     };
+    let mut textures = scene.textures.clone();
+    let mut uses = Vec::new();
+    for m in &scene.materials {
+        material::filtered_textures(m, |t, d| uses.push((t, d)));
+    }
+    let filtered = super::texture::add_levels(&mut textures, uses);
+    let spread = filtered.then(|| PixelSpread::new(&camera, settings.spp));
     let mut prepared = PreparedScene {
         origin,
         camera,
@@ -725,7 +736,8 @@ fn prepare_inner(
         uvs,
         colors,
         materials: scene.materials.clone(),
-        textures: scene.textures.clone(),
+        textures,
+        spread,
         alpha_tested,
         dispersive,
         scattering_media,
@@ -897,6 +909,52 @@ impl PreparedScene {
             sp.color = self.colors[i0] * b[0] + self.colors[i1] * b[1] + self.colors[i2] * b[2];
         }
         sp
+    }
+
+    /// The point of triangle `prim` (its corners at the pose's time, barycentrics `b`) as a
+    /// material sees it: `surface_point`, with the footprint of each texture coordinate set
+    /// where some texture has mip levels.
+    #[inline]
+    pub fn shading_point(&self, prim: u32, corners: [Vec3; 3], b: [f32; 3]) -> SurfacePoint {
+        let mut sp = self.surface_point(prim, b);
+        if let Some(spread) = &self.spread {
+            sp.footprint = self.footprint(spread, prim, corners, b);
+        }
+        sp
+    }
+
+    /// The width in each texture coordinate set that a texture filter covers at a point of
+    /// triangle `prim`: pbrt-v4's, twice the largest of du/dx, dv/dx, du/dy and dv/dy, with
+    /// dp/dx and dp/dy from the camera (`PixelSpread`) and the gradients of u and v over the
+    /// triangle's plane. 0 for a degenerate triangle or a set the scene lacks.
+    fn footprint(
+        &self,
+        spread: &PixelSpread,
+        prim: u32,
+        [q0, q1, q2]: [Vec3; 3],
+        b: [f32; 3],
+    ) -> [f32; 2] {
+        let (e1, e2) = (q1 - q0, q2 - q0);
+        let n = e1.cross(e2);
+        let area2 = n.length_squared();
+        if !(area2 > 0.0 && area2.is_finite()) {
+            return [0.0; 2];
+        }
+        let p = q0 * b[0] + q1 * b[1] + q2 * b[2];
+        let [dpdx, dpdy] = spread.dp(p, n);
+        // The dual basis of (e1, e2) in the plane: g1.e1 = g2.e2 = 1, g1.e2 = g2.e1 = 0.
+        let (g1, g2) = (e2.cross(n) / area2, n.cross(e1) / area2);
+        let [i0, i1, i2] = self.shading[prim as usize].vertices.map(|v| v as usize);
+        std::array::from_fn(|k| {
+            let uv = &self.uvs[k];
+            if uv.is_empty() {
+                return 0.0;
+            }
+            let (d1, d2) = (uv[i1] - uv[i0], uv[i2] - uv[i0]);
+            let (du, dv) = (g1 * d1.x + g2 * d2.x, g1 * d1.y + g2 * d2.y);
+            let widest = du.dot(dpdx).abs().max(dv.dot(dpdx).abs());
+            2.0 * widest.max(du.dot(dpdy).abs()).max(dv.dot(dpdy).abs())
+        })
     }
 
     /// The closest hit before `t_max`: the static BVH, then what moves (at the pose's time).

@@ -737,7 +737,7 @@ pub(super) fn surface_vertex(
                 }
                 Meeting::Stuck => return None,
             };
-        let sp = scene.surface_point(hit.prim, b);
+        let sp = scene.shading_point(hit.prim, [p0, p1, p2], b);
         let mut v = Vertex::new(Kind::Surface, p, *beta);
         v.ratios = *ratios;
         v.p_error = p_error;

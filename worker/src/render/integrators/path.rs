@@ -217,7 +217,7 @@ fn trace(
                 }
                 Meeting::Stuck => break,
             };
-        let sp = scene.surface_point(hit.prim, b);
+        let sp = scene.shading_point(hit.prim, [p0, p1, p2], b);
         if extended && material.unlit {
             // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on from it.
             let base = material::base_color(&scene.textures, material, &sp).truncate();

@@ -528,7 +528,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             let (dir_i, wo_i) = (dir.lane(i), wo.lane(i));
             let Some(ng_i) = c.lane(i).try_normalize() else { continue };
             let front = ng_i.dot(wo_i) > 0.0;
-            let sp = scene.surface_point(prim, b);
+            let sp = scene.shading_point(prim, corners, b);
             if let Some(light) =
                 scene.lights.lights.get(shading.light as usize).and_then(Light::on_surface)
             {

@@ -1,0 +1,114 @@
+//! Mipmapped textures: a far plane whose checker of single texels is much finer than the
+//! pixels. Every pixel's exact value is the checker's mean; filtering by the footprint must keep
+//! that mean and remove the noise that point-sampling the checker leaves at 4 samples per pixel.
+
+mod support;
+
+use common::settings::RenderSettings;
+use serde_json::json;
+use support::*;
+
+/// Texels along each side of the checker.
+const TEXELS: u32 = 128;
+/// Pixels along each side of the image: 16 texels per pixel.
+const RES: u32 = 8;
+
+/// The checker plane (unlit, so that the image is the base colour itself, 0 or 1 in linear
+/// values per texel) filling the image of `camera` ("orthographic" or "perspective", two units
+/// above it, looking down), its texture's sampler mipmapped or, with `plain`, minified linearly
+/// (`minFilter` LINEAR: no mipmaps).
+fn checker_plane(camera: &str, plain: bool) -> common::scene::Scene {
+    let positions: [[f32; 3]; 4] =
+        [[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]];
+    let uvs: [[f32; 2]; 4] = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
+    let indices: [u16; 6] = [0, 2, 1, 0, 3, 2];
+    let mut bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    bytes.extend(uvs.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+    let texels: Vec<u8> = (0..TEXELS * TEXELS)
+        .map(|i| if (i % TEXELS + i / TEXELS) % 2 == 0 { 0 } else { 255 })
+        .collect();
+    let png = grey_png(TEXELS, TEXELS, &texels);
+    let projection = match camera {
+        "orthographic" => json!({"type": "orthographic",
+            "orthographic": {"xmag": 1.0, "ymag": 1.0, "znear": 0.01, "zfar": 10.0}}),
+        // tan(yfov / 2) = 1 / 2: the plane's edges at the image's edges.
+        _ => json!({"type": "perspective",
+            "perspective": {"yfov": 2.0 * 0.5f64.atan(), "aspectRatio": 1.0, "znear": 0.01}}),
+    };
+    let sampler = if plain { json!({"minFilter": 9729}) } else { json!({}) };
+    let doc = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"name": "plane", "mesh": 0},
+            {"name": "camera", "camera": 0, "translation": [0.0, 2.0, 0.0],
+             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}
+        ],
+        "cameras": [projection],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+        "materials": [{
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+            "extensions": {"KHR_materials_unlit": {}}
+        }],
+        "extensionsUsed": ["KHR_materials_unlit"],
+        "textures": [{"source": 0, "sampler": 0}],
+        "samplers": [sampler],
+        "images": [{"uri": format!("data:image/png;base64,{}", base64(&png))}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1.0, 0.0, -1.0], "max": [1.0, 0.0, 1.0]},
+            {"bufferView": 0, "byteOffset": 48, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 80},
+            {"buffer": 0, "byteOffset": 80, "byteLength": 12}
+        ],
+        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+    });
+    let dir = std::env::temp_dir()
+        .join(format!("renderfarm-mipmaps-{}-{camera}-{plain}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("checker.gltf");
+    std::fs::write(&path, serde_json::to_string(&doc).unwrap()).unwrap();
+    common::gltf::load_path(&path).unwrap()
+}
+
+/// The image's mean and its root-mean-square distance from the exact 0.5 of every pixel.
+fn mean_and_error(scene: &common::scene::Scene, spp: u32) -> (f64, f64) {
+    let settings = RenderSettings { width: RES, height: RES, spp, seed: 7, ..Default::default() };
+    let film = render(scene, &settings);
+    let values: Vec<f64> = film.mean_rgb().iter().map(|p| p[0] as f64).collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let error = (values.iter().map(|v| (v - 0.5) * (v - 0.5)).sum::<f64>() / n).sqrt();
+    (mean, error)
+}
+
+/// Point-sampled at 4 samples per pixel, each pixel is the mean of 4 draws of texels of 0 and
+/// 1 (bilinear blends of them): about 0.1 or more from 0.5. With mipmaps, the footprint at 4
+/// samples per pixel (half a pixel, twice: 16 texels) reads level 4, whose texels are all the
+/// checker's mean, so every pixel lands within the grey level's rounding to 8-bit sRGB (188 is
+/// 0.5029) of 0.5. The mean of the image is kept in both: within that rounding with mipmaps, and
+/// within 5 standard errors of the point-sampled image's pixels without.
+#[test]
+fn mipmaps_keep_the_mean_and_remove_texture_noise_at_low_sample_counts() {
+    let rounding = 0.0035;
+    for camera in ["orthographic", "perspective"] {
+        let (plain_mean, plain_error) = mean_and_error(&checker_plane(camera, true), 4);
+        let (mip_mean, mip_error) = mean_and_error(&checker_plane(camera, false), 4);
+        let standard_error = plain_error / ((RES * RES) as f64).sqrt();
+        assert!(
+            (plain_mean - 0.5).abs() < 5.0 * standard_error,
+            "{camera}: point-sampled mean {plain_mean} (standard error {standard_error})"
+        );
+        assert!((mip_mean - 0.5).abs() < rounding, "{camera}: mipmapped mean {mip_mean}");
+        assert!(plain_error > 0.05, "{camera}: point sampling leaves noise ({plain_error})");
+        assert!(mip_error < rounding, "{camera}: mipmapped error {mip_error}");
+        // At 1,024 samples per pixel the footprint is an eighth of a pixel (4 texels, level 1
+        // to 2): the filtered image is still the checker's mean.
+        let (mean, error) = mean_and_error(&checker_plane(camera, false), 1024);
+        assert!((mean - 0.5).abs() < rounding && error < rounding, "{camera}: {mean}, {error}");
+    }
+}
