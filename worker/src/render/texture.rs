@@ -271,6 +271,26 @@ fn spans(from: u32, to: u32) -> Vec<Vec<(u32, f32)>> {
 /// row, the source rows an output row covers summed by their weights, then across.
 fn downsample(tex: &Texture, srgb: bool) -> Texture {
     let (width, height) = ((tex.width / 2).max(1), (tex.height / 2).max(1));
+    match &tex.texels {
+        Texels::Rgba8(t) if tex.width % 2 == 0 && tex.height % 2 == 0 => {
+            let texels = Texels::Rgba8(halve8(t, tex.width as usize, srgb).into());
+            Texture {
+                width,
+                height,
+                texels,
+                mipmaps: false,
+                levels: Vec::new(),
+                nearest: false,
+                ..*tex
+            }
+        }
+        _ => downsample_area(tex, srgb),
+    }
+}
+
+/// `downsample` for any size and format.
+fn downsample_area(tex: &Texture, srgb: bool) -> Texture {
+    let (width, height) = ((tex.width / 2).max(1), (tex.height / 2).max(1));
     let (xs, ys) = (spans(tex.width, width), spans(tex.height, height));
     let mut rows = vec![Vec4::ZERO; tex.width as usize];
     let mut means = Vec::with_capacity(width as usize * height as usize);
@@ -310,21 +330,60 @@ fn downsample(tex: &Texture, srgb: bool) -> Texture {
     Texture { width, height, texels, mipmaps: false, levels: Vec::new(), nearest: false, ..*tex }
 }
 
-/// Cells of `inverse_table` over [0, 1].
-const INVERSE_CELLS: usize = 1 << 16;
+/// The common case of `downsample`, 8-bit texels and even sizes: each texel the mean of a 2 x 2
+/// block in linear values, its RGB encoded by one comparison (`encode8`).
+fn halve8(texels: &[[u8; 4]], width: usize, srgb: bool) -> Vec<[u8; 4]> {
+    let (table, inverse) = (srgb_table(), inverse_table(srgb_table()));
+    let mut out = Vec::with_capacity(texels.len() / 4);
+    for rows in texels.chunks_exact(2 * width) {
+        let (top, bottom) = rows.split_at(width);
+        for (t, b) in top.chunks_exact(2).zip(bottom.chunks_exact(2)) {
+            let block = [t[0], t[1], b[0], b[1]];
+            // Linear values: the sum's quarter, ties to even, in integers.
+            let linear = |c: usize| {
+                let sum: u32 = block.iter().map(|p| p[c] as u32).sum();
+                let (q, r) = (sum >> 2, sum & 3);
+                (q + u32::from(r > 2 || (r == 2 && q & 1 == 1))) as u8
+            };
+            let colour = |c: usize| {
+                let sum: f32 = block.iter().map(|p| table[p[c] as usize]).sum();
+                encode8(sum * 0.25, table, inverse)
+            };
+            let rgb = |c: usize| if srgb { colour(c) } else { linear(c) };
+            out.push([rgb(0), rgb(1), rgb(2), linear(3)]);
+        }
+    }
+    out
+}
 
-/// For each of `INVERSE_CELLS` cells of [0, 1], the first stored value whose sRGB decoding
-/// (`table`) is at least the cell's start: where `encode` starts its search. One per table (the
-/// 8-bit and the 16-bit), built once.
+/// The 8-bit sRGB value whose decoding is nearest the linear `v` (the lower on ties): the
+/// `inverse` table's cells are narrower than the table's steps, so it is the cell's first value
+/// at or above the cell's start, or one of its neighbours.
+#[inline]
+fn encode8(v: f32, table: &[f32; 256], inverse: &[u16]) -> u8 {
+    let v = v.clamp(0.0, 1.0);
+    let i = inverse[(v * (inverse.len() - 1) as f32) as usize] as usize;
+    let mut best = i;
+    if i > 0 && v - table[i - 1] <= table[i] - v {
+        best = i - 1;
+    } else if i < 255 && table[i + 1] - v < v - table[i] {
+        best = i + 1;
+    }
+    best as u8
+}
+
+/// For each cell of [0, 1] (4,096 for the 8-bit table, narrower than its smallest step, 2^16
+/// for the 16-bit one), the first stored value whose sRGB decoding (`table`) is at least the
+/// cell's start: where `encode` starts its search. Built once per table.
 fn inverse_table(table: &'static [f32]) -> &'static [u16] {
     static EIGHT: OnceLock<Vec<u16>> = OnceLock::new();
     static SIXTEEN: OnceLock<Vec<u16>> = OnceLock::new();
-    let cell = if table.len() <= 256 { &EIGHT } else { &SIXTEEN };
+    let (cell, cells) = if table.len() <= 256 { (&EIGHT, 1 << 12) } else { (&SIXTEEN, 1 << 16) };
     cell.get_or_init(|| {
         let mut next = 0;
-        (0..INVERSE_CELLS)
+        (0..cells)
             .map(|i| {
-                let start = i as f32 / (INVERSE_CELLS - 1) as f32;
+                let start = i as f32 / (cells - 1) as f32;
                 while next + 1 < table.len() && table[next] < start {
                     next += 1;
                 }
@@ -344,7 +403,7 @@ fn encode(linear: Vec4, table: &[f32], inverse: &[u16], srgb: bool) -> [u16; 4] 
     let plain = |v: f32| (v.clamp(0.0, 1.0) * max).round_ties_even() as u16;
     let nearest = |v: f32| {
         let v = v.clamp(0.0, 1.0);
-        let mut i = inverse[(v * (INVERSE_CELLS - 1) as f32) as usize] as usize;
+        let mut i = inverse[(v * (inverse.len() - 1) as f32) as usize] as usize;
         while i + 1 < table.len() && table[i + 1] - v < v - table[i] {
             i += 1;
         }
@@ -579,5 +638,44 @@ mod tests {
         assert_eq!(built, [true, false, false, false, true]);
         let mut plain = vec![noise(8, 8, false)];
         assert!(!add_levels(&mut plain, []), "no material reads it");
+    }
+
+    /// The fast halving of even-sized 8-bit textures stores what the general area filter
+    /// stores, within one step (the two sum the same four values in another order).
+    #[test]
+    fn the_even_halving_agrees_with_the_area_filter() {
+        let tex = noise(64, 32, false);
+        for srgb in [false, true] {
+            let fast = downsample(&tex, srgb);
+            let area = downsample_area(&tex, srgb);
+            let (fast, area) = (fast.texels.rgba8().unwrap(), area.texels.rgba8().unwrap());
+            assert_eq!(fast.len(), area.len());
+            for (f, a) in fast.iter().zip(area) {
+                assert!(f.iter().zip(a).all(|(&f, &a)| f.abs_diff(a) <= 1), "{f:?} {a:?}");
+            }
+        }
+    }
+
+    /// `encode8` and `encode` find the stored value whose decoding is nearest, as a search over
+    /// every value does (the lower on ties), at and between every table value.
+    #[test]
+    fn encoding_finds_the_nearest_stored_value() {
+        let table = srgb_table();
+        let inverse = inverse_table(table);
+        let nearest = |v: f32| {
+            let distance = |i: usize| (table[i] - v.clamp(0.0, 1.0)).abs();
+            (0..256).fold(0, |best, i| if distance(i) < distance(best) { i } else { best })
+        };
+        let probes = (0..256).flat_map(|i| {
+            let t = table[i];
+            let next = table[(i + 1).min(255)];
+            [t, t + (next - t) * 0.25, (t + next) * 0.5, t + (next - t) * 0.75, next.next_down()]
+        });
+        for v in probes.chain([-1.0, 0.0, 1.0, 2.0, 1e-7]) {
+            let want = nearest(v);
+            assert_eq!(encode8(v, table, inverse) as usize, want, "{v}");
+            let v4 = Vec4::new(v, v, v, 0.0);
+            assert_eq!(encode(v4, table, inverse, true)[0] as usize, want, "{v}");
+        }
     }
 }
