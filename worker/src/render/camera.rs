@@ -78,18 +78,22 @@ impl Camera {
 /// differentials carried along every path. The ray from the camera to the point, moved by one
 /// pixel to the right or down (its direction for a perspective camera, its origin for an
 /// orthographic one), meets the surface's plane that far from the point; the lens is ignored.
-/// The distance is scaled by max(1/8, 1/sqrt(spp)), since a pixel's samples spread over it.
+/// The distance is scaled by 1/sqrt(spp), since a pixel's samples spread over it. pbrt-v4 keeps
+/// it at least 1/8; without that floor the filter narrows as the samples grow, so the image
+/// converges to the unfiltered texture's, as a renderer that point-samples textures (Cycles)
+/// does: at 256 samples per pixel the floor left DamagedHelmet at 128 x 128 (16 texels a pixel)
+/// 0.001 of relative MSE further from Cycles' converged image than without mipmaps.
 #[derive(Clone, Copy, Debug)]
 pub struct PixelSpread {
     camera: Camera,
-    /// max(1/8, 1/sqrt(spp)).
+    /// 1/sqrt(spp).
     scale: f32,
 }
 
 impl PixelSpread {
     /// The spread for `camera` rendering `spp` samples per pixel.
     pub fn new(camera: &Camera, spp: u32) -> PixelSpread {
-        PixelSpread { camera: *camera, scale: (1.0 / (spp.max(1) as f32).sqrt()).max(0.125) }
+        PixelSpread { camera: *camera, scale: 1.0 / (spp.max(1) as f32).sqrt() }
     }
 
     /// dp/dx and dp/dy at the camera-relative point `p` of a surface with normal `n` (of any
