@@ -21,13 +21,6 @@ fn plane_scene(
     light_node: Option<Value>,
     extra: impl FnOnce(&mut Value),
 ) -> std::path::PathBuf {
-    let h = HALF as f32;
-    let positions: [[f32; 3]; 4] = [[-h, 0.0, -h], [h, 0.0, -h], [h, 0.0, h], [-h, 0.0, h]];
-    let uvs: [[f32; 2]; 4] = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
-    let indices: [u16; 6] = [0, 2, 1, 0, 3, 2];
-    let mut bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-    bytes.extend(uvs.iter().flatten().flat_map(|v| v.to_le_bytes()));
-    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
     let mut json = json!({
         "asset": {"version": "2.0"},
         "scene": 0,
@@ -44,18 +37,11 @@ fn plane_scene(
             "pbrMetallicRoughness": {"baseColorFactor": [ALBEDO, ALBEDO, ALBEDO, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
             "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
         }],
-        "extensionsUsed": ["KHR_materials_specular"],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-h, 0.0, -h], "max": [h, 0.0, h]},
-            {"bufferView": 0, "byteOffset": 48, "componentType": 5126, "count": 4, "type": "VEC2"},
-            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 80},
-            {"buffer": 0, "byteOffset": 80, "byteLength": 12}
-        ],
-        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+        "extensionsUsed": ["KHR_materials_specular"]
     });
+    for (key, value) in square_geometry(HALF as f32).as_object().unwrap() {
+        json[key] = value.clone();
+    }
     if let Some(node) = light_node {
         json["nodes"].as_array_mut().unwrap().push(node);
         json["scenes"][0]["nodes"].as_array_mut().unwrap().push(json!(2));

@@ -1168,3 +1168,28 @@ pub fn grey_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
     chunk(&mut png, b"IEND", &[]);
     png
 }
+
+/// A square of half size `half` in the plane y = 0 (normal +y), texture coordinates 0 to 1
+/// over it: the glTF `accessors` (0: POSITION, 1: TEXCOORD_0, 2: indices), `bufferViews` and
+/// `buffers` of a document whose mesh reads them.
+pub fn square_geometry(half: f32) -> serde_json::Value {
+    let h = half;
+    let positions: [[f32; 3]; 4] = [[-h, 0.0, -h], [h, 0.0, -h], [h, 0.0, h], [-h, 0.0, h]];
+    let uvs: [[f32; 2]; 4] = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
+    let indices: [u16; 6] = [0, 2, 1, 0, 3, 2];
+    let mut bytes: Vec<u8> = positions.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    bytes.extend(uvs.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+    serde_json::json!({
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-h, 0.0, -h], "max": [h, 0.0, h]},
+            {"bufferView": 0, "byteOffset": 48, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 80},
+            {"buffer": 0, "byteOffset": 80, "byteLength": 12}
+        ],
+        "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
+    })
+}
