@@ -415,6 +415,17 @@ impl Material {
             || self.iridescence.is_some()
     }
 
+    /// The texture coordinate set whose tangent frame the material's shading needs: its normal
+    /// map's, else its clear coat's normal map's, else set 0 for anisotropy (whose direction is
+    /// given in that frame); `None` for a material that needs no tangents.
+    pub fn tangent_uv_set(&self) -> Option<u32> {
+        let coat = self.clearcoat.as_ref().and_then(|c| c.normal_texture);
+        match self.normal_texture.or(coat) {
+            Some((map, _)) => Some(map.tex_coord),
+            None => self.anisotropy.is_some().then_some(0),
+        }
+    }
+
     /// Whether the mesh is the boundary of a medium that light enters through it: a refractive
     /// boundary, or a volume entered by diffuse transmission (no specular transmission), as
     /// `KHR_materials_volume_scatter` recommends for dense media (skin, wax).

@@ -393,11 +393,7 @@ fn prepare_inner(
     let mut shading: Vec<TriShading> = Vec::with_capacity(scene.triangle_count());
     let mut normals: Vec<Vec3> = Vec::new();
     // Tangents orient normal maps (the clear coat's too) and anisotropy.
-    let oriented = |m: &Material| {
-        m.anisotropy.is_some()
-            || m.normal_texture.is_some()
-            || m.clearcoat.as_ref().is_some_and(|c| c.normal_texture.is_some())
-    };
+    let oriented = |m: &Material| m.tangent_uv_set().is_some();
     let keep_tangents =
         scene.materials.iter().any(oriented) && scene.meshes.iter().any(|m| m.tangents.is_some());
     let mut tangents: Vec<Vec4> = Vec::new();
