@@ -44,7 +44,8 @@ pub struct Mesh {
     pub positions: Vec<Vec3>,
     /// Vertex normals (NORMAL); `None` means flat shading from the geometric normal.
     pub normals: Option<Vec<Vec3>>,
-    /// Vertex tangents with handedness in `w` (TANGENT), used by normal maps.
+    /// Vertex tangents with handedness in `w` (TANGENT, else MikkTSpace's where the material
+    /// needs a tangent frame and the mesh has normals), used by normal maps and anisotropy.
     pub tangents: Option<Vec<Vec4>>,
     /// Texture coordinates TEXCOORD_0 and TEXCOORD_1, when present.
     pub uvs: [Option<Vec<Vec2>>; 2],

@@ -144,9 +144,9 @@ pub struct PreparedScene {
     pub shading: Vec<TriShading>,
     /// World-space vertex normals (zero when the mesh has none).
     pub normals: Vec<Vec3>,
-    /// World-space vertex tangents (TANGENT) with the bitangent's sign in `w`, kept only when a
-    /// material is normal-mapped or anisotropic and a mesh has them (else empty); zero where a
-    /// mesh has none.
+    /// World-space vertex tangents (TANGENT, or MikkTSpace's from the loader) with the
+    /// bitangent's sign in `w`, kept only when a material is normal-mapped or anisotropic and a
+    /// mesh has them (else empty); zero where a mesh has none.
     /// Those of moving placements stay in object space.
     pub tangents: Vec<Vec4>,
     /// Vertex texture coordinate sets 0 and 1; each is empty when no mesh has it, else one per
