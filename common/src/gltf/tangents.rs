@@ -170,11 +170,9 @@ impl Split {
                     copy_vertices(n, &source);
                 }
                 for target in &mut d.targets {
-                    for deltas in [&mut target.positions, &mut target.normals, &mut target.tangents]
-                    {
-                        if let Some(deltas) = deltas {
-                            copy_vertices(deltas, &source);
-                        }
+                    let deltas = [&mut target.positions, &mut target.normals, &mut target.tangents];
+                    for deltas in deltas.into_iter().flatten() {
+                        copy_vertices(deltas, &source);
                     }
                 }
                 if let Some(skin) = &mut d.skin {
