@@ -44,7 +44,8 @@ pub struct Mesh {
     pub positions: Vec<Vec3>,
     /// Vertex normals (NORMAL); `None` means flat shading from the geometric normal.
     pub normals: Option<Vec<Vec3>>,
-    /// Vertex tangents with handedness in `w` (TANGENT), used by normal maps.
+    /// Vertex tangents with handedness in `w` (TANGENT, else MikkTSpace's where the material
+    /// needs a tangent frame and the mesh has normals), used by normal maps and anisotropy.
     pub tangents: Option<Vec<Vec4>>,
     /// Texture coordinates TEXCOORD_0 and TEXCOORD_1, when present.
     pub uvs: [Option<Vec<Vec2>>; 2],
@@ -413,6 +414,17 @@ impl Material {
             || self.sheen.is_some()
             || self.anisotropy.is_some()
             || self.iridescence.is_some()
+    }
+
+    /// The texture coordinate set whose tangent frame the material's shading needs: its normal
+    /// map's, else its clear coat's normal map's, else set 0 for anisotropy (whose direction is
+    /// given in that frame); `None` for a material that needs no tangents.
+    pub fn tangent_uv_set(&self) -> Option<u32> {
+        let coat = self.clearcoat.as_ref().and_then(|c| c.normal_texture);
+        match self.normal_texture.or(coat) {
+            Some((map, _)) => Some(map.tex_coord),
+            None => self.anisotropy.is_some().then_some(0),
+        }
     }
 
     /// Whether the mesh is the boundary of a medium that light enters through it: a refractive

@@ -48,12 +48,6 @@ impl Loader<'_> {
             ),
             None => None,
         };
-        let mut worlds: HashMap<usize, DMat4> = HashMap::new();
-        for &j in skin.iter().flat_map(|s| &s.joints) {
-            if let std::collections::hash_map::Entry::Vacant(e) = worlds.entry(j) {
-                e.insert(self.rest_world(j)?);
-            }
-        }
         let deform = Deform {
             node,
             node_name: node_name.to_string(),
@@ -64,12 +58,31 @@ impl Loader<'_> {
             weights,
             skin,
         };
-        deform.pose(&deform.weights_at(None, 0.0), |j| worlds[&j], &mut built);
         built.deform = Some(Box::new(deform));
         self.meshes.push(built);
         self.mesh_materials.push(material);
         self.mesh_variant_materials.push(mappings);
-        Ok(Some(self.meshes.len() - 1))
+        let index = self.meshes.len() - 1;
+        self.pose_at_rest(index)?;
+        Ok(Some(index))
+    }
+
+    /// Poses deforming mesh `index` at rest: its node's default weights, its joints' rest
+    /// transforms.
+    pub(crate) fn pose_at_rest(&mut self, index: usize) -> Result<(), SceneError> {
+        let joints = self.meshes[index].deform.as_ref().and_then(|d| d.skin.as_ref());
+        let joints = joints.map(|s| s.joints.clone()).unwrap_or_default();
+        let mut worlds: HashMap<usize, DMat4> = HashMap::new();
+        for j in joints {
+            if let std::collections::hash_map::Entry::Vacant(e) = worlds.entry(j) {
+                e.insert(self.rest_world(j)?);
+            }
+        }
+        let mesh = &mut self.meshes[index];
+        let Some(deform) = mesh.deform.take() else { return Ok(()) };
+        deform.pose(&deform.weights_at(None, 0.0), |j| worlds[&j], mesh);
+        mesh.deform = Some(deform);
+        Ok(())
     }
 
     /// A node's rest world transform, through its ancestors (each node's computed once).

@@ -8,6 +8,7 @@ use json::accessor::Type;
 use json::mesh::{Mode, Semantic};
 use json::validation::Checked;
 
+use super::tangents::clean_tangent;
 use super::{fail, Context, Loader, SceneError};
 use crate::scene::Mesh;
 
@@ -171,9 +172,10 @@ impl Loader<'_> {
             Some(acc) => {
                 let t: Vec<Vec4> = self.read_vectors(acc, &[Type::Vec4], "TANGENT")?;
                 same_count(acc, "TANGENT", t.len())?;
-                clean_tangents(t).or_else(|| {
+                let clean: Option<Vec<Vec4>> = t.into_iter().map(clean_tangent).collect();
+                clean.or_else(|| {
                     tracing::warn!(
-                        "mesh {mesh_index} ({mesh_name}) primitive {prim_index}: TANGENT accessor {acc} has zero or non-finite tangents; tangents dropped"
+                        "mesh {mesh_index} ({mesh_name}) primitive {prim_index}: TANGENT accessor {acc} has zero or non-finite tangents; tangents dropped (generated where a material needs them)"
                     );
                     None
                 })
@@ -333,17 +335,6 @@ fn repair_normals(
         }
     }
     normals
-}
-
-/// Normalises tangent directions and snaps the handedness to ±1; `None` if any is unusable.
-fn clean_tangents(tangents: Vec<Vec4>) -> Option<Vec<Vec4>> {
-    tangents
-        .into_iter()
-        .map(|t| {
-            let dir = t.truncate().try_normalize()?;
-            t.w.is_finite().then(|| dir.extend(if t.w < 0.0 { -1.0 } else { 1.0 }))
-        })
-        .collect()
 }
 
 #[cfg(test)]

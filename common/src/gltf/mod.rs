@@ -8,7 +8,8 @@
 // (KHR_draco_mesh_compression primitives), mesh.rs (primitives), material.rs (materials, textures, images), basisu.rs (KTX2
 // images of KHR_texture_basisu),
 // nodes.rs (node tree, instances, cameras, lights, default camera), deform.rs (skins and morph
-// targets of deforming placements), animation.rs (animation channels), tests*.rs.
+// targets of deforming placements), tangents.rs (MikkTSpace tangents where a file gives none),
+// animation.rs (animation channels), tests*.rs.
 
 mod accessor;
 mod animation;
@@ -22,6 +23,7 @@ mod mesh;
 mod meshopt;
 pub(crate) mod nodes;
 pub use nodes::rigid;
+mod tangents;
 mod uri;
 
 #[cfg(test)]
@@ -32,6 +34,8 @@ mod tests_assets;
 mod tests_compression;
 #[cfg(test)]
 mod tests_deform;
+#[cfg(test)]
+mod tests_tangents;
 
 use std::borrow::Cow;
 use std::cell::{Cell, OnceCell, RefCell};
@@ -399,6 +403,7 @@ impl<'a> Loader<'a> {
         self.variants = self.variant_names().context(|| "KHR_materials_variants".into())?;
         self.load_nodes()?;
         let materials = self.load_materials()?;
+        self.generate_tangents(&materials)?;
         self.decode_images()?;
         let parents = nodes::node_parents(self.root)?;
         let animation = self.load_animation(self.animations, &parents)?;

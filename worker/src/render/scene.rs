@@ -144,9 +144,9 @@ pub struct PreparedScene {
     pub shading: Vec<TriShading>,
     /// World-space vertex normals (zero when the mesh has none).
     pub normals: Vec<Vec3>,
-    /// World-space vertex tangents (TANGENT) with the bitangent's sign in `w`, kept only when a
-    /// material is normal-mapped or anisotropic and a mesh has them (else empty); zero where a
-    /// mesh has none.
+    /// World-space vertex tangents (TANGENT, or MikkTSpace's from the loader) with the
+    /// bitangent's sign in `w`, kept only when a material is normal-mapped or anisotropic and a
+    /// mesh has them (else empty); zero where a mesh has none.
     /// Those of moving placements stay in object space.
     pub tangents: Vec<Vec4>,
     /// Vertex texture coordinate sets 0 and 1; each is empty when no mesh has it, else one per
@@ -397,11 +397,7 @@ fn prepare_inner(
     let mut shading: Vec<TriShading> = Vec::with_capacity(scene.triangle_count());
     let mut normals: Vec<Vec3> = Vec::new();
     // Tangents orient normal maps (the clear coat's too) and anisotropy.
-    let oriented = |m: &Material| {
-        m.anisotropy.is_some()
-            || m.normal_texture.is_some()
-            || m.clearcoat.as_ref().is_some_and(|c| c.normal_texture.is_some())
-    };
+    let oriented = |m: &Material| m.tangent_uv_set().is_some();
     let keep_tangents =
         scene.materials.iter().any(oriented) && scene.meshes.iter().any(|m| m.tangents.is_some());
     let mut tangents: Vec<Vec4> = Vec::new();

@@ -376,11 +376,11 @@ pub(crate) fn surface_bsdf(
     bsdf
 }
 
-/// The tangent and bitangent at barycentrics `b` of triangle `prim` from the mesh's TANGENT
-/// attribute (kept for normal-mapped and anisotropic materials): the interpolated tangent
-/// orthogonalised against
-/// `ns`, and the bitangent cross(ns, tangent) times the sign in `w`, as glTF defines it. `None`
-/// where the mesh has no tangents (or they are degenerate).
+/// The tangent and bitangent at barycentrics `b` of triangle `prim` from the mesh's tangents (its
+/// TANGENT attribute, or those the loader made; kept for normal-mapped and anisotropic
+/// materials): the interpolated tangent orthogonalised against `ns`, and the bitangent
+/// cross(ns, tangent) times the sign in `w`, as glTF defines it. `None` where the mesh has no
+/// tangents (or they are degenerate).
 fn mesh_tangent_basis(
     scene: &PreparedScene,
     prim: u32,
@@ -404,7 +404,8 @@ fn mesh_tangent_basis(
 /// The tangent and bitangent of texture space at a point of triangle `prim` with shading normal
 /// `ns`: from the derivatives (dp/du, dp/dv) of the triangle's texture coordinates of set
 /// `uv_set`, orthogonalised against `ns`. `None` without those coordinates or where they are
-/// degenerate. Normal maps and anisotropy use these where the mesh has no TANGENT attribute.
+/// degenerate. Normal maps and anisotropy use these where the mesh has no tangents: neither a
+/// TANGENT attribute nor MikkTSpace tangents from the loader (which makes none without normals).
 fn tangent_basis(
     scene: &PreparedScene,
     prim: u32,
@@ -616,7 +617,8 @@ mod tests {
 
     /// A normal map turns the normal toward the tangent of the mesh's TANGENT attribute where
     /// it has one (here along +y, its bitangent by the sign in w), and toward the tangent the
-    /// map's own texture coordinates give where it has none (+x for set 0, +y for set 1).
+    /// loader makes from the map's own texture coordinates where it has none (MikkTSpace: +x for
+    /// set 0, +y for set 1).
     #[test]
     fn normal_maps_follow_the_tangent_attribute() {
         let h = std::f32::consts::FRAC_1_SQRT_2;
@@ -628,7 +630,7 @@ mod tests {
             (Some([-1.0, 0.0, 0.0, 1.0]), true, Vec3::new(-h, 0.0, h)),
         ] {
             let scene = tilted_quad(tangent, uv1);
-            assert_eq!(scene.tangents.is_empty(), tangent.is_none());
+            assert_eq!(scene.tangents.len(), 4, "given or made, one per vertex");
             for prim in 0..2 {
                 let (tri, _) = scene.triangle(prim, None);
                 let b = [0.2, 0.3, 0.5];
