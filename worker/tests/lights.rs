@@ -21,27 +21,14 @@ fn plane_scene(
     light_node: Option<Value>,
     extra: impl FnOnce(&mut Value),
 ) -> std::path::PathBuf {
-    let mut json = json!({
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0, 1]}],
-        "nodes": [
-            {"name": "plane", "mesh": 0},
-            // Looking down -y: rotate -90 degrees about x.
-            {"name": "camera", "camera": 0, "translation": [0.0, 2.0, 0.0],
-             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}
-        ],
-        "cameras": [{"type": "orthographic", "orthographic": {"xmag": HALF, "ymag": HALF, "znear": 0.01, "zfar": 10.0}}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
-        "materials": [{
-            "pbrMetallicRoughness": {"baseColorFactor": [ALBEDO, ALBEDO, ALBEDO, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
-            "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
-        }],
-        "extensionsUsed": ["KHR_materials_specular"]
+    let camera = json!({"type": "orthographic",
+        "orthographic": {"xmag": HALF, "ymag": HALF, "znear": 0.01, "zfar": 10.0}});
+    let material = json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [ALBEDO, ALBEDO, ALBEDO, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
+        "extensions": {"KHR_materials_specular": {"specularFactor": 0.0}}
     });
-    for (key, value) in square_geometry(HALF as f32).as_object().unwrap() {
-        json[key] = value.clone();
-    }
+    let mut json = square_seen_from_above(HALF as f32, camera, material);
+    json["extensionsUsed"] = json!(["KHR_materials_specular"]);
     if let Some(node) = light_node {
         json["nodes"].as_array_mut().unwrap().push(node);
         json["scenes"][0]["nodes"].as_array_mut().unwrap().push(json!(2));

@@ -30,29 +30,15 @@ fn checker_plane(camera: &str, plain: bool) -> common::scene::Scene {
             "perspective": {"yfov": 2.0 * 0.5f64.atan(), "aspectRatio": 1.0, "znear": 0.01}}),
     };
     let sampler = if plain { json!({"minFilter": 9729}) } else { json!({}) };
-    let mut doc = json!({
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0, 1]}],
-        "nodes": [
-            {"name": "plane", "mesh": 0},
-            {"name": "camera", "camera": 0, "translation": [0.0, 2.0, 0.0],
-             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}
-        ],
-        "cameras": [projection],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
-        "materials": [{
-            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
-            "extensions": {"KHR_materials_unlit": {}}
-        }],
-        "extensionsUsed": ["KHR_materials_unlit"],
-        "textures": [{"source": 0, "sampler": 0}],
-        "samplers": [sampler],
-        "images": [{"uri": format!("data:image/png;base64,{}", base64(&png))}]
+    let material = json!({
+        "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+        "extensions": {"KHR_materials_unlit": {}}
     });
-    for (key, value) in square_geometry(1.0).as_object().unwrap() {
-        doc[key] = value.clone();
-    }
+    let mut doc = square_seen_from_above(1.0, projection, material);
+    doc["extensionsUsed"] = json!(["KHR_materials_unlit"]);
+    doc["textures"] = json!([{"source": 0, "sampler": 0}]);
+    doc["samplers"] = json!([sampler]);
+    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", base64(&png))}]);
     let dir = std::env::temp_dir()
         .join(format!("renderfarm-mipmaps-{}-{camera}-{plain}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -1169,6 +1169,33 @@ pub fn grey_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
     png
 }
 
+/// A glTF document of the square of half size `half` (`square_geometry`) in material
+/// `material`, seen by `camera` (a glTF camera) two units above its centre, looking down.
+pub fn square_seen_from_above(
+    half: f32,
+    camera: serde_json::Value,
+    material: serde_json::Value,
+) -> serde_json::Value {
+    let mut doc = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"name": "plane", "mesh": 0},
+            // Looking down -y: rotate -90 degrees about x.
+            {"name": "camera", "camera": 0, "translation": [0.0, 2.0, 0.0],
+             "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}
+        ],
+        "cameras": [camera],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+        "materials": [material]
+    });
+    for (key, value) in square_geometry(half).as_object().unwrap() {
+        doc[key] = value.clone();
+    }
+    doc
+}
+
 /// A square of half size `half` in the plane y = 0 (normal +y), texture coordinates 0 to 1
 /// over it: the glTF `accessors` (0: POSITION, 1: TEXCOORD_0, 2: indices), `bufferViews` and
 /// `buffers` of a document whose mesh reads them.
