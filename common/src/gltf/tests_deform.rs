@@ -9,9 +9,10 @@ use serde_json::{json, Value};
 use super::*;
 use crate::settings::RenderSettings;
 
-/// Buffer 0 built piece by piece, each piece a buffer view (4-byte aligned) with its accessor.
+/// Buffer 0 built piece by piece, each piece a buffer view (4-byte aligned) with its accessor
+/// (the tangent tests build their documents with it too).
 #[derive(Default)]
-struct Bin {
+pub(super) struct Bin {
     bytes: Vec<u8>,
     views: Vec<Value>,
     accessors: Vec<Value>,
@@ -27,7 +28,7 @@ impl Bin {
     }
 
     /// An accessor over a new view of `data`; `extra` is merged into it.
-    fn accessor(
+    pub(super) fn accessor(
         &mut self,
         data: &[u8],
         component: u32,
@@ -45,12 +46,12 @@ impl Bin {
         self.accessors.len() - 1
     }
 
-    fn floats(&mut self, v: &[f32], count: usize, ty: &str) -> usize {
+    pub(super) fn floats(&mut self, v: &[f32], count: usize, ty: &str) -> usize {
         let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
         self.accessor(&bytes, 5126, count, ty, json!({}))
     }
 
-    fn finish(self, mut doc: Value) -> Value {
+    pub(super) fn finish(self, mut doc: Value) -> Value {
         let uri = format!(
             "data:application/octet-stream;base64,{}",
             base64::engine::general_purpose::STANDARD.encode(&self.bytes)

@@ -2,12 +2,11 @@
 //! mirrored seam and nowhere else, a deforming mesh split consistently, which meshes get them,
 //! and agreement with the tangents a real asset's exporter baked.
 
-use base64::Engine as _;
 use glam::{Vec2, Vec3, Vec4};
 use serde_json::{json, Value};
 
-use super::tangents::mikktspace;
 use super::*;
+use super::{tangents::mikktspace, tests_deform::Bin};
 
 /// One texel (255, 128, 255): a normal map for materials that need one.
 const TEXEL_PNG: &str =
@@ -106,45 +105,6 @@ fn degenerate_triangles_get_finite_tangents() {
     }
 }
 
-/// A little-endian buffer built accessor by accessor (each with a view of its own).
-#[derive(Default)]
-struct Bin {
-    bytes: Vec<u8>,
-    views: Vec<Value>,
-    accessors: Vec<Value>,
-}
-
-impl Bin {
-    fn add(&mut self, data: &[u8], component: u32, count: usize, ty: &str) -> usize {
-        self.bytes.resize(self.bytes.len().div_ceil(4) * 4, 0);
-        self.views
-            .push(json!({"buffer": 0, "byteOffset": self.bytes.len(), "byteLength": data.len()}));
-        self.bytes.extend_from_slice(data);
-        let view = self.views.len() - 1;
-        self.accessors.push(
-            json!({"bufferView": view, "componentType": component, "count": count, "type": ty}),
-        );
-        self.accessors.len() - 1
-    }
-
-    fn floats(&mut self, values: &[f32], count: usize, ty: &str) -> usize {
-        let bytes: Vec<u8> = values.iter().flat_map(|x| x.to_le_bytes()).collect();
-        self.add(&bytes, 5126, count, ty)
-    }
-
-    fn finish(self, mut doc: Value) -> Value {
-        let data = base64::engine::general_purpose::STANDARD.encode(&self.bytes);
-        doc["asset"] = json!({"version": "2.0"});
-        doc["accessors"] = Value::Array(self.accessors);
-        doc["bufferViews"] = Value::Array(self.views);
-        doc["buffers"] = json!([{
-            "byteLength": self.bytes.len(),
-            "uri": format!("data:application/octet-stream;base64,{data}")
-        }]);
-        doc
-    }
-}
-
 /// The mirrored strip of [`a_mirrored_seam_splits_its_vertices_and_nothing_else_does`] as a
 /// glTF primitive with NORMAL and TEXCOORD_0 (and more, by `edit`, on the buffer and the
 /// primitive), material 0 normal-mapped by a one-texel image.
@@ -158,7 +118,7 @@ fn mirrored_strip(edit: impl FnOnce(&mut Bin, &mut Value)) -> Value {
     let uv = bin.floats(&uvs, 6, "VEC2");
     let indices: Vec<u8> =
         [0u16, 2, 3, 0, 3, 1, 2, 4, 5, 2, 5, 3].iter().flat_map(|i| i.to_le_bytes()).collect();
-    let indices = bin.add(&indices, 5123, 12, "SCALAR");
+    let indices = bin.accessor(&indices, 5123, 12, "SCALAR", json!({}));
     let mut primitive = json!({
         "attributes": {"POSITION": position, "NORMAL": normal, "TEXCOORD_0": uv},
         "indices": indices,
@@ -240,7 +200,8 @@ fn a_deforming_mesh_is_split_with_its_skin_and_morph_targets() {
                 .flat_map(|v| [0.3 + 0.1 * v as f32, 0.7 - 0.1 * v as f32, 0.0, 0.0])
                 .collect();
             let deltas: Vec<f32> = (0..18).map(|k| 0.01 * k as f32).collect();
-            primitive["attributes"]["JOINTS_0"] = json!(bin.add(&joints, 5121, 6, "VEC4"));
+            primitive["attributes"]["JOINTS_0"] =
+                json!(bin.accessor(&joints, 5121, 6, "VEC4", json!({})));
             primitive["attributes"]["WEIGHTS_0"] = json!(bin.floats(&weights, 6, "VEC4"));
             primitive["targets"] = json!([{"POSITION": bin.floats(&deltas, 6, "VEC3")}]);
         });
