@@ -213,6 +213,21 @@ impl Animation {
         self.nodes.get(node).is_some_and(|n| n.weights.is_some())
     }
 
+    /// Every key time of every curve (node transforms and morph target weights), unsorted, with
+    /// repeats: where a curve may turn.
+    pub fn key_times(&self) -> impl Iterator<Item = f64> + '_ {
+        self.nodes.iter().flat_map(|n| {
+            let m = n.motion.as_ref();
+            let trs = [
+                m.and_then(|m| m.translation.as_ref()).map(|c| &c.times),
+                m.and_then(|m| m.rotation.as_ref()).map(|c| &c.times),
+                m.and_then(|m| m.scale.as_ref()).map(|c| &c.times),
+            ];
+            let weights = n.weights.iter().flatten().map(|c| &c.times);
+            trs.into_iter().flatten().chain(weights).flatten().copied()
+        })
+    }
+
     /// Whether the node or one of its ancestors is animated.
     pub fn moves(&self, node: usize) -> bool {
         let mut at = Some(node);

@@ -755,36 +755,6 @@ impl Scene {
         Ok(())
     }
 
-    /// Refuses an open shutter (motion blur within a frame) where the animation deforms a mesh
-    /// (moves a joint of its skin, or animates its morph target weights) while the shutter is
-    /// open: each frame is posed at its time, but a deformation within the shutter would render
-    /// frozen at the frame's time. Several frames are fine, and so are deforming meshes that
-    /// nothing animates, and shutters that all open after the last key or close before the
-    /// first (every curve holds its end value there).
-    pub fn check_time(&self, settings: &crate::settings::RenderSettings) -> Result<(), String> {
-        let Some(anim) = &self.animation else { return Ok(()) };
-        let (open, close) = (settings.shutter.open, settings.shutter.close);
-        if open >= close {
-            return Ok(());
-        }
-        // The times any shutter of the job is open: from the first frame's opening to the
-        // last frame's closing.
-        let fps = settings.frames.fps;
-        let first = (settings.frames.start as f64 + open) / fps;
-        let last = (settings.frames.end as f64 + close) / fps;
-        if last <= anim.start || first >= anim.end {
-            return Ok(());
-        }
-        let deforming = self.meshes.iter().filter_map(|m| m.deform.as_deref());
-        match deforming.into_iter().find(|d| d.animated(anim)) {
-            Some(d) => Err(format!(
-                "{}: the animation deforms its mesh (a skin joint moves or morph target weights are animated) while the shutter is open, and motion blur of a deforming mesh is not supported yet; render with a closed shutter (shutter.open equal to shutter.close), each frame posed at its time",
-                d.node_name
-            )),
-            None => Ok(()),
-        }
-    }
-
     /// Whether instance `inst` moves with its node's animation (a skinned mesh never does: its
     /// vertices are posed in world space).
     pub fn instance_moves(&self, inst: &Instance) -> bool {

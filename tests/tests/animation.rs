@@ -369,7 +369,7 @@ fn moving_the_camera_equals_moving_the_world_the_other_way() {
 }
 
 #[test]
-fn morphing_meshes_are_posed_per_frame_and_their_motion_blur_refused_naming_the_node() {
+fn morphing_meshes_are_posed_per_frame_and_blur_to_their_exact_shutter_coverage() {
     let dir = temp_dir("anim-deform");
     let path = moving_square(&dir);
     let mut gltf: serde_json::Value =
@@ -403,21 +403,67 @@ fn morphing_meshes_are_posed_per_frame_and_their_motion_blur_refused_naming_the_
         };
         assert_eq!((span(|p| p.0), span(|p| p.1)), (cols, rows), "frame {frame}");
     }
-    // Motion blur of the morphing square is refused, naming the node.
-    let blur = dir.join("blur.json");
-    let blurred =
-        json!({"width": 16, "height": 16, "spp": 1, "shutter": {"open": 0.0, "close": 0.5}});
-    std::fs::write(&blur, blurred.to_string()).unwrap();
-    let output = Command::new(bin_dir().join("coordinator"))
-        .arg("render")
-        .arg(&morphing)
-        .arg("-o")
-        .arg(dir.join("blur.exr"))
-        .arg("--settings")
-        .arg(&blur)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
-    assert!(stderr.contains("node 0 (shape)") && stderr.contains("deforms"), "{stderr}");
+    // Deformation blur: frame 0 at fps 1 with the shutter open over [0, 1). At time t the
+    // square's centre is at x = -1 + t and its half-size 0.25 (1 + t): the node moves and the
+    // mesh grows at once, each vertex linearly in t.
+    let settings = json!({"width": 60, "height": 60, "spp": 256, "max_depth": 0,
+                          "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0}});
+    let (image, variance) = red_and_variance(&render_one(&morphing, &settings, &dir, "grow"));
+    // The exact value: the pixel's area covered, averaged over the shutter.
+    let exact = |col: usize, row: usize| {
+        let (x0, y0, w) = (-1.5 + 0.05 * col as f64, 1.5 - 0.05 * (row as f64 + 1.0), 0.05);
+        let overlap = |a: f64, lo: f64, hi: f64| ((a + w).min(hi) - a.max(lo)).max(0.0);
+        let steps = 4000;
+        let covered: f64 = (0..steps)
+            .map(|k| {
+                let t = (k as f64 + 0.5) / steps as f64;
+                let (c, h) = (-1.0 + t, 0.25 * (1.0 + t));
+                overlap(x0, c - h, c + h) * overlap(y0, -h, h)
+            })
+            .sum();
+        covered / steps as f64 / (w * w)
+    };
+    let (mut sum, mut exact_sum, mut var_sum, mut worst) = (0.0, 0.0, 0.0, 0.0f64);
+    for row in 0..60 {
+        for col in 0..60 {
+            let i = row * 60 + col;
+            let (v, e) = (image[i] as f64, exact(col, row));
+            if e == 0.0 {
+                assert_eq!(v, 0.0, "pixel ({col}, {row}) lies outside the swept area");
+            }
+            let sigma = (variance[i] as f64).sqrt();
+            assert!(
+                (v - e).abs() <= 4.0 * sigma + 0.01,
+                "pixel ({col}, {row}): {v} vs exact {e} (sigma {sigma})"
+            );
+            worst = worst.max((v - e).abs());
+            sum += v;
+            exact_sum += e;
+            var_sum += variance[i] as f64;
+        }
+    }
+    eprintln!(
+        "growing square: largest pixel error {worst:.4}, sum {sum:.3} (exact {exact_sum:.3})"
+    );
+    // The swept area: the integral of (2 h)^2 over the shutter, 7/12, in pixels of 0.0025.
+    assert!((exact_sum - 7.0 / 12.0 / 0.0025).abs() < 0.05, "{exact_sum}");
+    assert!(
+        (sum - exact_sum).abs() <= 4.0 * var_sum.sqrt() + 1e-3,
+        "the image holds {sum}, exact {exact_sum}"
+    );
+    // A frozen pose would keep the square at its frame-time size: the blur must reach the
+    // end of the shutter, where the square's right edge is at 0.5 (column 39).
+    assert!(image[30 * 60 + 38] > 0.0, "the square does not grow within the shutter");
+    // The same image on one or three workers.
+    let small = json!({"width": 24, "height": 24, "spp": 8, "samples_per_task": 2, "tile_size": 8,
+                       "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0},
+                       "environment": {"color": [0.2, 0.3, 0.4]}});
+    let (one, three) = (dir.join("one.exr"), dir.join("three.exr"));
+    render_frames(&morphing, &small, "0..1", 1, &one);
+    render_frames(&morphing, &small, "0..1", 3, &three);
+    for frame in 0..=1 {
+        let a = std::fs::read(frame_file(&one, frame)).unwrap();
+        let b = std::fs::read(frame_file(&three, frame)).unwrap();
+        assert_same_image(&a, &b, &format!("deforming frame {frame}"));
+    }
 }

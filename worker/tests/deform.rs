@@ -1,19 +1,33 @@
 //! Skinned meshes through the whole renderer: an emissive square bound to one joint that an
 //! animation moves lands, frame after frame, where the joint puts it (and not where its own
-//! node would), so a re-posed mesh is never rendered with a stale BVH.
+//! node would), so a re-posed mesh is never rendered with a stale BVH; and a bar whose joint
+//! turns within the shutter blurs along the arc, to its exact time-averaged coverage.
 
 mod support;
 
 use common::settings::RenderSettings;
 use serde_json::json;
 use support::render_prepared;
-use worker::render::scene::prepare_frame;
+use worker::render::{
+    motion::{deform_keys, KEY_TOLERANCE},
+    scene::prepare_frame,
+};
 
 /// A 0.5 x 0.5 emissive square skinned to node 2, whose translation runs from x = -1 (t = 0) to
 /// x = 1 (t = 2); the skinned node 0 sits at x = 100, which glTF says must be ignored. An
 /// orthographic camera 3 units wide looks at it from z = 5.
 fn skinned_square() -> common::scene::Scene {
-    let h = 0.25f32;
+    skinned_rect((0.25, 0.25), "translation", &[0.0, 2.0], &[-1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
+}
+
+/// An emissive rectangle of half-size `(hx, hy)` skinned to node 2, which a LINEAR channel on
+/// `path` animates (`times`, `values`); otherwise as `skinned_square`.
+fn skinned_rect(
+    (hx, hy): (f32, f32),
+    path: &str,
+    key_times: &[f32],
+    key_values: &[f32],
+) -> common::scene::Scene {
     let mut bin: Vec<u8> = Vec::new();
     let mut views = Vec::new();
     let mut piece = |bytes: Vec<u8>| {
@@ -24,12 +38,13 @@ fn skinned_square() -> common::scene::Scene {
         views.len() - 1
     };
     let floats = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
-    let positions = piece(floats(&[-h, -h, 0.0, h, -h, 0.0, h, h, 0.0, -h, h, 0.0]));
+    let positions = piece(floats(&[-hx, -hy, 0.0, hx, -hy, 0.0, hx, hy, 0.0, -hx, hy, 0.0]));
     let indices = piece([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()).collect());
     let joints = piece(vec![0u8; 16]);
     let weights = piece(floats(&[1.0, 0.0, 0.0, 0.0].repeat(4)));
-    let times = piece(floats(&[0.0, 2.0]));
-    let moves = piece(floats(&[-1.0, 0.0, 0.0, 1.0, 0.0, 0.0]));
+    let times = piece(floats(key_times));
+    let moves = piece(floats(key_values));
+    let width = key_values.len() / key_times.len();
     let uri = format!("data:application/octet-stream;base64,{}", support::base64(&bin));
     let gltf = json!({
         "asset": {"version": "2.0"},
@@ -45,20 +60,21 @@ fn skinned_square() -> common::scene::Scene {
         "materials": [{"emissiveFactor": [1.0, 1.0, 1.0], "doubleSided": true,
                         "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0]}}],
         "animations": [{
-            "channels": [{"sampler": 0, "target": {"node": 2, "path": "translation"}}],
+            "channels": [{"sampler": 0, "target": {"node": 2, "path": path}}],
             "samplers": [{"input": 4, "output": 5}]
         }],
         "buffers": [{"uri": uri, "byteLength": bin.len()}],
         "bufferViews": views,
         "accessors": [
             {"bufferView": positions, "componentType": 5126, "count": 4, "type": "VEC3",
-             "min": [-h, -h, 0.0], "max": [h, h, 0.0]},
+             "min": [-hx, -hy, 0.0], "max": [hx, hy, 0.0]},
             {"bufferView": indices, "componentType": 5123, "count": 6, "type": "SCALAR"},
             {"bufferView": joints, "componentType": 5121, "count": 4, "type": "VEC4"},
             {"bufferView": weights, "componentType": 5126, "count": 4, "type": "VEC4"},
-            {"bufferView": times, "componentType": 5126, "count": 2, "type": "SCALAR",
-             "min": [0.0], "max": [2.0]},
-            {"bufferView": moves, "componentType": 5126, "count": 2, "type": "VEC3"}
+            {"bufferView": times, "componentType": 5126, "count": key_times.len(), "type": "SCALAR",
+             "min": [key_times[0]], "max": [key_times[key_times.len() - 1]]},
+            {"bufferView": moves, "componentType": 5126, "count": key_times.len(),
+             "type": if width == 4 { "VEC4" } else { "VEC3" }}
         ]
     });
     common::gltf::load_slice(gltf.to_string().as_bytes(), &common::gltf::NoFiles).expect("loads")
@@ -92,4 +108,81 @@ fn a_skinned_square_renders_where_its_joint_puts_it_at_each_frame() {
             "frame {frame}"
         );
     }
+}
+
+/// A bar 2 x 0.1 skinned to a joint that turns a quarter turn about z over the shutter [0, 1):
+/// the pose is not linear in time, so the mesh gets keys until the chords stray less than
+/// `KEY_TOLERANCE` of its size, and the image is the bar's exact time-averaged coverage (a
+/// chord between the shutter's ends alone would shrink the bar to 1/sqrt(2) half-way).
+#[test]
+fn a_bar_whose_joint_turns_blurs_along_the_arc_to_its_exact_coverage() {
+    let (s, c) = (std::f32::consts::FRAC_PI_4.sin(), std::f32::consts::FRAC_PI_4.cos());
+    let scene =
+        skinned_rect((1.0, 0.05), "rotation", &[0.0, 1.0], &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, s, c]);
+    // The keys: more than the shutter's two ends, each chord within the tolerance.
+    let anim = scene.animation.as_ref().expect("animated");
+    let keys = deform_keys(&scene.meshes[0], anim, (0.0, 1.0));
+    let size = 2.0f64.hypot(0.1);
+    assert!(keys.len() > 4 && keys.len() < 40, "{} keys", keys.len());
+    for pair in keys.windows(2) {
+        let ((t0, a), (t1, b)) = (&pair[0], &pair[1]);
+        for k in 1..8 {
+            let f = k as f64 / 8.0;
+            let mut posed = scene.meshes[0].clone();
+            let t = t0 + (t1 - t0) * f;
+            let mut worlds = std::collections::HashMap::new();
+            let deform = posed.deform.take().unwrap();
+            let joint = anim.world_memo(2, t, &mut worlds);
+            deform.pose(&deform.weights_at(Some(anim), t), |_| joint, &mut posed);
+            for ((p, pa), pb) in posed.positions.iter().zip(&a.positions).zip(&b.positions) {
+                let line = pa.as_dvec3() + (pb.as_dvec3() - pa.as_dvec3()) * f;
+                let stray = (p.as_dvec3() - line).length();
+                assert!(stray <= 1.01 * KEY_TOLERANCE * size, "{stray} at t = {t}");
+            }
+        }
+    }
+    let settings = RenderSettings::from_json(
+        &json!({"width": 60, "height": 60, "spp": 256, "max_depth": 0,
+                "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0}})
+        .to_string(),
+    )
+    .unwrap();
+    let prepared = prepare_frame(&scene, &settings, None, 0).expect("prepare");
+    let film = render_prepared(&prepared, &settings);
+    let image = film.mean_rgb();
+    // The exact value: the share of pixel area x shutter time the turning bar covers.
+    let exact = |col: usize, row: usize| {
+        let (n, times) = (12, 256);
+        let mut covered = 0usize;
+        for k in 0..times {
+            let angle = std::f64::consts::FRAC_PI_2 * (k as f64 + 0.5) / times as f64;
+            let (sin, cos) = angle.sin_cos();
+            for j in 0..n {
+                for i in 0..n {
+                    let x = -1.5 + 0.05 * (col as f64 + (i as f64 + 0.5) / n as f64);
+                    let y = 1.5 - 0.05 * (row as f64 + (j as f64 + 0.5) / n as f64);
+                    let (u, v) = (cos * x + sin * y, -sin * x + cos * y);
+                    covered += (u.abs() <= 1.0 && v.abs() <= 0.05) as usize;
+                }
+            }
+        }
+        covered as f64 / (n * n * times) as f64
+    };
+    let mut worst = 0.0f64;
+    for row in (0..60).step_by(3) {
+        for col in (0..60).step_by(3) {
+            let i = row * 60 + col;
+            let (v, e) = (image[i][0] as f64, exact(col, row));
+            let sigma = film.pixels[i].variance_of_mean()[0].sqrt();
+            assert!((v - e).abs() <= 4.0 * sigma + 0.02, "pixel ({col}, {row}): {v} vs exact {e}");
+            worst = worst.max((v - e).abs());
+        }
+    }
+    eprintln!("turning bar: {} keys, largest pixel error {worst:.4}", keys.len());
+    // Near the tip on the diagonal (radius 0.95) the arc passes and the chord between the
+    // shutter's ends would not.
+    let (col, row) = (43, 16);
+    let tip = image[row * 60 + col][0] as f64;
+    assert!(tip > 0.03, "the bar's tip does not sweep the arc: {tip}");
+    assert!((tip - exact(col, row)).abs() <= 0.02, "tip {tip} vs exact {}", exact(col, row));
 }

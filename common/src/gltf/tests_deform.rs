@@ -1,13 +1,12 @@
 //! Skins and morph targets: posed vertices checked against hand-computed values, at rest and
-//! after `Scene::set_time`; animated weights (LINEAR, STEP, CUBICSPLINE); the motion-blur
-//! refusal; bad input named; scenes without deformation unchanged.
+//! after `Scene::set_time`; animated weights (LINEAR, STEP, CUBICSPLINE); bad input named; scenes
+//! without deformation unchanged.
 
 use base64::Engine as _;
 use glam::{DMat4, DVec3, Vec3};
 use serde_json::{json, Value};
 
 use super::*;
-use crate::settings::RenderSettings;
 
 /// Buffer 0 built piece by piece, each piece a buffer view (4-byte aligned) with its accessor
 /// (the tangent tests build their documents with it too).
@@ -179,12 +178,8 @@ fn a_skinned_quad_is_posed_by_its_joints_not_its_node() {
     for n in scene.meshes[0].normals.as_ref().unwrap() {
         assert!((*n - Vec3::Z).length() < 1e-6, "{n}");
     }
-    // Static: nothing to pose again, and an open shutter is fine.
+    // Static: nothing to pose again.
     assert!(!scene.is_animated());
-    let mut blur = RenderSettings::default();
-    blur.shutter.close = 0.5;
-    blur.frames.end = 3;
-    assert_eq!(scene.check_time(&blur), Ok(()));
 }
 
 #[test]
@@ -207,21 +202,6 @@ fn an_animated_skin_is_posed_again_at_any_time() {
     );
     // The skinned node's transform is still ignored, and the instance did not move.
     assert_eq!(scene.instances[0].transform, DMat4::from_translation(DVec3::new(0.0, 2.0, 0.0)));
-    // Several frames are fine; motion blur of the deforming mesh is refused, naming the node.
-    let mut frames = RenderSettings::default();
-    frames.frames.end = 3;
-    assert_eq!(scene.check_time(&frames), Ok(()));
-    let mut blur = frames.clone();
-    blur.shutter.close = 0.5;
-    let e = scene.check_time(&blur).unwrap_err();
-    assert_names(&e, &["node 0", "deforms", "closed shutter"]);
-    // Frames whose shutters all open after the last key (t = 1) see a still pose: no refusal.
-    // At 24 fps frame 24 opens at t = 1; frame 23's shutter closes at 23.5 / 24 < 1.
-    blur.frames.start = 24;
-    blur.frames.end = 30;
-    assert_eq!(scene.check_time(&blur), Ok(()));
-    blur.frames.start = 23;
-    assert!(scene.check_time(&blur).is_err());
 }
 
 #[test]
@@ -397,10 +377,6 @@ fn animated_weights_pose_the_mesh_at_any_time() {
     let mut cubic = load(&morphing_triangle(Some("CUBICSPLINE"))).expect("loads");
     cubic.set_time(1.0);
     assert_at(&cubic, 0, &[[0.25, 0.0, 0.5], [1.0, 0.0, 0.5]]);
-    // Motion blur of the morphing node is refused, naming it.
-    let mut blur = RenderSettings::default();
-    blur.shutter.close = 0.5;
-    assert_names(&linear.check_time(&blur).unwrap_err(), &["node 0", "deforms"]);
 }
 
 #[test]

@@ -138,10 +138,7 @@ pub fn validate_job_scene(
     loaded: Option<(&Scene, bool)>,
 ) -> FarmResult<()> {
     let bundle = Bundle::open(bundle_bytes, budget).map_err(|e| FarmError::invalid(e.0))?;
-    let shows_time = settings.frames.end > settings.frames.start
-        || settings.shutter.open < settings.shutter.close;
-    let needs_scene = shows_time
-        || settings.camera.is_some()
+    let needs_scene = settings.camera.is_some()
         || settings.lens.aperture_radius > 0.0
         || settings.integrator != Integrator::Path
         || settings.variant.is_some();
@@ -156,9 +153,6 @@ pub fn validate_job_scene(
         }
     };
     if let Some(scene) = scene {
-        if shows_time {
-            scene.check_time(settings).map_err(|e| FarmError::invalid(format!("scene: {e}")))?;
-        }
         if let Some(name) = &settings.camera {
             if !scene.cameras.iter().any(|c| &c.name == name) {
                 let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();

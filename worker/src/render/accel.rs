@@ -440,8 +440,12 @@ impl Accel {
         };
         let order = std::mem::take(&mut bvh2.primitive_indices);
         let tris: Vec<[Vec3; 3]> = order.iter().map(|&i| triangles[i as usize]).collect();
-        let (nodes, root, blocks) = collapse(&bvh2, &tris);
-        drop(bvh2);
+        (Accel::from_bvh2(&bvh2, &tris), order)
+    }
+
+    /// The wide tree of `bvh2` over `tris` (in the tree's order).
+    fn from_bvh2(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> Accel {
+        let (nodes, root, blocks) = collapse(bvh2, tris);
         let mut prim_block = vec![0u32; tris.len()];
         for (b, block) in blocks.iter().enumerate() {
             for i in 0..block.count {
@@ -449,8 +453,7 @@ impl Accel {
             }
         }
         let stack_len = stack_need(&nodes);
-        let accel = Accel { nodes, root, blocks, prim_block, stack_len };
-        (accel, order)
+        Accel { nodes, root, blocks, prim_block, stack_len }
     }
 
     /// Bytes held by the BVH nodes and the triangle vertices.
@@ -498,9 +501,11 @@ impl Accel {
         // The stack: inline and never initialised (only pushed entries are written) unless the
         // tree is very deep.
         if self.stack_len <= INLINE_STACK {
-            self.closest(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+            let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
+            self.closest(ray, t_max, &accept, stack, self.blocks.as_slice())
         } else {
-            self.closest(ray, t_max, &accept, &mut Vec::with_capacity(self.stack_len))
+            let stack = &mut Vec::with_capacity(self.stack_len);
+            self.closest(ray, t_max, &accept, stack, self.blocks.as_slice())
         }
     }
 
@@ -511,7 +516,8 @@ impl Accel {
         if self.is_empty() || self.stack_len > INLINE_STACK {
             return self.intersect(ray, t_max);
         }
-        self.closest(ray, t_max, &|_: &Hit| true, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+        let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
+        self.closest(ray, t_max, &|_: &Hit| true, stack, self.blocks.as_slice())
     }
 
     /// `occluded`, inlined into the caller.
@@ -520,7 +526,8 @@ impl Accel {
         if self.is_empty() || self.stack_len > INLINE_STACK {
             return self.occluded(ray, t_max);
         }
-        self.any(ray, t_max, &|_: &Hit| true, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+        let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
+        self.any(ray, t_max, &|_: &Hit| true, stack, self.blocks.as_slice())
     }
 
     /// Whether anything blocks the ray for `t` in (0, t_max). Stops at the first blocker.
@@ -536,9 +543,11 @@ impl Accel {
             return false;
         }
         if self.stack_len <= INLINE_STACK {
-            self.any(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new())
+            let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
+            self.any(ray, t_max, &accept, stack, self.blocks.as_slice())
         } else {
-            self.any(ray, t_max, &accept, &mut Vec::with_capacity(self.stack_len))
+            let stack = &mut Vec::with_capacity(self.stack_len);
+            self.any(ray, t_max, &accept, stack, self.blocks.as_slice())
         }
     }
 
@@ -552,6 +561,7 @@ impl Accel {
         t_max: f32,
         accept: &impl Fn(&Hit) -> bool,
         stack: &mut impl TraversalStack,
+        blocks: &(impl Blocks + ?Sized),
     ) -> Option<Hit> {
         let shear = Shear::new(ray);
         let box_ray = BoxRay::new(ray);
@@ -560,8 +570,8 @@ impl Accel {
         let mut child = self.root;
         loop {
             if child.count > 0 {
-                for block in self.leaf(child) {
-                    if let Some(hit) = shear.intersect4(block, t_best, accept) {
+                for b in leaf(child) {
+                    if let Some(hit) = shear.intersect4(&blocks.block(b), t_best, accept) {
                         t_best = hit.t;
                         best = Some(hit);
                     }
@@ -613,14 +623,15 @@ impl Accel {
         t_max: f32,
         accept: &impl Fn(&Hit) -> bool,
         stack: &mut impl TraversalStack,
+        blocks: &(impl Blocks + ?Sized),
     ) -> bool {
         let shear = Shear::new(ray);
         let box_ray = BoxRay::new(ray);
         let mut child = self.root;
         loop {
             if child.count > 0 {
-                for block in self.leaf(child) {
-                    if shear.intersect4(block, t_max, accept).is_some() {
+                for b in leaf(child) {
+                    if shear.intersect4(&blocks.block(b), t_max, accept).is_some() {
                         return true;
                     }
                 }
@@ -659,12 +670,210 @@ impl Accel {
         }
         best
     }
+}
 
-    /// The blocks of a leaf.
+/// The blocks of a leaf, as indices into its blocks.
+#[inline(always)]
+fn leaf(child: Child) -> std::ops::Range<usize> {
+    let start = child.index as usize;
+    start..start + child.count.div_ceil(4) as usize
+}
+
+/// Where the traversal finds a leaf's triangles: stored blocks (still geometry), or blocks
+/// interpolated between two keys of a deforming mesh ([`Lerped`]).
+trait Blocks {
+    /// A block as the traversal reads it: a reference, or a block worked out for the ray.
+    type Block<'a>: std::ops::Deref<Target = Tri4>
+    where
+        Self: 'a;
+    fn block(&self, i: usize) -> Self::Block<'_>;
+}
+
+impl Blocks for [Tri4] {
+    type Block<'a> = &'a Tri4;
     #[inline(always)]
-    fn leaf(&self, child: Child) -> &[Tri4] {
-        let start = child.index as usize;
-        &self.blocks[start..start + child.count.div_ceil(4) as usize]
+    fn block(&self, i: usize) -> &Tri4 {
+        &self[i]
+    }
+}
+
+/// Where a deforming mesh is between two of its keys: its vertices are `key`'s moved by `f` of
+/// the way to `key + 1`'s (`f` in [0, 1]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Between {
+    /// The key before.
+    pub key: usize,
+    /// The share of the way to the next key.
+    pub f: f32,
+}
+
+/// `a + (b - a) f`, the one interpolation of a deforming mesh's vertices: the traversal's blocks
+/// and [`KeyedAccel::triangle`] round alike, so a hit point lies on the triangle the shading
+/// sees.
+#[inline(always)]
+pub fn lerp(a: Vec3, b: Vec3, f: f32) -> Vec3 {
+    a + (b - a) * f
+}
+
+/// The triangles of a mesh that deforms within the shutter, at several keys (times), each
+/// vertex moving linearly from key to key; a ray meets them as they are at its time. One tree
+/// serves every time: each triangle enters it with the box that holds it at every key, which
+/// holds it between keys too (a point moving linearly stays in the box of its ends).
+pub struct KeyedAccel {
+    /// The tree, with key 0's triangles in its blocks.
+    accel: Accel,
+    /// The blocks of keys 1, 2, ..., laid out like key 0's.
+    keys: Vec<Vec<Tri4>>,
+}
+
+/// A leaf's blocks interpolated between two keys.
+struct Lerped<'a> {
+    from: &'a [Tri4],
+    to: &'a [Tri4],
+    f: Vec4,
+}
+
+/// A block worked out for one ray.
+struct OwnedBlock(Tri4);
+
+impl std::ops::Deref for OwnedBlock {
+    type Target = Tri4;
+    #[inline(always)]
+    fn deref(&self) -> &Tri4 {
+        &self.0
+    }
+}
+
+impl Blocks for Lerped<'_> {
+    type Block<'a>
+        = OwnedBlock
+    where
+        Self: 'a;
+    #[inline(always)]
+    fn block(&self, i: usize) -> OwnedBlock {
+        let (a, b) = (&self.from[i], &self.to[i]);
+        let v = std::array::from_fn(|k| {
+            std::array::from_fn(|axis| a.v[k][axis] + (b.v[k][axis] - a.v[k][axis]) * self.f)
+        });
+        OwnedBlock(Tri4 { v, ..*a })
+    }
+}
+
+impl KeyedAccel {
+    /// Builds the tree over `keys` (each the same triangles, as they are at one key). Returns
+    /// the structure and the order, as [`Accel::build`] does.
+    pub fn build(keys: &[Vec<[Vec3; 3]>]) -> (KeyedAccel, Vec<u32>) {
+        let n = keys.first().map_or(0, Vec::len);
+        assert!(keys.iter().all(|k| k.len() == n), "every key has the mesh's triangles");
+        if n == 0 {
+            return (KeyedAccel { accel: Accel::build(&[]).0, keys: Vec::new() }, Vec::new());
+        }
+        let boxes: Vec<obvhs::aabb::Aabb> = (0..n)
+            .map(|i| {
+                let each = keys.iter().map(|k| sah_build::triangle_box(&k[i]));
+                each.reduce(|a, b| a.union(&b)).expect("a key")
+            })
+            .collect();
+        let mut bvh2 = sah_build::build_boxes(&boxes, LEAF_PRIMS as usize);
+        let order = std::mem::take(&mut bvh2.primitive_indices);
+        let tris: Vec<[Vec3; 3]> = order.iter().map(|&i| keys[0][i as usize]).collect();
+        let accel = Accel::from_bvh2(&bvh2, &tris);
+        let later = keys[1..]
+            .iter()
+            .map(|key| {
+                let mut blocks = accel.blocks.clone();
+                for block in &mut blocks {
+                    for lane in 0..block.count as usize {
+                        let tri = key[order[block.first as usize + lane] as usize];
+                        for (k, p) in tri.iter().enumerate() {
+                            for axis in 0..3 {
+                                block.v[k][axis][lane] = p[axis];
+                            }
+                        }
+                    }
+                }
+                blocks
+            })
+            .collect();
+        (KeyedAccel { accel, keys: later }, order)
+    }
+
+    /// Number of keys.
+    pub fn key_count(&self) -> usize {
+        1 + self.keys.len()
+    }
+
+    /// Bytes held by the tree and every key's triangles.
+    pub fn memory_bytes(&self) -> usize {
+        self.accel.memory_bytes() + self.keys.len() * self.accel.blocks.len() * size_of::<Tri4>()
+    }
+
+    /// The blocks of key `k`.
+    fn key(&self, k: usize) -> &[Tri4] {
+        if k == 0 {
+            &self.accel.blocks
+        } else {
+            &self.keys[k - 1]
+        }
+    }
+
+    /// The blocks between two keys (the last key where `at` is past it).
+    fn lerped(&self, at: Between) -> Lerped<'_> {
+        let last = self.key_count() - 1;
+        let key = at.key.min(last);
+        Lerped { from: self.key(key), to: self.key((key + 1).min(last)), f: Vec4::splat(at.f) }
+    }
+
+    /// Vertices of triangle `prim` (build order) at `at`.
+    pub fn triangle(&self, prim: u32, at: Between) -> [Vec3; 3] {
+        let block = self.accel.prim_block[prim as usize] as usize;
+        let lerped = self.lerped(at);
+        let lane = (prim - lerped.from[block].first) as usize;
+        let (a, b) = (&lerped.from[block], &lerped.to[block]);
+        let vertex =
+            |t: &Tri4, k: usize| Vec3::new(t.v[k][0][lane], t.v[k][1][lane], t.v[k][2][lane]);
+        std::array::from_fn(|k| lerp(vertex(a, k), vertex(b, k), at.f))
+    }
+
+    /// The closest hit with `t` in (0, t_max) that `accept` keeps, the mesh as it is at `at`.
+    pub fn intersect_filtered(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        at: Between,
+        accept: impl Fn(&Hit) -> bool,
+    ) -> Option<Hit> {
+        let a = &self.accel;
+        if a.is_empty() {
+            return None;
+        }
+        let blocks = self.lerped(at);
+        if a.stack_len <= INLINE_STACK {
+            a.closest(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new(), &blocks)
+        } else {
+            a.closest(ray, t_max, &accept, &mut Vec::with_capacity(a.stack_len), &blocks)
+        }
+    }
+
+    /// Whether anything that `accept` keeps blocks the ray for `t` in (0, t_max), the mesh as
+    /// it is at `at`.
+    pub fn occluded_filtered(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        at: Between,
+        accept: impl Fn(&Hit) -> bool,
+    ) -> bool {
+        let a = &self.accel;
+        if a.is_empty() {
+            return false;
+        }
+        let blocks = self.lerped(at);
+        if a.stack_len <= INLINE_STACK {
+            a.any(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new(), &blocks)
+        } else {
+            a.any(ray, t_max, &accept, &mut Vec::with_capacity(a.stack_len), &blocks)
+        }
     }
 }
 
@@ -889,6 +1098,59 @@ mod tests {
                     _ => panic!("soup {soup}: bvh {a:?} vs brute force {b:?}"),
                 }
                 assert_eq!(accel.occluded(&ray, t_max), b.is_some(), "soup {soup}: occlusion");
+            }
+        }
+    }
+
+    /// A deforming soup at three keys, met at random times between them: the tree built over
+    /// the boxes of all keys finds what brute force finds over the interpolated triangles, and
+    /// the hit lies on the triangle `triangle` gives at that time.
+    #[test]
+    fn keyed_bvh_agrees_with_brute_force_between_keys() {
+        let mut rng = Rng(9);
+        for n in [1usize, 5, 40, 700] {
+            let rest: Vec<[Vec3; 3]> = (0..n)
+                .map(|_| {
+                    let c = rng.v(10.0);
+                    let size = 0.1 + rng.f() * 2.0;
+                    [c + rng.v(size), c + rng.v(size), c + rng.v(size)]
+                })
+                .collect();
+            // Key 1 moves every triangle far, key 2 squashes some to a point.
+            let shift = rng.v(8.0);
+            let k1: Vec<[Vec3; 3]> =
+                rest.iter().map(|t| t.map(|p| p + shift + rng.v(0.5))).collect();
+            let k2: Vec<[Vec3; 3]> = k1
+                .iter()
+                .enumerate()
+                .map(|(i, t)| if i % 5 == 0 { [t[0]; 3] } else { *t })
+                .collect();
+            let (keyed, order) = KeyedAccel::build(&[rest.clone(), k1.clone(), k2.clone()]);
+            assert_eq!((keyed.key_count(), order.len()), (3, n));
+            for _ in 0..1500 {
+                let at = Between { key: (rng.f() * 2.0) as usize, f: rng.f() };
+                let tris: Vec<[Vec3; 3]> = (0..n as u32).map(|p| keyed.triangle(p, at)).collect();
+                // The triangles are the input's, in build order, interpolated.
+                let keys = [&rest, &k1, &k2];
+                for (p, tri) in tris.iter().enumerate() {
+                    let (a, b) =
+                        (keys[at.key][order[p] as usize], keys[at.key + 1][order[p] as usize]);
+                    assert_eq!(*tri, std::array::from_fn(|k| lerp(a[k], b[k], at.f)));
+                }
+                let o = rng.v(30.0);
+                let dir = (rng.v(2.0) + Vec3::splat(1e-4)).normalize();
+                let ray = Ray::new(o, dir);
+                let t_max = if rng.f() < 0.3 { rng.f() * 20.0 } else { f32::INFINITY };
+                let shear = Shear::new(&ray);
+                let mut brute: Option<Hit> = None;
+                for (p, tri) in tris.iter().enumerate() {
+                    if let Some((t, b1, b2)) = shear.intersect(tri, brute.map_or(t_max, |h| h.t)) {
+                        brute = Some(Hit { prim: p as u32, t, b1, b2 });
+                    }
+                }
+                let hit = keyed.intersect_filtered(&ray, t_max, at, |_| true);
+                assert_eq!(hit.map(|h| h.t), brute.map(|h| h.t), "{n} triangles at {at:?}");
+                assert_eq!(keyed.occluded_filtered(&ray, t_max, at, |_| true), brute.is_some());
             }
         }
     }

@@ -19,19 +19,24 @@ const BINS: usize = 16;
 
 /// Builds a binary BVH over `triangles` with at most `max_leaf` primitives per leaf.
 pub fn build(triangles: &[[Vec3; 3]], max_leaf: usize) -> Bvh2 {
+    build_boxes(&triangles.iter().map(triangle_box).collect::<Vec<_>>(), max_leaf)
+}
+
+/// A triangle's bounding box.
+pub fn triangle_box(t: &[Vec3; 3]) -> Aabb {
+    let (a, b, c) = (Vec3A::from(t[0]), Vec3A::from(t[1]), Vec3A::from(t[2]));
+    Aabb { min: a.min(b).min(c), max: a.max(b).max(c) }
+}
+
+/// Builds a binary BVH over primitives given by their boxes (a deforming triangle's box holds it
+/// at every time), with at most `max_leaf` primitives per leaf.
+pub fn build_boxes(boxes: &[Aabb], max_leaf: usize) -> Bvh2 {
     let max_leaf = max_leaf.max(1);
-    let boxes: Vec<Aabb> = triangles
-        .iter()
-        .map(|t| {
-            let (a, b, c) = (Vec3A::from(t[0]), Vec3A::from(t[1]), Vec3A::from(t[2]));
-            Aabb { min: a.min(b).min(c), max: a.max(b).max(c) }
-        })
-        .collect();
     let centers: Vec<Vec3A> = boxes.iter().map(Aabb::center).collect();
-    let mut indices: Vec<u32> = (0..triangles.len() as u32).collect();
+    let mut indices: Vec<u32> = (0..boxes.len() as u32).collect();
     let mut nodes = vec![Bvh2Node::default()];
     // (node, first primitive, primitive count)
-    let mut work = vec![(0usize, 0usize, triangles.len())];
+    let mut work = vec![(0usize, 0usize, boxes.len())];
     while let Some((node, first, count)) = work.pop() {
         let range = &mut indices[first..first + count];
         let bounds = range.iter().fold(Aabb::empty(), |b, &i| b.union(&boxes[i as usize]));
@@ -39,7 +44,7 @@ pub fn build(triangles: &[[Vec3; 3]], max_leaf: usize) -> Bvh2 {
             nodes[node] = Bvh2Node::new(bounds, count as u32, first as u32);
             continue;
         }
-        let left = split(range, &boxes, &centers).unwrap_or(count / 2);
+        let left = split(range, boxes, &centers).unwrap_or(count / 2);
         let children = nodes.len();
         nodes.extend([Bvh2Node::default(), Bvh2Node::default()]);
         nodes[node] = Bvh2Node::new(bounds, 0, children as u32);

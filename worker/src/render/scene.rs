@@ -15,6 +15,7 @@ use common::{
 use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 
 use super::{
+    accel::KeyedAccel,
     accel::{Accel, Hit},
     camera::{Camera, CameraModel, PixelSpread},
     geometry::{interpolation_error, offset_ray_origin, Ray},
@@ -24,7 +25,7 @@ use super::{
     },
     material::{self, SurfacePoint},
     media::MediumStack,
-    motion::{Motion, MotionInstance, Pose},
+    motion::{deform_keys, Deforming, Motion, MotionInstance, Place, Pose, Shape},
     sampler::{mix64, to_unit},
     wavefront_tables::Tables,
 };
@@ -405,8 +406,15 @@ fn prepare_inner(
     let has_colors = scene.meshes.iter().any(|m| m.colors.is_some());
     let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
     let mut colors: Vec<Vec4> = Vec::new();
-    // With a shutter, placements that move are kept apart (object space, see `motion`).
-    let moves = |inst: &Instance| shutter.is_some() && scene.instance_moves(inst);
+    // With a shutter, placements that move or deform are kept apart (object space, see
+    // `motion`).
+    let deforms = |inst: &Instance| {
+        let mesh = &scene.meshes[inst.mesh];
+        let anim = scene.animation.as_ref();
+        mesh.deform.as_ref().is_some_and(|d| anim.is_some_and(|a| d.animated(a)))
+    };
+    let moves =
+        |inst: &Instance| shutter.is_some() && (scene.instance_moves(inst) || deforms(inst));
     let mut moving = Vec::new();
     // Which placement of which mesh each static triangle comes from: an emitter, for the light
     // choice (`LightSampler`).
@@ -580,15 +588,51 @@ fn prepare_inner(
                     }
                 }
                 let flip = inst.transform.determinant() < 0.0;
-                let local: Vec<[Vec3; 3]> = mesh
-                    .indices
-                    .iter()
-                    .map(|&[a, b, c]| {
+                let triangles_of = |positions: &[Vec3]| -> Vec<[Vec3; 3]> {
+                    let corners = |&[a, b, c]: &[u32; 3]| {
                         let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] };
-                        [a, b, c].map(|v| mesh.positions[v as usize])
-                    })
-                    .collect();
-                let (object_accel, order) = Accel::build(&local);
+                        [a, b, c].map(|v| positions[v as usize])
+                    };
+                    mesh.indices.iter().map(corners).collect()
+                };
+                let place = if scene.instance_moves(inst) {
+                    Place::Node { node: inst.node, offset: inst.offset }
+                } else {
+                    Place::Fixed(to_relative * inst.transform)
+                };
+                // The box of the mesh over the shutter (every key of a deforming one).
+                let (mut lo, mut hi) =
+                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                let (shape, order) = if deforms(inst) {
+                    let keys = deform_keys(mesh, &anim, shutter);
+                    for p in keys.iter().flat_map(|(_, k)| &k.positions) {
+                        (lo, hi) = (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()));
+                    }
+                    let tris: Vec<Vec<[Vec3; 3]>> =
+                        keys.iter().map(|(_, k)| triangles_of(&k.positions)).collect();
+                    let (accel, order) = KeyedAccel::build(&tris);
+                    drop(tris);
+                    let (times, posed): (Vec<f64>, Vec<common::scene::Mesh>) =
+                        keys.into_iter().unzip();
+                    let deforming = Deforming {
+                        accel,
+                        times,
+                        normals: posed.iter().filter_map(|k| k.normals.clone()).collect(),
+                        tangents: if keep_tangents {
+                            posed.into_iter().filter_map(|k| k.tangents).collect()
+                        } else {
+                            Vec::new()
+                        },
+                        vertex_base: base,
+                    };
+                    (Shape::Deforming(deforming), order)
+                } else {
+                    for p in &mesh.positions {
+                        (lo, hi) = (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()));
+                    }
+                    let (accel, order) = Accel::build(&triangles_of(&mesh.positions));
+                    (Shape::Rigid(accel), order)
+                };
                 let prim_base = shading.len() as u32;
                 let emits = scene.materials[mesh.material].emissive.max_element() > 0.0
                     && !scene.materials[mesh.material].unlit;
@@ -603,10 +647,6 @@ fn prepare_inner(
                         extended: scene.materials[mesh.material].extended(),
                     });
                 }
-                let (lo, hi) = mesh.positions.iter().fold(
-                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-                    |(lo, hi), p| (lo.min(p.as_dvec3()), hi.max(p.as_dvec3())),
-                );
                 let corners = std::array::from_fn(|k| {
                     DVec3::new(
                         if k & 1 == 0 { lo.x } else { hi.x },
@@ -614,16 +654,15 @@ fn prepare_inner(
                         if k & 4 == 0 { lo.z } else { hi.z },
                     )
                 });
-                let bounds = Motion::bound(&anim, shutter, &corners, |t| {
-                    to_relative * anim.world(inst.node, t) * inst.offset
-                });
-                instances.push(MotionInstance {
-                    node: inst.node,
-                    offset: inst.offset,
-                    accel: object_accel,
-                    prim_base,
-                    bounds,
-                });
+                let bounds = match place {
+                    Place::Node { node, offset } => Motion::bound(&anim, shutter, &corners, |t| {
+                        to_relative * anim.world(node, t) * offset
+                    }),
+                    Place::Fixed(m) => {
+                        Motion::bound(&anim, (shutter.0, shutter.0), &corners, |_| m)
+                    }
+                };
+                instances.push(MotionInstance { place, shape, prim_base, bounds });
             }
             let moving_camera = camera_node.filter(|&n| anim.moves(n));
             let camera = moving_camera.map(|n| (n, Camera { to_world: Mat3::IDENTITY, ..camera }));
@@ -851,14 +890,14 @@ fn media_at(
 }
 
 /// Prepares frame `frame` of a scene: a static scene once for all frames; an animated one posed at
-/// the frame's time, with what moves inside a non-empty shutter kept apart for motion blur.
+/// the frame's time, with what moves or deforms inside a non-empty shutter kept apart for motion
+/// blur.
 pub fn prepare_frame(
     scene: &Scene,
     settings: &RenderSettings,
     env_map: Option<&EnvMap>,
     frame: i64,
 ) -> Result<PreparedScene, PrepareError> {
-    scene.check_time(settings).map_err(PrepareError)?;
     if !scene.is_animated() {
         return prepare_with_environment(scene, settings, env_map);
     }
@@ -993,10 +1032,7 @@ impl PreparedScene {
     #[inline]
     pub fn triangle(&self, prim: u32, pose: Option<&Pose<'_>>) -> ([Vec3; 3], bool) {
         if let Some((i, local)) = pose.and_then(|p| p.locate(prim)) {
-            let pose = pose.expect("located");
-            let placed = pose.placed(i);
-            let tri = pose.motion().instances[i].accel.triangle(local);
-            return (tri.map(|p| placed.to_world.transform_point3(p)), true);
+            return (pose.expect("located").triangle(i, local), true);
         }
         (self.accel.triangle(prim), false)
     }
@@ -1007,11 +1043,7 @@ impl PreparedScene {
     pub fn vertex_tangent(&self, vertex: u32, prim: u32, pose: Option<&Pose<'_>>) -> Vec4 {
         let t = self.tangents[vertex as usize];
         match pose.and_then(|p| p.locate(prim)) {
-            Some((i, _)) => {
-                let to_world = pose.expect("located").placed(i).to_world;
-                let sign = if to_world.determinant() < 0.0 { -1.0 } else { 1.0 };
-                to_world.transform_vector3(t.truncate()).normalize_or_zero().extend(t.w * sign)
-            }
+            Some((i, _)) => pose.expect("located").tangent(i, vertex, t),
             None => t,
         }
     }
@@ -1021,7 +1053,7 @@ impl PreparedScene {
     pub fn vertex_normal(&self, vertex: u32, prim: u32, pose: Option<&Pose<'_>>) -> Vec3 {
         let n = self.normals[vertex as usize];
         match pose.and_then(|p| p.locate(prim)) {
-            Some((i, _)) => pose.expect("located").placed(i).normal * n,
+            Some((i, _)) => pose.expect("located").normal(i, vertex, n),
             None => n,
         }
     }
