@@ -9,7 +9,7 @@ use common::settings::RenderSettings;
 use serde_json::json;
 use support::render_prepared;
 use worker::render::{
-    motion::{deform_keys, KEY_TOLERANCE},
+    motion::{deform_keys, KEY_TOLERANCE, MAX_KEYS},
     scene::prepare_frame,
 };
 
@@ -123,7 +123,7 @@ fn a_bar_whose_joint_turns_blurs_along_the_arc_to_its_exact_coverage() {
     let anim = scene.animation.as_ref().expect("animated");
     let keys = deform_keys(&scene.meshes[0], anim, (0.0, 1.0));
     let size = 2.0f64.hypot(0.1);
-    assert!(keys.len() > 4 && keys.len() < 40, "{} keys", keys.len());
+    assert!(keys.len() > 4 && keys.len() < MAX_KEYS, "{} keys", keys.len());
     for pair in keys.windows(2) {
         let ((t0, a), (t1, b)) = (&pair[0], &pair[1]);
         for k in 1..8 {

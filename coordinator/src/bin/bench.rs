@@ -35,10 +35,16 @@
 //! scored against the closed form, and prints the others' errors at bidirectional path
 //! tracing's times (`docs/perf/integrators.md`).
 //!
+//! With `--deform` it renders deformation blur against rigid blur on the same geometry and
+//! motion: the moving placements of `scenes/cornell-motion.gltf`, and DamagedHelmet spun 30
+//! degrees within the shutter, each rendered as animated nodes (rigid) and as meshes skinned to
+//! those nodes (deforming, posed at keys), scored against the rigid render at 1024 spp
+//! (`docs/perf/motion-and-lens.md`).
+//!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights
 //! [--lamp-height 0.6] [--lamp-side 0.25]]
-//! [--materials] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]
+//! [--materials] [--deform] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]
 //! [--caustic-scene OUT.gltf]] [--rainbow]
 //! [--no-warmup]`; the figures in `docs/perf/` come from this command.
 
@@ -92,6 +98,10 @@ struct Args {
     /// `--peer-csv` files then hold runs of those scenes.
     #[arg(long)]
     materials: bool,
+    /// Only deformation blur against rigid blur on the same geometry and motion (no Cornell
+    /// box).
+    #[arg(long)]
+    deform: bool,
     /// Only the mirror caustic: the path tracer against bidirectional path tracing and photon
     /// mapping (no Cornell box).
     #[arg(long)]
@@ -234,6 +244,9 @@ fn main() -> Result<()> {
     }
     if args.materials {
         return materials(&args);
+    }
+    if args.deform {
+        return deform(&args);
     }
     let scenes = args.repo.join("scenes");
     let cornell = scenes.join("cornell-box.gltf");
@@ -442,6 +455,141 @@ fn large_scene(assets: &Path, threads: usize, out_dir: &Path) -> Result<()> {
         report.samples as f64 / report.render_seconds,
         report.rays as f64 / report.render_seconds
     );
+    Ok(())
+}
+
+/// Deformation blur against rigid blur: each scene's moving placements rendered as animated
+/// nodes (`Shape::Rigid`) and as the same meshes skinned to those nodes with weight 1 (posed at
+/// keys, `Shape::Deforming`), the same motion either way. Seconds count preparing and rendering;
+/// errors are against the rigid render at 1024 spp.
+fn deform(args: &Args) -> Result<()> {
+    use common::{
+        animation::{AnimNode, Animation, Curve, Interpolation, NodeMotion, Trs},
+        scene::{Deform, Scene, Skin},
+        settings::Environment,
+    };
+    use glam::{DMat4, DQuat, DVec3};
+    use worker::render::{motion::Shape, scene::prepare_frame};
+
+    // The scene with every moving placement's mesh skinned to its node instead.
+    let skinned = |scene: &Scene| -> Scene {
+        let mut out = scene.clone();
+        for (inst, original) in out.instances.iter_mut().zip(&scene.instances) {
+            if !scene.instance_moves(original) {
+                continue;
+            }
+            let mut mesh = scene.meshes[inst.mesh].clone();
+            let n = mesh.positions.len();
+            mesh.deform = Some(Box::new(Deform {
+                node: inst.node,
+                node_name: format!("node {}", inst.node),
+                rest_positions: mesh.positions.clone(),
+                rest_normals: mesh.normals.clone(),
+                rest_tangents: mesh.tangents.clone(),
+                skin: Some(Skin {
+                    joints: vec![inst.node],
+                    inverse_binds: vec![inst.offset],
+                    influences: 4,
+                    vertex_joints: vec![0; 4 * n],
+                    vertex_weights: [1.0, 0.0, 0.0, 0.0].repeat(n),
+                    ..Skin::default()
+                }),
+                ..Deform::default()
+            }));
+            out.meshes.push(mesh);
+            inst.mesh = out.meshes.len() - 1;
+            inst.transform = DMat4::IDENTITY;
+            inst.offset = DMat4::IDENTITY;
+        }
+        out
+    };
+    let cornell = {
+        let scenes = args.repo.join("scenes");
+        let scene = common::gltf::load_path(&scenes.join("cornell-motion.gltf"))?;
+        let settings = RenderSettings::from_json(&std::fs::read_to_string(
+            scenes.join("cornell-motion.settings.json"),
+        )?)
+        .map_err(anyhow::Error::msg)?;
+        ("cornell-motion", scene, settings)
+    };
+    let helmet = {
+        let path = args.repo.join("tests/assets/real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb");
+        let mut scene = common::gltf::load_path(&path)?;
+        // Every placement's node turns 30 degrees about the world's y axis over [0, 1].
+        let count = scene.instances.iter().map(|i| i.node + 1).max().unwrap_or(0);
+        let still = AnimNode {
+            parent: None,
+            rest: DMat4::IDENTITY,
+            rest_trs: Trs {
+                translation: DVec3::ZERO,
+                rotation: DQuat::IDENTITY,
+                scale: DVec3::ONE,
+            },
+            motion: None,
+            weights: None,
+        };
+        let mut nodes = vec![still; count];
+        for inst in &scene.instances {
+            let (scale, rotation, translation) = inst.transform.to_scale_rotation_translation();
+            let turned = DQuat::from_rotation_y(30f64.to_radians()) * rotation;
+            nodes[inst.node] = AnimNode {
+                parent: None,
+                rest: inst.transform,
+                rest_trs: Trs { translation, rotation, scale },
+                motion: Some(NodeMotion {
+                    rotation: Some(Curve {
+                        times: vec![0.0, 1.0],
+                        values: vec![rotation, turned],
+                        interpolation: Interpolation::Linear,
+                    }),
+                    ..NodeMotion::default()
+                }),
+                weights: None,
+            };
+        }
+        scene.animation = Some(Animation { nodes, start: 0.0, end: 1.0 });
+        let mut settings = RenderSettings { width: 128, height: 128, ..Default::default() };
+        settings.environment = Some(Environment::Color { color: [1.0, 1.0, 1.0] });
+        settings.shutter.close = 1.0;
+        settings.frames.fps = 1.0;
+        ("helmet-spin", scene, settings)
+    };
+    println!("scene,blur,spp,seconds,prepare_seconds,relmse,keys,triangles");
+    for (name, rigid, base) in [cornell, helmet] {
+        let deforming = skinned(&rigid);
+        let frame = base.frames.start;
+        let reference = {
+            let settings = RenderSettings { spp: 1024, ..base.clone() };
+            let prepared = prepare_frame(&rigid, &settings, None, frame)?;
+            render_prepared(&prepared, &settings, args.threads)
+        };
+        let spps = if args.spp.is_empty() { &[16, 64, 256][..] } else { &args.spp };
+        for &spp in spps {
+            for (blur, scene) in [("rigid", &rigid), ("deforming", &deforming)] {
+                let settings = RenderSettings { spp, ..base.clone() };
+                let start = Instant::now();
+                let prepared = prepare_frame(scene, &settings, None, frame)?;
+                let prepare_seconds = start.elapsed().as_secs_f64();
+                let image = render_prepared(&prepared, &settings, args.threads);
+                let seconds = start.elapsed().as_secs_f64();
+                let (_, rel_mse) = metrics(&image, &reference);
+                let moving = prepared.motion.iter().flat_map(|m| &m.instances);
+                let (mut keys, mut triangles) = (0, 0);
+                for inst in moving {
+                    match &inst.shape {
+                        Shape::Rigid(a) => triangles += a.len(),
+                        Shape::Deforming(d) => {
+                            keys = keys.max(d.times.len());
+                            triangles += d.accel.len();
+                        }
+                    }
+                }
+                println!(
+                    "{name},{blur},{spp},{seconds:.4},{prepare_seconds:.4},{rel_mse:.6e},{keys},{triangles}"
+                );
+            }
+        }
+    }
     Ok(())
 }
 

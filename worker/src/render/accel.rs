@@ -798,6 +798,16 @@ impl KeyedAccel {
         (KeyedAccel { accel, keys: later }, order)
     }
 
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.accel.len()
+    }
+
+    /// True when there is nothing to hit.
+    pub fn is_empty(&self) -> bool {
+        self.accel.is_empty()
+    }
+
     /// Number of keys.
     pub fn key_count(&self) -> usize {
         1 + self.keys.len()

@@ -101,7 +101,7 @@ impl Deforming {
 /// The largest distance a deforming mesh's vertex may stray between two keys from the straight
 /// line between them, as a share of the mesh's size (the diagonal of its box at the shutter's
 /// opening), checked at each interval's midpoint.
-pub const KEY_TOLERANCE: f64 = 1e-3;
+pub const KEY_TOLERANCE: f64 = 2.5e-4;
 
 /// The most keys a deforming mesh gets within one shutter.
 pub const MAX_KEYS: usize = 65;
