@@ -89,9 +89,12 @@ const GROUPS: usize = WIDTH / 4;
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
 struct Node {
-    bounds: [[Vec4; GROUPS]; 6],
+    bounds: Bounds,
     children: [Child; WIDTH],
 }
+
+/// A node's children's boxes (see `Node`).
+type Bounds = [[Vec4; GROUPS]; 6];
 
 impl Node {
     /// The slots that hold a child (an empty slot has an infinite lower bound).
@@ -136,8 +139,7 @@ impl BoxRay {
     /// (0, t_max]. Exit distances are scaled by 1 + 2 gamma(3) (pbrt-v4) so that rounding
     /// never drops a box the ray grazes.
     #[inline(always)]
-    fn test(&self, node: &Node, t_max: f32) -> ([f32; WIDTH], u32) {
-        let b = &node.bounds;
+    fn test(&self, b: &Bounds, t_max: f32) -> ([f32; WIDTH], u32) {
         let mut t_enter = [0.0; WIDTH];
         let mut mask = 0;
         for g in 0..GROUPS {
@@ -440,12 +442,12 @@ impl Accel {
         };
         let order = std::mem::take(&mut bvh2.primitive_indices);
         let tris: Vec<[Vec3; 3]> = order.iter().map(|&i| triangles[i as usize]).collect();
-        (Accel::from_bvh2(&bvh2, &tris), order)
+        (Accel::from_bvh2(&bvh2, &tris).0, order)
     }
 
     /// The wide tree of `bvh2` over `tris` (in the tree's order).
-    fn from_bvh2(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> Accel {
-        let (nodes, root, blocks) = collapse(bvh2, tris);
+    fn from_bvh2(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Accel, Sources) {
+        let (nodes, root, blocks, sources) = collapse(bvh2, tris);
         let mut prim_block = vec![0u32; tris.len()];
         for (b, block) in blocks.iter().enumerate() {
             for i in 0..block.count {
@@ -453,7 +455,7 @@ impl Accel {
             }
         }
         let stack_len = stack_need(&nodes);
-        Accel { nodes, root, blocks, prim_block, stack_len }
+        (Accel { nodes, root, blocks, prim_block, stack_len }, sources)
     }
 
     /// Bytes held by the BVH nodes and the triangle vertices.
@@ -578,7 +580,8 @@ impl Accel {
                 }
             } else {
                 let node = &self.nodes[child.index as usize];
-                let (t_enter, mask) = box_ray.test(node, t_best);
+                let (t_enter, mask) =
+                    box_ray.test(&blocks.bounds(child.index as usize, node), t_best);
                 if mask != 0 {
                     // The child that would come out on top of the stack is the one visited next:
                     // the nearest, the later slot on ties.
@@ -637,7 +640,7 @@ impl Accel {
                 }
             } else {
                 let node = &self.nodes[child.index as usize];
-                let (_, mut mask) = box_ray.test(node, t_max);
+                let (_, mut mask) = box_ray.test(&blocks.bounds(child.index as usize, node), t_max);
                 if mask != 0 {
                     let first = mask.trailing_zeros() as usize;
                     mask &= mask - 1;
@@ -679,21 +682,32 @@ fn leaf(child: Child) -> std::ops::Range<usize> {
     start..start + child.count.div_ceil(4) as usize
 }
 
-/// Where the traversal finds a leaf's triangles: stored blocks (still geometry), or blocks
-/// interpolated between two keys of a deforming mesh ([`Lerped`]).
+/// Where the traversal finds a node's boxes and a leaf's triangles: stored in the tree (still
+/// geometry), or interpolated between two keys of a deforming mesh ([`Lerped`]).
 trait Blocks {
     /// A block as the traversal reads it: a reference, or a block worked out for the ray.
     type Block<'a>: std::ops::Deref<Target = Tri4>
     where
         Self: 'a;
+    /// A node's boxes as the traversal reads them.
+    type Bounds<'a>: std::ops::Deref<Target = Bounds>
+    where
+        Self: 'a;
     fn block(&self, i: usize) -> Self::Block<'_>;
+    /// The boxes of node `index` of the tree, `node` itself.
+    fn bounds<'a>(&'a self, index: usize, node: &'a Node) -> Self::Bounds<'a>;
 }
 
 impl Blocks for [Tri4] {
     type Block<'a> = &'a Tri4;
+    type Bounds<'a> = &'a Bounds;
     #[inline(always)]
     fn block(&self, i: usize) -> &Tri4 {
         &self[i]
+    }
+    #[inline(always)]
+    fn bounds<'a>(&'a self, _: usize, node: &'a Node) -> &'a Bounds {
+        &node.bounds
     }
 }
 
@@ -717,20 +731,44 @@ pub fn lerp(a: Vec3, b: Vec3, f: f32) -> Vec3 {
 
 /// The triangles of a mesh that deforms within the shutter, at several keys (times), each
 /// vertex moving linearly from key to key; a ray meets them as they are at its time. One tree
-/// serves every time: each triangle enters it with the box that holds it at every key, which
-/// holds it between keys too (a point moving linearly stays in the box of its ends).
+/// serves every time: it is built over the boxes that hold each triangle at every key, and keeps
+/// each node's boxes at each key, which the traversal interpolates to the ray's time as it does
+/// the triangles (as Cycles' motion BVH does), so a ray tests boxes as tight at its time as the
+/// keys' own.
 pub struct KeyedAccel {
-    /// The tree, with key 0's triangles in its blocks.
+    /// The tree, with key 0's triangles in its blocks and boxes that hold every key.
     accel: Accel,
     /// The blocks of keys 1, 2, ..., laid out like key 0's.
     keys: Vec<Vec<Tri4>>,
+    /// Each node's boxes at each key (key after key, node after node), which the traversal
+    /// interpolates like the triangles: a point moving linearly between two boxes stays in the
+    /// box between them, so the interpolated box holds the interpolated triangles. Each is grown
+    /// by `KEY_BOX_PAD` of its coordinates' magnitude, more than the interpolation's rounding.
+    bounds: Vec<Vec<Bounds>>,
 }
 
-/// A leaf's blocks interpolated between two keys.
+/// How far each key's boxes are grown, relative to the magnitude of their coordinates:
+/// interpolating a coordinate rounds it by at most about 2 epsilon of the larger end's.
+const KEY_BOX_PAD: f32 = 16.0 * f32::EPSILON;
+
+/// A node's boxes and a leaf's blocks interpolated between two keys.
 struct Lerped<'a> {
     from: &'a [Tri4],
     to: &'a [Tri4],
+    from_bounds: &'a [Bounds],
+    to_bounds: &'a [Bounds],
     f: Vec4,
+}
+
+/// A node's boxes worked out for one ray.
+struct OwnedBounds(Bounds);
+
+impl std::ops::Deref for OwnedBounds {
+    type Target = Bounds;
+    #[inline(always)]
+    fn deref(&self) -> &Bounds {
+        &self.0
+    }
 }
 
 /// A block worked out for one ray.
@@ -749,6 +787,17 @@ impl Blocks for Lerped<'_> {
         = OwnedBlock
     where
         Self: 'a;
+    type Bounds<'a>
+        = OwnedBounds
+    where
+        Self: 'a;
+    #[inline(always)]
+    fn bounds(&self, index: usize, _: &Node) -> OwnedBounds {
+        let (a, b) = (&self.from_bounds[index], &self.to_bounds[index]);
+        OwnedBounds(std::array::from_fn(|k| {
+            std::array::from_fn(|g| a[k][g] + (b[k][g] - a[k][g]) * self.f)
+        }))
+    }
     #[inline(always)]
     fn block(&self, i: usize) -> OwnedBlock {
         let (a, b) = (&self.from[i], &self.to[i]);
@@ -766,7 +815,9 @@ impl KeyedAccel {
         let n = keys.first().map_or(0, Vec::len);
         assert!(keys.iter().all(|k| k.len() == n), "every key has the mesh's triangles");
         if n == 0 {
-            return (KeyedAccel { accel: Accel::build(&[]).0, keys: Vec::new() }, Vec::new());
+            let empty =
+                KeyedAccel { accel: Accel::build(&[]).0, keys: Vec::new(), bounds: Vec::new() };
+            return (empty, Vec::new());
         }
         let boxes: Vec<obvhs::aabb::Aabb> = (0..n)
             .map(|i| {
@@ -777,7 +828,54 @@ impl KeyedAccel {
         let mut bvh2 = sah_build::build_boxes(&boxes, LEAF_PRIMS as usize);
         let order = std::mem::take(&mut bvh2.primitive_indices);
         let tris: Vec<[Vec3; 3]> = order.iter().map(|&i| keys[0][i as usize]).collect();
-        let accel = Accel::from_bvh2(&bvh2, &tris);
+        let (accel, sources) = Accel::from_bvh2(&bvh2, &tris);
+        // The binary nodes children first (the reverse of a depth-first order), for their boxes.
+        let mut preorder = Vec::with_capacity(bvh2.nodes.len());
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            preorder.push(i);
+            let node = &bvh2.nodes[i];
+            if !node.is_leaf() {
+                stack.extend([node.first_index as usize, node.first_index as usize + 1]);
+            }
+        }
+        let bounds = keys
+            .iter()
+            .map(|key| {
+                let mut boxes = vec![obvhs::aabb::Aabb::empty(); bvh2.nodes.len()];
+                for &i in preorder.iter().rev() {
+                    let node = &bvh2.nodes[i];
+                    let first = node.first_index as usize;
+                    boxes[i] = if node.is_leaf() {
+                        (first..first + node.prim_count as usize)
+                            .map(|p| sah_build::triangle_box(&key[order[p] as usize]))
+                            .fold(obvhs::aabb::Aabb::empty(), |a, b| a.union(&b))
+                    } else {
+                        boxes[first].union(&boxes[first + 1])
+                    };
+                }
+                let padded = |i: u32| {
+                    let union = &bvh2.nodes[i as usize].aabb;
+                    let pad = union.min.abs().max(union.max.abs()) * KEY_BOX_PAD;
+                    (boxes[i as usize].min - pad, boxes[i as usize].max + pad)
+                };
+                let wide = |slots: &[u32; WIDTH]| {
+                    // An empty slot's box is finite and inside out (infinities would interpolate
+                    // to NaN, which the box test's max and min would drop).
+                    let (lower, upper) = ([Vec4::MAX; GROUPS], [Vec4::splat(-f32::MAX); GROUPS]);
+                    let mut b: Bounds = [lower, upper, lower, upper, lower, upper];
+                    for (slot, &i) in slots.iter().enumerate().filter(|(_, &i)| i != u32::MAX) {
+                        let (lo, hi) = padded(i);
+                        for axis in 0..3 {
+                            b[2 * axis][slot / 4][slot % 4] = lo[axis];
+                            b[2 * axis + 1][slot / 4][slot % 4] = hi[axis];
+                        }
+                    }
+                    b
+                };
+                sources.iter().map(wide).collect()
+            })
+            .collect();
         let later = keys[1..]
             .iter()
             .map(|key| {
@@ -795,7 +893,7 @@ impl KeyedAccel {
                 blocks
             })
             .collect();
-        (KeyedAccel { accel, keys: later }, order)
+        (KeyedAccel { accel, keys: later, bounds }, order)
     }
 
     /// Number of triangles.
@@ -815,7 +913,9 @@ impl KeyedAccel {
 
     /// Bytes held by the tree and every key's triangles.
     pub fn memory_bytes(&self) -> usize {
-        self.accel.memory_bytes() + self.keys.len() * self.accel.blocks.len() * size_of::<Tri4>()
+        self.accel.memory_bytes()
+            + self.keys.len() * self.accel.blocks.len() * size_of::<Tri4>()
+            + self.bounds.len() * self.accel.nodes.len() * size_of::<Bounds>()
     }
 
     /// The blocks of key `k`.
@@ -831,7 +931,14 @@ impl KeyedAccel {
     fn lerped(&self, at: Between) -> Lerped<'_> {
         let last = self.key_count() - 1;
         let key = at.key.min(last);
-        Lerped { from: self.key(key), to: self.key((key + 1).min(last)), f: Vec4::splat(at.f) }
+        let next = (key + 1).min(last);
+        Lerped {
+            from: self.key(key),
+            to: self.key(next),
+            from_bounds: &self.bounds[key],
+            to_bounds: &self.bounds[next],
+            f: Vec4::splat(at.f),
+        }
     }
 
     /// Vertices of triangle `prim` (build order) at `at`.
@@ -986,9 +1093,12 @@ impl TraversalStack for Vec<Entry> {
     }
 }
 
-/// Collapses a binary BVH into `WIDTH`-wide nodes. Returns the nodes, the root and the leaf
-/// blocks. Iterative: a degenerate binary tree may be deep.
-fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>) {
+/// The binary node each slot of each wide node holds (`u32::MAX` for an empty slot).
+type Sources = Vec<[u32; WIDTH]>;
+
+/// Collapses a binary BVH into `WIDTH`-wide nodes. Returns the nodes, the root, the leaf
+/// blocks and each slot's binary node. Iterative: a degenerate binary tree may be deep.
+fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>, Sources) {
     let mut blocks = Vec::with_capacity(tris.len().div_ceil(2));
     let mut leaf = |i: usize| {
         let n = &bvh2.nodes[i];
@@ -1009,7 +1119,7 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>) {
     };
     if bvh2.nodes[0].is_leaf() {
         let root = leaf(0);
-        return (Vec::new(), root, blocks);
+        return (Vec::new(), root, blocks, Vec::new());
     }
     let (lower, upper) = ([Vec4::INFINITY; GROUPS], [Vec4::NEG_INFINITY; GROUPS]);
     let empty = Node {
@@ -1017,6 +1127,7 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>) {
         children: [Child::default(); WIDTH],
     };
     let mut nodes = vec![empty];
+    let mut sources = vec![[u32::MAX; WIDTH]];
     // (binary node, wide node to fill)
     let mut work = vec![(0usize, 0usize)];
     while let Some((n2, n4)) = work.pop() {
@@ -1040,6 +1151,7 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>) {
         }
         let mut node = empty;
         for (slot, &k) in kids.iter().enumerate() {
+            sources[n4][slot] = k as u32;
             let b = &bvh2.nodes[k].aabb;
             for axis in 0..3 {
                 node.bounds[2 * axis][slot / 4][slot % 4] = b.min[axis];
@@ -1049,13 +1161,14 @@ fn collapse(bvh2: &Bvh2, tris: &[[Vec3; 3]]) -> (Vec<Node>, Child, Vec<Tri4>) {
                 leaf(k)
             } else {
                 nodes.push(empty);
+                sources.push([u32::MAX; WIDTH]);
                 work.push((k, nodes.len() - 1));
                 Child { index: (nodes.len() - 1) as u32, count: 0 }
             };
         }
         nodes[n4] = node;
     }
-    (nodes, Child { index: 0, count: 0 }, blocks)
+    (nodes, Child { index: 0, count: 0 }, blocks, sources)
 }
 
 #[cfg(test)]
@@ -1118,10 +1231,11 @@ mod tests {
     #[test]
     fn keyed_bvh_agrees_with_brute_force_between_keys() {
         let mut rng = Rng(9);
-        for n in [1usize, 5, 40, 700] {
+        // Far from the origin too, where the interpolation's rounding is largest.
+        for (n, far) in [(1usize, 0.0), (5, 0.0), (40, 0.0), (700, 0.0), (300, 5e3)] {
             let rest: Vec<[Vec3; 3]> = (0..n)
                 .map(|_| {
-                    let c = rng.v(10.0);
+                    let c = rng.v(10.0) + Vec3::splat(far);
                     let size = 0.1 + rng.f() * 2.0;
                     [c + rng.v(size), c + rng.v(size), c + rng.v(size)]
                 })
@@ -1147,7 +1261,7 @@ mod tests {
                         (keys[at.key][order[p] as usize], keys[at.key + 1][order[p] as usize]);
                     assert_eq!(*tri, std::array::from_fn(|k| lerp(a[k], b[k], at.f)));
                 }
-                let o = rng.v(30.0);
+                let o = rng.v(30.0) + Vec3::splat(far);
                 let dir = (rng.v(2.0) + Vec3::splat(1e-4)).normalize();
                 let ray = Ray::new(o, dir);
                 let t_max = if rng.f() < 0.3 { rng.f() * 20.0 } else { f32::INFINITY };
@@ -1163,6 +1277,37 @@ mod tests {
                 assert_eq!(keyed.occluded_filtered(&ray, t_max, at, |_| true), brute.is_some());
             }
         }
+    }
+
+    /// A coordinate interpolated between two keys stays inside its box interpolated between the
+    /// same keys once each key's box is grown by `KEY_BOX_PAD` of its magnitude, though the two
+    /// interpolations round differently: coordinates a few ulps inside their boxes, at every
+    /// magnitude (without the pad some of these cases fall outside).
+    #[test]
+    fn padded_key_boxes_hold_interpolated_points() {
+        let mut rng = Rng(5);
+        let lerp1 = |a: f32, b: f32, f: f32| a + (b - a) * f;
+        let mut unpadded_misses = 0;
+        for _ in 0..200_000 {
+            let scale = 10f32.powi((rng.f() * 12.0) as i32 - 4);
+            let (a, b) = ((rng.f() - 0.5) * scale, (rng.f() - 0.5) * scale);
+            // Each end's box bound a few ulps or a bit below it (or at it).
+            let below = |x: f32, rng: &mut Rng| match (rng.f() * 3.0) as u32 {
+                0 => x,
+                1 => {
+                    f32::from_bits(x.to_bits().wrapping_add(if x > 0.0 { -3i32 as u32 } else { 3 }))
+                }
+                _ => x - rng.f() * 1e-3 * x.abs(),
+            };
+            let (lo_a, lo_b) = (below(a, &mut rng), below(b, &mut rng));
+            let magnitude = a.abs().max(b.abs()).max(lo_a.abs()).max(lo_b.abs());
+            let pad = magnitude * KEY_BOX_PAD;
+            let f = rng.f();
+            let p = lerp1(a, b, f);
+            assert!(lerp1(lo_a - pad, lo_b - pad, f) <= p, "{a} {b} {lo_a} {lo_b} {f}");
+            unpadded_misses += (lerp1(lo_a, lo_b, f) > p) as u32;
+        }
+        assert!(unpadded_misses > 0, "the cases do not need the pad");
     }
 
     /// One mesh placed many times at one spot (the same triangles stacked), alone and amid other
