@@ -225,6 +225,39 @@ fn red_and_variance(exr: &[u8]) -> (Vec<f32>, Vec<f32>) {
     (get("R"), get("variance.R"))
 }
 
+/// Checks the pixels (column, row) of a 60-wide image against their exact values: each within
+/// 4 sigma + 0.01 of it (exactly 0 where it is 0), and their sum within 4 sigma of the exact
+/// sum. Returns the largest pixel error, the sum and the exact sum.
+fn assert_exact_pixels(
+    image: &[f32],
+    variance: &[f32],
+    pixels: impl Iterator<Item = (usize, usize)>,
+    exact: impl Fn(usize, usize) -> f64,
+) -> (f64, f64, f64) {
+    let (mut sum, mut exact_sum, mut var_sum, mut worst) = (0.0, 0.0, 0.0, 0.0f64);
+    for (col, row) in pixels {
+        let i = row * 60 + col;
+        let (v, e) = (image[i] as f64, exact(col, row));
+        if e == 0.0 {
+            assert_eq!(v, 0.0, "pixel ({col}, {row}) lies outside the swept area");
+        }
+        let sigma = (variance[i] as f64).sqrt();
+        assert!(
+            (v - e).abs() <= 4.0 * sigma + 0.01,
+            "pixel ({col}, {row}): {v} vs exact {e} (sigma {sigma})"
+        );
+        worst = worst.max((v - e).abs());
+        sum += v;
+        exact_sum += e;
+        var_sum += variance[i] as f64;
+    }
+    assert!(
+        (sum - exact_sum).abs() <= 4.0 * var_sum.sqrt() + 1e-3,
+        "the pixels hold {sum}, exact {exact_sum}"
+    );
+    (worst, sum, exact_sum)
+}
+
 fn render_one(scene: &Path, settings: &serde_json::Value, dir: &Path, name: &str) -> Vec<u8> {
     let out = dir.join(format!("{name}.exr"));
     render_frames(scene, settings, "0", 2, &out);
@@ -251,32 +284,13 @@ fn a_translating_square_blurs_to_its_exact_shutter_coverage() {
             / steps as f64
             / w
     };
-    let (mut sum, mut expected_sum, mut var_sum, mut worst) = (0.0, 0.0, 0.0, 0.0f64);
-    for row in [25usize, 30, 34] {
-        for col in 0..60 {
-            let (v, e) = (image[row * 60 + col] as f64, coverage(col));
-            if e == 0.0 {
-                assert_eq!(v, 0.0, "pixel ({col}, {row}) lies outside the swept area");
-            }
-            let sigma = (variance[row * 60 + col] as f64).sqrt();
-            assert!(
-                (v - e).abs() <= 4.0 * sigma + 0.01,
-                "pixel ({col}, {row}): {v} vs exact {e} (sigma {sigma})"
-            );
-            worst = worst.max((v - e).abs());
-            sum += v;
-            expected_sum += e;
-            var_sum += variance[row * 60 + col] as f64;
-        }
-    }
+    let rows = [25usize, 30, 34].into_iter().flat_map(|row| (0..60).map(move |col| (col, row)));
+    let (worst, sum, expected_sum) =
+        assert_exact_pixels(&image, &variance, rows, |col, _| coverage(col));
     eprintln!(
         "translation: largest pixel error {worst:.4}, rows sum {sum:.4} (exact {expected_sum:.4})"
     );
     assert!((expected_sum - 30.0).abs() < 1e-6, "each row holds 10 pixels of square");
-    assert!(
-        (sum - expected_sum).abs() <= 4.0 * var_sum.sqrt() + 1e-3,
-        "rows hold {sum}, exact {expected_sum}"
-    );
     for row in [0usize, 24, 35, 59] {
         assert!(image[row * 60..row * 60 + 60].iter().all(|&v| v == 0.0), "row {row}");
     }
@@ -297,25 +311,7 @@ fn a_spinning_bar_blurs_along_the_arc_not_the_chord() {
                           "shutter": {"open": 0.0, "close": 1.0}, "frames": {"fps": 1.0}});
     let (image, variance) = red_and_variance(&render_one(&scene, &settings, &dir, "spin"));
     // The exact value: the fraction of pixel area x shutter time the rotating bar covers.
-    let exact = |col: usize, row: usize| {
-        let n = 16;
-        let times = 256;
-        let mut covered = 0usize;
-        for k in 0..times {
-            let angle = std::f64::consts::FRAC_PI_2 * (k as f64 + 0.5) / times as f64;
-            let (sin, cos) = angle.sin_cos();
-            for j in 0..n {
-                for i in 0..n {
-                    let x = -1.5 + 0.05 * (col as f64 + (i as f64 + 0.5) / n as f64);
-                    let y = 1.5 - 0.05 * (row as f64 + (j as f64 + 0.5) / n as f64);
-                    // Into the bar's frame.
-                    let (u, v) = (cos * x + sin * y, -sin * x + cos * y);
-                    covered += (u.abs() <= 1.0 && v.abs() <= 0.05) as usize;
-                }
-            }
-        }
-        covered as f64 / (n * n * times) as f64
-    };
+    let exact = |col, row| worker::test_scenes::quarter_turn_bar_coverage(col, row, 16);
     let (mut checked, mut worst) = (0, 0.0f64);
     for row in (0..60).step_by(3) {
         for col in (0..60).step_by(3) {
@@ -423,34 +419,13 @@ fn morphing_meshes_are_posed_per_frame_and_blur_to_their_exact_shutter_coverage(
             .sum();
         covered / steps as f64 / (w * w)
     };
-    let (mut sum, mut exact_sum, mut var_sum, mut worst) = (0.0, 0.0, 0.0, 0.0f64);
-    for row in 0..60 {
-        for col in 0..60 {
-            let i = row * 60 + col;
-            let (v, e) = (image[i] as f64, exact(col, row));
-            if e == 0.0 {
-                assert_eq!(v, 0.0, "pixel ({col}, {row}) lies outside the swept area");
-            }
-            let sigma = (variance[i] as f64).sqrt();
-            assert!(
-                (v - e).abs() <= 4.0 * sigma + 0.01,
-                "pixel ({col}, {row}): {v} vs exact {e} (sigma {sigma})"
-            );
-            worst = worst.max((v - e).abs());
-            sum += v;
-            exact_sum += e;
-            var_sum += variance[i] as f64;
-        }
-    }
+    let all = (0..60).flat_map(|row| (0..60).map(move |col| (col, row)));
+    let (worst, sum, exact_sum) = assert_exact_pixels(&image, &variance, all, exact);
     eprintln!(
         "growing square: largest pixel error {worst:.4}, sum {sum:.3} (exact {exact_sum:.3})"
     );
     // The swept area: the integral of (2 h)^2 over the shutter, 7/12, in pixels of 0.0025.
     assert!((exact_sum - 7.0 / 12.0 / 0.0025).abs() < 0.05, "{exact_sum}");
-    assert!(
-        (sum - exact_sum).abs() <= 4.0 * var_sum.sqrt() + 1e-3,
-        "the image holds {sum}, exact {exact_sum}"
-    );
     // A frozen pose would keep the square at its frame-time size: the blur must reach the
     // end of the shutter, where the square's right edge is at 0.5 (column 39).
     assert!(image[30 * 60 + 38] > 0.0, "the square does not grow within the shutter");

@@ -800,3 +800,26 @@ mod tests {
         assert!(caustic.radiance_at(xb, za) < v && v < caustic.radiance_at(xa, zb));
     }
 }
+
+/// The exact value of pixel (`col`, `row`) of a 60 x 60 image of an emissive bar of half-size
+/// 1 x 0.05 at the origin that turns a quarter turn about z within the shutter, seen by an
+/// orthographic camera 3 units wide: the share of the pixel's area x shutter time the bar
+/// covers, by quadrature over `n` x `n` points of the pixel and 256 times.
+pub fn quarter_turn_bar_coverage(col: usize, row: usize, n: usize) -> f64 {
+    let times = 256;
+    let mut covered = 0usize;
+    for k in 0..times {
+        let angle = std::f64::consts::FRAC_PI_2 * (k as f64 + 0.5) / times as f64;
+        let (sin, cos) = angle.sin_cos();
+        for j in 0..n {
+            for i in 0..n {
+                let x = -1.5 + 0.05 * (col as f64 + (i as f64 + 0.5) / n as f64);
+                let y = 1.5 - 0.05 * (row as f64 + (j as f64 + 0.5) / n as f64);
+                // Into the bar's frame.
+                let (u, v) = (cos * x + sin * y, -sin * x + cos * y);
+                covered += (u.abs() <= 1.0 && v.abs() <= 0.05) as usize;
+            }
+        }
+    }
+    covered as f64 / (n * n * times) as f64
+}

@@ -150,24 +150,7 @@ fn a_bar_whose_joint_turns_blurs_along_the_arc_to_its_exact_coverage() {
     let prepared = prepare_frame(&scene, &settings, None, 0).expect("prepare");
     let film = render_prepared(&prepared, &settings);
     let image = film.mean_rgb();
-    // The exact value: the share of pixel area x shutter time the turning bar covers.
-    let exact = |col: usize, row: usize| {
-        let (n, times) = (12, 256);
-        let mut covered = 0usize;
-        for k in 0..times {
-            let angle = std::f64::consts::FRAC_PI_2 * (k as f64 + 0.5) / times as f64;
-            let (sin, cos) = angle.sin_cos();
-            for j in 0..n {
-                for i in 0..n {
-                    let x = -1.5 + 0.05 * (col as f64 + (i as f64 + 0.5) / n as f64);
-                    let y = 1.5 - 0.05 * (row as f64 + (j as f64 + 0.5) / n as f64);
-                    let (u, v) = (cos * x + sin * y, -sin * x + cos * y);
-                    covered += (u.abs() <= 1.0 && v.abs() <= 0.05) as usize;
-                }
-            }
-        }
-        covered as f64 / (n * n * times) as f64
-    };
+    let exact = |col, row| worker::test_scenes::quarter_turn_bar_coverage(col, row, 12);
     let mut worst = 0.0f64;
     for row in (0..60).step_by(3) {
         for col in (0..60).step_by(3) {

@@ -497,18 +497,7 @@ impl Accel {
         t_max: f32,
         accept: impl Fn(&Hit) -> bool,
     ) -> Option<Hit> {
-        if self.is_empty() {
-            return None;
-        }
-        // The stack: inline and never initialised (only pushed entries are written) unless the
-        // tree is very deep.
-        if self.stack_len <= INLINE_STACK {
-            let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
-            self.closest(ray, t_max, &accept, stack, self.blocks.as_slice())
-        } else {
-            let stack = &mut Vec::with_capacity(self.stack_len);
-            self.closest(ray, t_max, &accept, stack, self.blocks.as_slice())
-        }
+        self.closest_in(ray, t_max, &accept, self.blocks.as_slice())
     }
 
     /// `intersect`, inlined into the caller (for the wavefront's kernel, compiled for its
@@ -541,15 +530,46 @@ impl Accel {
     /// Whether anything that `accept` keeps blocks the ray for `t` in (0, t_max).
     #[inline]
     pub fn occluded_filtered(&self, ray: &Ray, t_max: f32, accept: impl Fn(&Hit) -> bool) -> bool {
+        self.any_in(ray, t_max, &accept, self.blocks.as_slice())
+    }
+
+    /// `closest` over `blocks` with a stack for this tree: inline and never initialised (only
+    /// pushed entries are written) unless the tree is very deep.
+    #[inline(always)]
+    fn closest_in(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        accept: &impl Fn(&Hit) -> bool,
+        blocks: &(impl Blocks + ?Sized),
+    ) -> Option<Hit> {
+        if self.is_empty() {
+            return None;
+        }
+        if self.stack_len <= INLINE_STACK {
+            let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
+            self.closest(ray, t_max, accept, stack, blocks)
+        } else {
+            self.closest(ray, t_max, accept, &mut Vec::with_capacity(self.stack_len), blocks)
+        }
+    }
+
+    /// `any` over `blocks` with a stack for this tree (as `closest_in`).
+    #[inline(always)]
+    fn any_in(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        accept: &impl Fn(&Hit) -> bool,
+        blocks: &(impl Blocks + ?Sized),
+    ) -> bool {
         if self.is_empty() {
             return false;
         }
         if self.stack_len <= INLINE_STACK {
-            let stack = &mut ArrayVec::<Entry, INLINE_STACK>::new();
-            self.any(ray, t_max, &accept, stack, self.blocks.as_slice())
+            self.any(ray, t_max, accept, &mut ArrayVec::<Entry, INLINE_STACK>::new(), blocks)
         } else {
-            let stack = &mut Vec::with_capacity(self.stack_len);
-            self.any(ray, t_max, &accept, stack, self.blocks.as_slice())
+            self.any(ray, t_max, accept, &mut Vec::with_capacity(self.stack_len), blocks)
         }
     }
 
@@ -960,16 +980,7 @@ impl KeyedAccel {
         at: Between,
         accept: impl Fn(&Hit) -> bool,
     ) -> Option<Hit> {
-        let a = &self.accel;
-        if a.is_empty() {
-            return None;
-        }
-        let blocks = self.lerped(at);
-        if a.stack_len <= INLINE_STACK {
-            a.closest(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new(), &blocks)
-        } else {
-            a.closest(ray, t_max, &accept, &mut Vec::with_capacity(a.stack_len), &blocks)
-        }
+        self.accel.closest_in(ray, t_max, &accept, &self.lerped(at))
     }
 
     /// Whether anything that `accept` keeps blocks the ray for `t` in (0, t_max), the mesh as
@@ -981,16 +992,7 @@ impl KeyedAccel {
         at: Between,
         accept: impl Fn(&Hit) -> bool,
     ) -> bool {
-        let a = &self.accel;
-        if a.is_empty() {
-            return false;
-        }
-        let blocks = self.lerped(at);
-        if a.stack_len <= INLINE_STACK {
-            a.any(ray, t_max, &accept, &mut ArrayVec::<Entry, INLINE_STACK>::new(), &blocks)
-        } else {
-            a.any(ray, t_max, &accept, &mut Vec::with_capacity(a.stack_len), &blocks)
-        }
+        self.accel.any_in(ray, t_max, &accept, &self.lerped(at))
     }
 }
 
