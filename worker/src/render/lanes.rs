@@ -442,6 +442,13 @@ pub(crate) trait Real:
     /// `f(self, o)` lane by lane: a scalar function (a math library's `exp` or `powf`, a table
     /// lookup) on every lane, so that each lane has the scalar instance's bits.
     fn each2(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self;
+    /// `f` lane by lane on `N` inputs to `K` outputs: a scalar routine (table lookups and the
+    /// arithmetic around them) run on every lane, its code written once however many places call
+    /// it, so that each lane has the scalar instance's bits.
+    fn map_lanes<const N: usize, const K: usize>(
+        inputs: [Self; N],
+        f: impl Fn([f32; N]) -> [f32; K],
+    ) -> [Self; K];
 }
 
 impl Real for f32 {
@@ -451,6 +458,14 @@ impl Real for f32 {
     #[inline(always)]
     fn each2(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
         f(self, o)
+    }
+
+    #[inline(always)]
+    fn map_lanes<const N: usize, const K: usize>(
+        inputs: [Self; N],
+        f: impl Fn([f32; N]) -> [f32; K],
+    ) -> [Self; K] {
+        f(inputs)
     }
 
     #[inline(always)]
@@ -538,6 +553,25 @@ impl Real for f32 {
     }
 }
 
+/// The most `f32` lanes of a vector (AVX-512).
+const MAX_F32_LANES: usize = 16;
+
+/// `b[k][i] = f(a[..][i])[k]` for the first `lanes` lanes ([`Real::map_lanes`]).
+#[inline(never)]
+fn map_arrays<const N: usize, const K: usize>(
+    a: &[[f32; MAX_F32_LANES]; N],
+    b: &mut [[f32; MAX_F32_LANES]; K],
+    lanes: usize,
+    f: &impl Fn([f32; N]) -> [f32; K],
+) {
+    for i in 0..lanes.min(MAX_F32_LANES) {
+        let y = f(a.map(|a| a[i]));
+        for (b, y) in b.iter_mut().zip(y) {
+            b[i] = y;
+        }
+    }
+}
+
 impl<S: Simd> Real for F<S> {
     type Mask = M<S>;
     type Bits = U<S>;
@@ -547,6 +581,27 @@ impl<S: Simd> Real for F<S> {
         let mut out = self;
         for i in 0..S::F32_LANES {
             out.set_lane(i, f(self.lane(i), o.lane(i)));
+        }
+        out
+    }
+
+    #[inline(always)]
+    fn map_lanes<const N: usize, const K: usize>(
+        inputs: [Self; N],
+        f: impl Fn([f32; N]) -> [f32; K],
+    ) -> [Self; K] {
+        // The lanes go through arrays to a loop out of line, so that each call adds to the
+        // vector kernel only its stores and loads.
+        let lanes = S::F32_LANES;
+        let mut a = [[0.0f32; MAX_F32_LANES]; N];
+        for (a, x) in a.iter_mut().zip(&inputs) {
+            a[..lanes].copy_from_slice(bytemuck::cast_slice(std::slice::from_ref(&x.v)));
+        }
+        let mut b = [[0.0f32; MAX_F32_LANES]; K];
+        map_arrays(&a, &mut b, lanes, &f);
+        let mut out = [inputs[0]; K];
+        for (o, b) in out.iter_mut().zip(&b) {
+            bytemuck::cast_slice_mut(std::slice::from_mut(&mut o.v)).copy_from_slice(&b[..lanes]);
         }
         out
     }

@@ -395,7 +395,11 @@ pub(crate) mod generic {
         #[inline(always)]
         fn choice(&self, wo: V3<R>) -> (R, R) {
             let (weight, scaling) = self.scalings(wo);
-            lobe_probabilities(weight, scaling, lobe_weights(self.base, wo.z).3)
+            lobe_probabilities(
+                weight,
+                scaling,
+                lobe_weights(self.base, self.facets.albedo_alpha(), wo.z).3,
+            )
         }
 
         /// `Layered::eval`.

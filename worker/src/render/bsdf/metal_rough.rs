@@ -142,7 +142,7 @@ impl<M: Microfacet> MetalRough<M> {
     /// for `wo`, and of all lobes together.
     #[inline]
     fn lobe_weights(&self, wo: Vec3) -> (f32, f32, f32, f32) {
-        generic::lobe_weights(&self.lobes(), wo.z)
+        generic::lobe_weights(&self.lobes(), self.ggx.albedo_alpha(), wo.z)
     }
 
     /// The parameters the generic arithmetic reads (all but the microfacet distribution).
@@ -156,6 +156,7 @@ impl<M: Microfacet> MetalRough<M> {
             transmission: self.transmission,
             diffuse_transmission: self.diffuse_transmission,
             diffuse_transmission_color: self.diffuse_transmission_color.into(),
+            seen: None,
         }
     }
 
@@ -170,7 +171,7 @@ impl<M: Microfacet> MetalRough<M> {
         let (f_d, f_m) = fresnel(wo.z);
         let f_d_max = f_d.max_element();
         let spec = self.metallic * generic::luminance(f_m.into()) + (1.0 - self.metallic) * f_d_max;
-        generic::lobe_weights_given(&self.lobes(), spec, f_d_max)
+        generic::lobe_weights_given(&self.lobes(), spec, f_d_max, 0.0)
     }
 
     /// The Schlick Fresnel terms at `cos` = |wo.h|: the dielectric's weighted by
@@ -184,15 +185,35 @@ impl<M: Microfacet> MetalRough<M> {
     /// f(wo, wi): reflection for `wi.z > 0`, transmission for `wi.z < 0`.
     #[inline]
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        self.eval_with(wo, wi, |cos| self.schlick_fresnel(cos))
+        self.eval_kept(
+            wo,
+            wi,
+            |cos| self.schlick_fresnel(cos),
+            |l, _| generic::Kept::by_albedo(l, self.ggx.albedo_alpha(), wo.z, wi.z.abs()),
+        )
     }
 
     /// f(wo, wi) with the Fresnel terms (s F_d, F_m) of `fresnel` at |wo.h| in place of
     /// Schlick's: the dielectric's specular lobe weighted by s F_d, the light under it by
     /// 1 - max(s F_d), the metal's lobe by F_m. With [`Self::schlick_fresnel`] this is `eval`,
     /// operation for operation (s max(F_d) is max(s F_d) exactly: rounding is monotonic).
+    /// What lies under the specular layer is weighted by 1 - max(s F_d) at the half vector,
+    /// and the metal has no multiple scattering (`generic::Kept::by_fresnel`).
     #[inline]
     pub fn eval_with(&self, wo: Vec3, wi: Vec3, fresnel: impl Fn(f32) -> (Vec3, Vec3)) -> Vec3 {
+        self.eval_kept(wo, wi, fresnel, |_, f_d| generic::Kept::by_fresnel(f_d.into()))
+    }
+
+    /// f(wo, wi) with the Fresnel terms of `fresnel` and what `kept` keeps of the light the
+    /// microfacets do not reflect, given the lobes and s F_d at the half vector.
+    #[inline]
+    fn eval_kept(
+        &self,
+        wo: Vec3,
+        wi: Vec3,
+        fresnel: impl Fn(f32) -> (Vec3, Vec3),
+        kept: impl Fn(&generic::Lobes<f32>, Vec3) -> generic::Kept<f32>,
+    ) -> Vec3 {
         if wo.z <= 0.0 || wi.z == 0.0 {
             return Vec3::ZERO;
         }
@@ -205,12 +226,15 @@ impl<M: Microfacet> MetalRough<M> {
             let h = (wo + wm).normalize();
             let spec_t = generic::specular(self.ggx.d(h), self.ggx.g2(wo, wm), wo.z, wm.z);
             let (f_d, _) = fresnel(wo.dot(h));
-            return generic::transmitted(&self.lobes(), f_d.into(), spec_t).into();
+            let lobes = self.lobes();
+            let under = kept(&lobes, f_d).under;
+            return generic::transmitted(&lobes, f_d.into(), spec_t, under).into();
         }
         let h = (wo + wi).normalize();
         let spec = generic::specular(self.ggx.d(h), self.ggx.g2(wo, wi), wo.z, wi.z);
         let (f_d, f_m) = fresnel(wo.dot(h));
-        generic::reflected(&self.lobes(), f_d.into(), f_m.into(), spec).into()
+        let lobes = self.lobes();
+        generic::reflected(&lobes, f_d.into(), f_m.into(), spec, kept(&lobes, f_d)).into()
     }
 
     /// Density of `wi`.
@@ -318,6 +342,7 @@ pub(crate) mod generic {
     use std::f32::consts::FRAC_1_PI;
 
     use crate::render::{
+        bsdf::ggx_albedo,
         geometry::generic::reflect,
         lanes::{Real, V3},
         sampling::generic::{sample_cosine_hemisphere, Facets},
@@ -333,6 +358,9 @@ pub(crate) mod generic {
         pub(crate) transmission: R,
         pub(crate) diffuse_transmission: R,
         pub(crate) diffuse_transmission_color: V3<R>,
+        /// The albedos for the `wo` of a bounce, found once for all the bounce's calls (the
+        /// wavefront), or `None` (found in each call).
+        pub(crate) seen: Option<Seen<R>>,
     }
 
     /// `f32::clamp(x, 0, 1)`.
@@ -372,21 +400,30 @@ pub(crate) mod generic {
         (toward_one(l.f0, w).scale(l.specular), toward_one(l.base, w))
     }
 
-    /// The lobes' estimated albedos for `wo_z` (`MetalRough::lobe_weights`).
+    /// The lobes' estimated albedos for `wo_z` (`MetalRough::lobe_weights`), the metal's
+    /// multiple scattering (sampled with the cosine lobe) from the albedo tables at roughness
+    /// `alpha`.
     #[inline(always)]
-    pub(crate) fn lobe_weights<R: Real>(l: &Lobes<R>, wo_z: R) -> (R, R, R, R) {
+    pub(crate) fn lobe_weights<R: Real>(l: &Lobes<R>, alpha: R, wo_z: R) -> (R, R, R, R) {
         let one = wo_z.konst(1.0);
         let w = schlick_weight(wo_z);
         let f_m = toward_one(l.base, w);
         let f_d_max = toward_one(l.f0, w).max_element();
         let spec = l.metallic * luminance(f_m) + (one - l.metallic) * l.specular * f_d_max;
-        lobe_weights_given(l, spec, l.specular * f_d_max)
+        let multiple = l.seen.unwrap_or_else(|| Seen::new(l, alpha, wo_z)).multiple;
+        lobe_weights_given(l, spec, l.specular * f_d_max, multiple)
     }
 
-    /// The lobe weights from the specular lobes' weight `spec` and the share `reflected` of the
-    /// light the dielectric's specular layer reflects (s max(F_d)).
+    /// The lobe weights from the specular lobes' weight `spec`, the share `reflected` of the
+    /// light the dielectric's specular layer reflects (s max(F_d)), and the albedo `multiple`
+    /// of the metal's multiple scattering (sampled with the cosine lobe).
     #[inline(always)]
-    pub(crate) fn lobe_weights_given<R: Real>(l: &Lobes<R>, spec: R, reflected: R) -> (R, R, R, R) {
+    pub(crate) fn lobe_weights_given<R: Real>(
+        l: &Lobes<R>,
+        spec: R,
+        reflected: R,
+        multiple: R,
+    ) -> (R, R, R, R) {
         let one = spec.konst(1.0);
         let entering = (one - l.metallic) * (one - reflected) * luminance(l.base);
         // Exact for no transmission: x * 1 is x and x * 0 is 0.
@@ -397,7 +434,8 @@ pub(crate) mod generic {
             * l.diffuse_transmission
             * luminance(l.diffuse_transmission_color);
         let diff = diff * (one - l.diffuse_transmission);
-        let total = spec + diff + trans + dtrans;
+        // Exact without a metal: x + 0 is x.
+        let total = spec + diff + trans + dtrans + multiple;
         (spec, trans, dtrans, total)
     }
 
@@ -413,6 +451,119 @@ pub(crate) mod generic {
         )
     }
 
+    /// What the BSDF keeps of the light that one scattering off the microfacets does not
+    /// reflect, for one pair of directions.
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Kept<R: Real> {
+        /// The weight of the light under the dielectric's specular layer (the diffuse and
+        /// diffusely transmitted lobes).
+        pub(crate) under: R,
+        /// The metal's multiple-scattering lobe (before the weight `metallic`).
+        pub(crate) multiple: V3<R>,
+    }
+
+    impl<R: Real> Kept<R> {
+        /// The glTF specification's sketch, which a thin film's Fresnel (`thin_film.rs`) keeps:
+        /// what lies under the specular layer weighted by 1 - max(s F_d) at the half vector, and
+        /// no multiple scattering.
+        #[inline(always)]
+        pub(crate) fn by_fresnel(f_d: V3<R>) -> Self {
+            let zero = f_d.x.konst(0.0);
+            Kept {
+                under: f_d.x.konst(1.0) - f_d.max_element(),
+                multiple: V3::new(zero, zero, zero),
+            }
+        }
+
+        /// Energy kept by the albedo tables (`ggx_albedo`) at roughness `alpha`, for `wo` and `wi`
+        /// at cosines `mu_o` and `mu_i` (> 0):
+        /// - under the dielectric's specular layer of albedo L(mu) = s (f0 E(mu) + (1 - f0) W(mu))
+        ///   (f0 its largest channel), the weight (1 - L(mu_o)) (1 - L(mu_i)) / (1 - L_avg):
+        ///   reciprocal, and over the hemisphere exactly what the layer does not reflect,
+        ///   1 - L(mu_o) (Kelemen and Szirmay-Kalos 2001, the albedo scaling of glTF's layering
+        ///   extensions made symmetric);
+        /// - the metal's multiple scattering, Kulla and Conty's (2017) lobe
+        ///   F_ms (1 - E(mu_o)) (1 - E(mu_i)) / (pi (1 - E_avg)), with
+        ///   F_ms = F_avg² E_avg / (1 - F_avg (1 - E_avg)) and Schlick's F_avg = f0 + (1 - f0) / 21:
+        ///   a white metal (f0 = 1) then reflects E(mu_o) + 1 - E(mu_o) = 1 at every roughness.
+        ///
+        /// Without a specular layer (s = 0) `under` is 1 exactly.
+        #[inline(always)]
+        pub(crate) fn by_albedo(l: &Lobes<R>, alpha: R, mu_o: R, mu_i: R) -> Self {
+            let o = l.seen.unwrap_or_else(|| Seen::new(l, alpha, mu_o));
+            let one = mu_i.konst(1.0);
+            let [e_i, w_i] = R::map_lanes([mu_i, o.alpha], albedos);
+            let under = o.under * (one - layer(l, e_i, w_i)).max0();
+            let lost = o.lost * (one - e_i).max0();
+            Kept { under, multiple: o.colour.scale(lost) }
+        }
+    }
+
+    /// The albedo tables read for the `wo` of a bounce, at the roughness `alpha` of the tables
+    /// (`Facets::albedo_alpha`): E(mu_o), W(mu_o), E_avg, W_avg, and the albedo of the metal's
+    /// multiple scattering for `wo` (what the lobe choice gives the cosine lobe for it).
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Seen<R: Real> {
+        alpha: R,
+        /// (1 - L(mu_o)) / (1 - L_avg), the layer's albedo scaling but for `wi`.
+        under: R,
+        /// (1 - E(mu_o)) / (pi (1 - E_avg)), the multiple scattering's but for `wi` and F_ms.
+        lost: R,
+        /// F_ms.
+        colour: V3<R>,
+        multiple: R,
+    }
+
+    impl<R: Real> Seen<R> {
+        #[inline(always)]
+        pub(crate) fn new(l: &Lobes<R>, alpha: R, mu_o: R) -> Self {
+            let [e_o, w_o, e_avg, w_avg] = R::map_lanes([mu_o, alpha], seen);
+            let (one, floor) = (e_avg.konst(1.0), e_avg.konst(1e-4));
+            let under =
+                (one - layer(l, e_o, w_o)).max0() / (one - layer(l, e_avg, w_avg)).glam_max(floor);
+            let lost = (one - e_o).max0()
+                / ((one - e_avg).glam_max(floor) * one.konst(std::f32::consts::PI));
+            let f_avg = l.base + (V3::new(one, one, one) - l.base).scale(one.konst(1.0 / 21.0));
+            let colour = multiple_colour(f_avg, e_avg);
+            let multiple = l.metallic * luminance(colour) * (one - e_o).max0();
+            Seen { alpha, under, lost, colour, multiple }
+        }
+    }
+
+    /// The tables at (mu_o, alpha): [E(mu_o), W(mu_o), E_avg, W_avg]. Not inlined: a vector of
+    /// paths calls it lane by lane (`Real::map_lanes`), and its lookups would crowd the vector
+    /// kernel's code.
+    #[inline(never)]
+    fn seen([mu_o, alpha]: [f32; 2]) -> [f32; 4] {
+        let (e_o, w_o) = ggx_albedo::albedos(mu_o, alpha);
+        let (e_avg, w_avg) = ggx_albedo::mean_albedos(alpha);
+        [e_o, w_o, e_avg, w_avg]
+    }
+
+    /// The dielectric specular layer's albedo L(mu) = s (f0 E(mu) + (1 - f0) W(mu)), f0 its
+    /// largest channel, from the tables' E and W.
+    #[inline(always)]
+    fn layer<R: Real>(l: &Lobes<R>, e: R, w: R) -> R {
+        let f0 = l.f0.max_element();
+        l.specular * (f0 * e + (e.konst(1.0) - f0) * w)
+    }
+
+    /// (E(mu_i), W(mu_i)) at `alpha`, for one lane. Not inlined, as [`seen`].
+    #[inline(never)]
+    fn albedos([mu_i, alpha]: [f32; 2]) -> [f32; 2] {
+        let (e, w) = ggx_albedo::albedos(mu_i, alpha);
+        [e, w]
+    }
+
+    /// Kulla and Conty's F_ms, the colour of the metal's multiple scattering, from Schlick's mean
+    /// Fresnel `f_avg` and the mean white albedo `e_avg`.
+    #[inline(always)]
+    fn multiple_colour<R: Real>(f_avg: V3<R>, e_avg: R) -> V3<R> {
+        let one = e_avg.konst(1.0);
+        let f = |c: R| c * c * e_avg / (one - c * (one - e_avg));
+        V3::new(f(f_avg.x), f(f_avg.y), f(f_avg.z))
+    }
+
     /// The microfacet lobe's value D G2 / (4 wo.z wi.z).
     #[inline(always)]
     pub(crate) fn specular<R: Real>(d: R, g2: R, wo_z: R, wi_z: R) -> R {
@@ -420,29 +571,39 @@ pub(crate) mod generic {
     }
 
     /// f for `wi` above: the dielectric's diffuse and specular lobes and the metal's, from the
-    /// Fresnel terms at the half vector and the microfacet lobe's value `spec`.
+    /// Fresnel terms at the half vector, the microfacet lobe's value `spec` and what is `kept`.
     #[inline(always)]
-    pub(crate) fn reflected<R: Real>(l: &Lobes<R>, f_d: V3<R>, f_m: V3<R>, spec: R) -> V3<R> {
+    pub(crate) fn reflected<R: Real>(
+        l: &Lobes<R>,
+        f_d: V3<R>,
+        f_m: V3<R>,
+        spec: R,
+        kept: Kept<R>,
+    ) -> V3<R> {
         let one = spec.konst(1.0);
         let diffuse = l
             .base
-            .scale(one - f_d.max_element())
+            .scale(kept.under)
             .scale(spec.konst(FRAC_1_PI))
             .scale(one - l.transmission)
             .scale(one - l.diffuse_transmission);
         let dielectric = diffuse + f_d.scale(spec);
-        dielectric.scale(one - l.metallic) + f_m.scale(l.metallic).scale(spec)
+        // Exact without a metal: the added terms are 0.
+        dielectric.scale(one - l.metallic)
+            + f_m.scale(l.metallic).scale(spec)
+            + kept.multiple.scale(l.metallic)
     }
 
     /// f for `wi` below (thin-walled transmission), from the dielectric Fresnel term at the
-    /// mirrored half vector and the mirrored microfacet lobe's value `spec_t`.
+    /// mirrored half vector, the mirrored microfacet lobe's value `spec_t`, and the weight
+    /// `under` of the light under the specular layer (`Kept::under` for `wi` mirrored).
     #[inline(always)]
-    pub(crate) fn transmitted<R: Real>(l: &Lobes<R>, f_d: V3<R>, spec_t: R) -> V3<R> {
+    pub(crate) fn transmitted<R: Real>(l: &Lobes<R>, f_d: V3<R>, spec_t: R, under: R) -> V3<R> {
         let (zero, one) = (spec_t.konst(0.0), spec_t.konst(1.0));
         let entering = one - f_d.max_element();
         let through = l.base.scale((one - l.metallic) * entering * l.transmission).scale(spec_t);
         // The diffused light's share that leaves on the far side, Lambertian there.
-        let diffused = (one - l.metallic) * entering * (one - l.transmission);
+        let diffused = (one - l.metallic) * under * (one - l.transmission);
         let far = through
             + l.diffuse_transmission_color
                 .scale(diffused * l.diffuse_transmission)
@@ -496,13 +657,14 @@ pub(crate) mod generic {
         let h = (wo + wi).normalize();
         let spec = specular(m.d(h), m.g2(wo, wi), wo.z, wi.z);
         let (f_d, f_m) = schlick_fresnel(l, wo.dot(h));
-        let above = reflected(l, f_d, f_m, spec);
+        let kept = Kept::by_albedo(l, m.albedo_alpha(), wo.z, wi.z.abs());
+        let above = reflected(l, f_d, f_m, spec, kept);
         let below = if transmits {
             let wm = mirror(wi);
             let h = (wo + wm).normalize();
             let spec_t = specular(m.d(h), m.g2(wo, wm), wo.z, wm.z);
             let (f_d, _) = schlick_fresnel(l, wo.dot(h));
-            V3::select(lane_transmits(l), transmitted(l, f_d, spec_t), z3)
+            V3::select(lane_transmits(l), transmitted(l, f_d, spec_t, kept.under), z3)
         } else {
             z3
         };
@@ -527,7 +689,7 @@ pub(crate) mod generic {
         wi: V3<R>,
         transmits: bool,
     ) -> R {
-        pdf_given(m, wo, wi, probabilities(lobe_weights(l, wo.z)), transmits)
+        pdf_given(m, wo, wi, probabilities(lobe_weights(l, m.albedo_alpha(), wo.z)), transmits)
     }
 
     /// [`pdf`] with the lobe probabilities for `wo` already found.
@@ -569,7 +731,7 @@ pub(crate) mod generic {
         transmits: bool,
     ) -> (V3<R>, V3<R>, R, R::Mask, R::Mask) {
         let zero = wo.z.konst(0.0);
-        let chances = probabilities(lobe_weights(l, wo.z));
+        let chances = probabilities(lobe_weights(l, m.albedo_alpha(), wo.z));
         let (p_spec, p_trans, p_dtrans) = chances;
         let glossy = reflect(wo, m.visible_normal(wo, ux, uy));
         let diffuse = sample_cosine_hemisphere(ux, uy);

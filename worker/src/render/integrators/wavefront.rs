@@ -44,7 +44,7 @@ use super::{
         bsdf::{
             diffuse::generic as lambert,
             layered::generic::{CoatLanes, Coated, SheenLanes},
-            metal_rough::generic::{self as metal_rough, Lobes},
+            metal_rough::generic::{self as metal_rough, Lobes, Seen},
             Bsdf, MetalRough,
         },
         geometry::{
@@ -327,6 +327,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         transmission: zero,
         diffuse_transmission: zero,
         diffuse_transmission_color: z3,
+        seen: None,
     };
     let mut alpha = one;
     let (mut l_normal, mut l_area, mut l_prob) = (z3, zero, zero);
@@ -596,6 +597,14 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // The coated lanes, and the layered ones shaded one at a time (none in most batches).
         let any_coated = (0..lanes).any(|i| coated[i] && live[i]);
         let coatedm = M::from_bools(s, &coated);
+        // The albedo tables for this bounce's `wo`, read once for all its calls: at the coated
+        // lanes' anisotropic roughness (`Facets::albedo_alpha` of `Aniso`), the glossy lanes'
+        // isotropic one elsewhere.
+        lobes.seen = None;
+        if any_glossy || any_coated {
+            let table_alpha = coatedm.select(alpha_x.min(alpha_y), alpha);
+            lobes.seen = Some(Seen::new(&lobes, table_alpha, wo_z));
+        }
         let coated_bsdf = Coated {
             base: &lobes,
             facets: Aniso(alpha_x, alpha_y),
