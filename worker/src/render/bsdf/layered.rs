@@ -2,7 +2,7 @@
 //! lobe, a `KHR_materials_sheen` layer over the base and a `KHR_materials_clearcoat` layer over
 //! both, combined by the extensions' albedo scaling:
 //!
-//! f = c F_c(wo) spec_c + (1 - c F_c(wo)) [ f_sheen + (1 - max(sheenColor) E(n.wo)) f_base ]
+//! f = c F_c(wo) spec_c + (1 - c F_c(wo) E_c(nc.wo)) [ f_sheen + (1 - max(sheenColor) E(n.wo)) f_base ]
 //!
 //! - f_base is [`MetalRough`] with anisotropic GGX: alpha_t = mix(alpha, 1, strength²) along
 //!   the anisotropy direction (the local +x, which the integrator aligns with it) and alpha_b =
@@ -10,9 +10,11 @@
 //! - The coat, of weight c = clearcoat, is the GGX specular lobe spec_c = D G2 / (4 |nc.wo|
 //!   |nc.wi|) of alpha = clearcoatRoughness² around its own normal nc, weighted by the Schlick
 //!   Fresnel of index 1.5, F_c(wo) = 0.04 + 0.96 (1 - |nc.wo|)^5 (the spec's `fresnel_coat`).
-//!   The albedo scaling uses the cosine of `wo` to the coat normal only, as the spec does: a
-//!   white coat reflects at most F_c(wo) of the light, so the layers never gain energy (the
-//!   price is that f is not reciprocal).
+//!   The coat reflects c F_c(wo) E_c of the light, E_c its lobe's white single-scattering
+//!   albedo at the cosine of `wo` to the coat normal (`ggx_albedo`), and the layers below take
+//!   the rest: what the spec's scaling by 1 - c F_c(wo) leaves out of the coat's lobe
+//!   (c F_c (1 - E_c)) is no longer lost. With `wo` only, as the spec does, so that the layers
+//!   never gain energy (the price is that f is not reciprocal).
 //! - The sheen (`sheen.rs`) scales the base by one minus its white albedo E at the cosine of
 //!   `wo` to the shading normal, times the largest channel of its colour (the spec's simplified
 //!   scaling, again energy-conserving for every `wo`).
@@ -134,9 +136,11 @@ impl Layered {
         if let Some(s) = &self.sheen {
             under += s.eval(wo, wi);
         }
-        let coat = self
-            .coat
-            .map(|c| (coat_weight, generic::coat_specular(&c.lanes(), wo.into(), wi.into())));
+        let coat = self.coat.map(|c| {
+            let c = c.lanes();
+            let taken = generic::coat_taken(&c, wo.into(), coat_weight);
+            (coat_weight, generic::coat_specular(&c, wo.into(), wi.into()), taken)
+        });
         generic::layers_f(under.into(), coat).into()
     }
 
@@ -248,6 +252,21 @@ pub(crate) mod generic {
         c.weight * (k(COAT_F0) + k(1.0 - COAT_F0) * schlick_weight(wo.dot(c.normal).abs()))
     }
 
+    /// c F_c(wo) E_c(nc.wo): the share of the light the coat's lobe reflects (the coat's
+    /// `weight` times its white single-scattering albedo), which the layers below give up.
+    #[inline(always)]
+    pub(crate) fn coat_taken<R: Real>(c: &CoatLanes<R>, wo: V3<R>, weight: R) -> R {
+        let [e] = R::map_lanes([wo.dot(c.normal).abs(), c.alpha], coat_albedo);
+        weight * e
+    }
+
+    /// E_c for one lane, from (|nc.wo|, alpha). Not inlined: a vector of paths calls it lane by
+    /// lane (`Real::map_lanes`).
+    #[inline(never)]
+    fn coat_albedo([mu, alpha]: [f32; 2]) -> [f32; 1] {
+        [crate::render::bsdf::ggx_albedo::albedos(mu, alpha).0]
+    }
+
     /// `v` in the coat's frame (`Frame::from_z(normal).to_local`), and the frame's tangents.
     #[inline(always)]
     fn coat_frame<R: Real>(c: &CoatLanes<R>, v: V3<R>) -> (V3<R>, V3<R>, V3<R>) {
@@ -333,13 +352,13 @@ pub(crate) mod generic {
     }
 
     /// f from what lies under the coat (`under`: the sheen and the scaled base) and the coat's
-    /// weight and lobe value, if it has one.
+    /// weight, lobe value and the share it takes from below ([`coat_taken`]), if it has one.
     #[inline(always)]
-    pub(crate) fn layers_f<R: Real>(under: V3<R>, coat: Option<(R, R)>) -> V3<R> {
+    pub(crate) fn layers_f<R: Real>(under: V3<R>, coat: Option<(R, R, R)>) -> V3<R> {
         match coat {
-            Some((weight, spec)) => {
+            Some((weight, spec, taken)) => {
                 let coat = weight * spec;
-                under.scale(weight.konst(1.0) - weight) + V3::new(coat, coat, coat)
+                under.scale(weight.konst(1.0) - taken) + V3::new(coat, coat, coat)
             }
             // Without a coat its weight is 0: under x (1 - 0).
             None => under.scale(under.x.konst(1.0)),
@@ -417,7 +436,8 @@ pub(crate) mod generic {
             };
             let without = layers_f(under, None);
             let f = if self.coats {
-                let with = layers_f(under, Some((weight, coat_specular(self.coat, wo, wi))));
+                let taken = coat_taken(self.coat, wo, weight);
+                let with = layers_f(under, Some((weight, coat_specular(self.coat, wo, wi), taken)));
                 V3::select(self.has_coat, with, without)
             } else {
                 without
