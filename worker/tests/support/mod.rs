@@ -1124,6 +1124,16 @@ pub fn repo_scene(name: &str) -> Scene {
 /// An 8-bit greyscale PNG of `width` x `height` texels (`texels` row by row, the top row
 /// first), uncompressed (one stored deflate block: at most 65,535 bytes of scanlines).
 pub fn grey_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
+    png_of(width, height, 1, texels)
+}
+
+/// An 8-bit RGB PNG of `width` x `height` texels (`texels` three bytes each), as [`grey_png`].
+pub fn rgb_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
+    png_of(width, height, 3, texels)
+}
+
+/// An 8-bit PNG of one (grey) or three (RGB) channels, as [`grey_png`].
+fn png_of(width: u32, height: u32, channels: u32, texels: &[u8]) -> Vec<u8> {
     fn crc(data: &[u8]) -> u32 {
         let mut c = 0xffff_ffffu32;
         for &b in data {
@@ -1141,10 +1151,10 @@ pub fn grey_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
         out.extend(&body);
         out.extend(crc(&body).to_be_bytes());
     }
-    assert_eq!(texels.len(), (width * height) as usize);
+    assert_eq!(texels.len(), (width * height * channels) as usize);
     // Raw scanlines (filter byte 0) in a stored (uncompressed) zlib stream.
     let raw: Vec<u8> = texels
-        .chunks(width as usize)
+        .chunks((width * channels) as usize)
         .flat_map(|row| std::iter::once(0).chain(row.iter().copied()))
         .collect();
     let len = u16::try_from(raw.len()).expect("one stored block");
@@ -1162,7 +1172,8 @@ pub fn grey_png(width: u32, height: u32, texels: &[u8]) -> Vec<u8> {
     let mut ihdr = Vec::new();
     ihdr.extend(width.to_be_bytes());
     ihdr.extend(height.to_be_bytes());
-    ihdr.extend([8, 0, 0, 0, 0]); // 8-bit greyscale
+    // 8 bits, colour type 0 (greyscale) or 2 (RGB).
+    ihdr.extend([8, if channels == 3 { 2 } else { 0 }, 0, 0, 0]);
     chunk(&mut png, b"IHDR", &ihdr);
     chunk(&mut png, b"IDAT", &zlib);
     chunk(&mut png, b"IEND", &[]);

@@ -757,7 +757,7 @@ pub(super) fn surface_vertex(
             return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
         }
         let (mut frame, ns_surface) =
-            shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, at.pose);
+            shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, wo, &sp, at.pose);
         v.refracting = boundary && material.refracts();
         if v.refracting && frame.to_local(wo).z <= 0.0 {
             // As in the path tracer: a refractive boundary shades with the facet's normal where

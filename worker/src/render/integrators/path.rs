@@ -249,7 +249,7 @@ fn trace(
         // Shading frame on wo's side of the surface (surfaces reflect on both faces).
         let ng = if front { ng } else { -ng };
         let (mut frame, ns_surface) =
-            shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, &sp, pose);
+            shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, wo, &sp, pose);
         let ns = frame.z;
         let mut wo_local = frame.to_local(wo);
         // A refractive boundary takes every path on, as Mitsuba's and pbrt's dielectrics do:

@@ -288,17 +288,21 @@ pub(crate) mod generic {
 }
 
 /// The shading frame at barycentrics `b` of triangle `prim` (vertices `tri`) whose geometric
-/// normal `ng` has been put on the side the surface is seen from: the interpolated vertex
-/// normal (on `ng`'s side), bent by the normal map, with +x along the direction of anisotropy
-/// for an anisotropic material. Also the normal before the normal map (a clear coat's, unless
-/// it has its own map).
+/// normal `ng` has been put on the side the surface is seen from, for `wo` (toward the viewer
+/// or the path's previous vertex): the interpolated vertex normal (on `ng`'s side), bent by the
+/// normal map (and then toward `ng` where `wo`'s mirror reflection would leave below the
+/// surface: [`valid_reflection`]), with +x along the direction of anisotropy for an anisotropic
+/// material. Also the normal before the normal map (a clear coat's, unless it has its own
+/// map).
 #[inline]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn shading_frame(
     scene: &PreparedScene,
     prim: u32,
     tri: [Vec3; 3],
     b: [f32; 3],
     ng: Vec3,
+    wo: Vec3,
     sp: &material::SurfacePoint,
     pose: Option<&Pose<'_>>,
 ) -> (Frame, Vec3) {
@@ -320,6 +324,7 @@ pub(crate) fn shading_frame(
     let ns_surface = ns;
     if let Some(mapped) = material::normal_map(&scene.textures, material, sp) {
         ns = perturb_normal(scene, (prim, tri, b), ns, mapped, pose).unwrap_or(ns);
+        ns = valid_reflection(ng, wo, ns);
     }
     let anisotropy =
         if shading.extended { material::anisotropy(&scene.textures, material, sp) } else { None };
@@ -333,6 +338,40 @@ pub(crate) fn shading_frame(
         None => Frame::from_z(ns),
     };
     (frame, ns_surface)
+}
+
+/// A normal-mapped shading normal `n` bent toward the geometric normal `ng` (on `wo`'s side)
+/// just enough that `wo`'s mirror reflection about it leaves the surface at a cosine to `ng` of
+/// at least min(0.9 ng.wo, 0.01): Cycles' `ensure_valid_specular_reflection` (Blender 4),
+/// which production renderers apply to bump and normal maps. Without it a map that tilts the
+/// normal far from `wo` sends the specular reflection below the surface, where the path is
+/// lost, and a mirror-like surface goes black. `n` is returned unchanged where the reflection
+/// already clears the threshold (and where `wo` is on the other side of `ng`).
+///
+/// In the plane of `ng` and `n` (x along `n`'s part across `ng`), the bent normal
+/// (sqrt(1 - z²), 0, z) reflects `wo` = (I_x, ., I_z) to height t where
+/// 4 a z⁴ - 2 b z² + c = 0, a = I_x² + I_z², b = 2 (a + I_z t), c = (I_z + t)²; the root taken
+/// is the one that squaring did not add (the larger where `wo` leans away from `n`).
+#[inline]
+pub(crate) fn valid_reflection(ng: Vec3, wo: Vec3, n: Vec3) -> Vec3 {
+    let iz = wo.dot(ng);
+    if !(iz > 0.0) {
+        return n;
+    }
+    let r = 2.0 * n.dot(wo) * n - wo;
+    let threshold = (0.9 * iz).min(0.01);
+    if r.dot(ng) >= threshold {
+        return n;
+    }
+    let x = (n - n.dot(ng) * ng).try_normalize().unwrap_or(n);
+    let ix = wo.dot(x);
+    let a = ix * ix + iz * iz;
+    let b = 2.0 * (a + iz * threshold);
+    let c = (threshold + iz) * (threshold + iz);
+    let root = (b * b - 4.0 * a * c).max(0.0).sqrt();
+    let z2 = if ix < 0.0 { 0.25 * (b + root) / a } else { 0.25 * (b - root) / a };
+    let (nx, nz) = ((1.0 - z2).max(0.0).sqrt(), z2.max(0.0).sqrt());
+    (nx * x + nz * ng).normalize()
 }
 
 /// Applies a tangent-space normal from a normal map in the frame of [`tangent_basis`].
@@ -635,7 +674,8 @@ mod tests {
                 let (tri, _) = scene.triangle(prim, None);
                 let b = [0.2, 0.3, 0.5];
                 let sp = scene.surface_point(prim, b);
-                let (frame, surface) = shading_frame(&scene, prim, tri, b, Vec3::Z, &sp, None);
+                let (frame, surface) =
+                    shading_frame(&scene, prim, tri, b, Vec3::Z, Vec3::Z, &sp, None);
                 assert!((surface - Vec3::Z).length() < 1e-6);
                 // The texel's 1/255 along the bitangent aside, the normal is the expected one.
                 let n = frame.z;
@@ -659,7 +699,7 @@ mod tests {
             let (prim, b) = (0, [0.2, 0.3, 0.5]);
             let (tri, _) = scene.triangle(prim, None);
             let sp = scene.surface_point(prim, b);
-            let (frame, surface) = shading_frame(&scene, prim, tri, b, Vec3::Z, &sp, None);
+            let (frame, surface) = shading_frame(&scene, prim, tri, b, Vec3::Z, Vec3::Z, &sp, None);
             assert!((frame.z - tilted).length() < 0.01, "the base's map tilts the frame");
             let at = (prim, tri, b);
             let bsdf = surface_bsdf(&scene, at, (&sp, true, [1.0; 2]), (&frame, surface), None);

@@ -544,7 +544,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 }
             }
             let ng_i = if front { ng_i } else { -ng_i };
-            let (frame, ns_surface) = shading_frame(scene, prim, corners, b, ng_i, &sp, None);
+            let (frame, ns_surface) = shading_frame(scene, prim, corners, b, ng_i, wo_i, &sp, None);
             fx.set_lane(i, frame.x);
             fy.set_lane(i, frame.y);
             ns.set_lane(i, frame.z);
