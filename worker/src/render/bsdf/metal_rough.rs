@@ -194,11 +194,10 @@ impl<M: Microfacet> MetalRough<M> {
     }
 
     /// f(wo, wi) with the Fresnel terms (s F_d, F_m) of `fresnel` at |wo.h| in place of
-    /// Schlick's: the dielectric's specular lobe weighted by s F_d, the light under it by
-    /// 1 - max(s F_d), the metal's lobe by F_m. With [`Self::schlick_fresnel`] this is `eval`,
-    /// operation for operation (s max(F_d) is max(s F_d) exactly: rounding is monotonic).
-    /// What lies under the specular layer is weighted by 1 - max(s F_d) at the half vector,
-    /// and the metal has no multiple scattering (`generic::Kept::by_fresnel`).
+    /// Schlick's (a thin film's): the dielectric's specular lobe weighted by s F_d, the light
+    /// under it by 1 - max(s F_d) at the half vector, the metal's lobe by F_m, and no multiple
+    /// scattering (`generic::Kept::by_fresnel`). `eval` keeps energy by the albedo tables
+    /// instead (`generic::Kept::by_albedo`).
     #[inline]
     pub fn eval_with(&self, wo: Vec3, wi: Vec3, fresnel: impl Fn(f32) -> (Vec3, Vec3)) -> Vec3 {
         self.eval_kept(wo, wi, fresnel, |_, f_d| generic::Kept::by_fresnel(f_d.into()))
@@ -511,6 +510,7 @@ pub(crate) mod generic {
         lost: R,
         /// F_ms.
         colour: V3<R>,
+        /// metallic luminance(F_ms) (1 - E(mu_o)): the lobe choice's weight for it.
         multiple: R,
     }
 
