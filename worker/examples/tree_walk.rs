@@ -1,9 +1,10 @@
-//! The light tree's choice alone: nanoseconds per `choose` at a million points on the floor of
+//! The light tree's choice alone: nanoseconds per `choose`, and per choice of `choose_batch` in
+//! batches of 16 (as the wavefront asks), at a million points on the floor of
 //! `test_scenes::many_lights_gltf` (|x|, |z| <= 10 at y = 0, facing up), the fastest of seven
 //! repetitions on one thread. `TREE_WALK_POINTS=N` takes N points and one repetition (for
 //! `valgrind --tool=callgrind`). The scene of 1,024 lamps is the one `bench --many-lights`
-//! writes (`$TMPDIR/renderfarm-bench-many-PID/many-1024.gltf`).
-//! `cargo run --release -p worker --example tree_walk -- many-1024.gltf`
+//! writes (`$TMPDIR/renderfarm-bench-many-PID/many-1024.gltf`), or a number of lamps writes it.
+//! `cargo run --release -p worker --example tree_walk -- 1024`
 use std::time::Instant;
 
 use common::settings::RenderSettings;
@@ -14,8 +15,17 @@ use worker::render::{
 };
 
 fn main() {
-    let path = std::env::args().nth(1).expect("usage: tree_walk SCENE.gltf");
-    let scene = common::gltf::load_path(std::path::Path::new(&path)).expect("scene");
+    let arg = std::env::args().nth(1).expect("usage: tree_walk SCENE.gltf|LAMPS");
+    // A number: the scene of that many lamps, written here.
+    let path = match arg.parse::<usize>() {
+        Ok(n) => {
+            let path = std::env::temp_dir().join(format!("tree-walk-{}.gltf", std::process::id()));
+            std::fs::write(&path, worker::test_scenes::many_lights_gltf(n)).expect("writing");
+            path
+        }
+        Err(_) => std::path::PathBuf::from(&arg),
+    };
+    let scene = common::gltf::load_path(&path).expect("scene");
     let settings = RenderSettings::default();
     let prepared =
         prepare_with_light_choice(&scene, &settings, LightChoice::Tree).expect("prepare");
@@ -48,4 +58,24 @@ fn main() {
         check = sum;
     }
     println!("{:.1} ns a choice (checksum {check:.6e})", best * 1e9 / points.len() as f64);
+    let (ctx, u): (Vec<ShadingContext>, Vec<f32>) = points.iter().copied().unzip();
+    let mut best = f64::INFINITY;
+    for _ in 0..repeat {
+        let start = Instant::now();
+        let mut sum = 0.0f64;
+        let mut out = [None; 16];
+        for (ctx, u) in ctx.chunks(16).zip(u.chunks(16)) {
+            let out = &mut out[..ctx.len()];
+            lights.choose_batch(ctx, u, out);
+            for &(i, pmf, r) in out.iter().flatten() {
+                sum += i as f64 + pmf as f64 + r as f64;
+            }
+        }
+        best = best.min(start.elapsed().as_secs_f64());
+        check = sum;
+    }
+    println!(
+        "{:.1} ns a choice in batches of 16 (checksum {check:.6e})",
+        best * 1e9 / points.len() as f64
+    );
 }

@@ -35,6 +35,7 @@
 //!
 //! `pulp` picks AVX-512 or AVX2 at run time; a CPU with neither uses the scalar renderer.
 
+use arrayvec::ArrayVec;
 use common::{film::TileAccum, protocol::TaskSpec};
 use glam::{UVec2, Vec2, Vec3};
 use pulp::{Arch, Simd, WithSimd};
@@ -54,7 +55,7 @@ use super::{
         lanes::{F, M, V3},
         light::{
             generic::{pdf_li as triangle_pdf_li, sample_li as triangle_sample_li, TriangleSample},
-            ChooseLight, Light, ShadingContext,
+            Light, ShadingContext, CHOOSE_BATCH,
         },
         material,
         sampler::{LaneSampler, Sampler},
@@ -73,6 +74,8 @@ use super::{
 
 /// The most lanes a vector has (AVX-512's 16 f32s).
 const MAX_LANES: usize = 16;
+// The light choice takes all lanes in one batch.
+const _: () = assert!(MAX_LANES <= CHOOSE_BATCH);
 
 /// Samples that may be in flight or finished but not yet added to the film: a lane waits
 /// rather than run further ahead of the oldest unfinished sample.
@@ -356,6 +359,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // (`render::sample`, static scene) and cast, and a lane whose ray escapes takes the next
         // one at once, so that shading runs on full vectors however short the paths.
         live[..lanes].fill(false);
+        // The lanes that hit a light which the tree chooses from their previous vertex: (lane,
+        // that vertex, the light).
+        let mut asks = ArrayVec::<(usize, ShadingContext, u32), MAX_LANES>::new();
         loop {
             for i in 0..lanes {
                 if paths.alive[i] {
@@ -470,13 +476,13 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     l_area.set_lane(i, l.area);
                     // Under the tree, the probability of choosing the light from the previous
                     // vertex (the first hit takes no weight, nor a light seen from behind).
+                    // The tree's are asked for all lanes at once, below.
                     let behind = !l.two_sided && l.normal.dot(paths.dir.lane(i)) >= 0.0;
-                    let prob = if mixture.is_some() || first_bounce[i] || behind {
-                        l.probability
+                    if mixture.is_some() || first_bounce[i] || behind {
+                        l_prob.set_lane(i, l.probability);
                     } else {
-                        scene.lights.pmf(&paths.prev_ctx(i), shading.light)
-                    };
-                    l_prob.set_lane(i, prob);
+                        asks.push((i, paths.prev_ctx(i), shading.light));
+                    }
                     l_two_sided[i] = l.two_sided;
                 }
             }
@@ -486,6 +492,18 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         }
         if !live[..lanes].iter().any(|&l| l) {
             break; // Every sample of the task is done.
+        }
+        if !asks.is_empty() {
+            let (mut ctx, mut light) = ([ShadingContext::default(); MAX_LANES], [0; MAX_LANES]);
+            for (k, &(_, c, l)) in asks.iter().enumerate() {
+                (ctx[k], light[k]) = (c, l);
+            }
+            let mut prob = [0.0; MAX_LANES];
+            let n = asks.len();
+            scene.lights.pmf_batch(&ctx[..n], &light[..n], &mut prob[..n]);
+            for (&(i, _, _), &p) in asks.iter().zip(&prob) {
+                l_prob.set_lane(i, p);
+            }
         }
 
         // The hit point, its emission, its frame.
@@ -627,7 +645,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let u_lobe = if local_frame { paths.draws.draw_1d(1) } else { zero };
         let (ub_x, ub_y) = paths.draws.draw_2d(2);
         let u_rr = paths.draws.draw_1d(3);
-        // The light choice.
+        // The light choice: the tree's for all lanes at once.
+        let mut choices = [None; MAX_LANES];
         for i in 0..lanes {
             if !live[i] {
                 continue;
@@ -640,18 +659,34 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
                 continue;
             }
-            let u_light = Vec2::new(u_light_x.lane(i), u_light_y.lane(i));
             roulette[i] = paths.depth[i] + 1 > RR_MIN_DEPTH;
             has_light[i] = false;
             other_light[i] = false;
-            let choice = match mixture {
-                Some(m) => m.choose_remapped(u_light.x),
-                None => {
-                    let ctx = ShadingContext { p: p.lane(i), n: ns.lane(i) };
-                    scene.lights.choose(&ctx, u_light.x)
-                }
-            };
-            if let Some((light, pdf, u_x)) = choice {
+            if let Some(m) = mixture {
+                choices[i] = m.choose_remapped(u_light_x.lane(i));
+            }
+        }
+        if mixture.is_none() {
+            let (mut ctx, mut u, mut asked) =
+                ([ShadingContext::default(); MAX_LANES], [0.0; MAX_LANES], [0; MAX_LANES]);
+            let mut n = 0;
+            for i in (0..lanes).filter(|&i| live[i] && cont[i]) {
+                (ctx[n], u[n], asked[n]) =
+                    (ShadingContext { p: p.lane(i), n: ns.lane(i) }, u_light_x.lane(i), i);
+                n += 1;
+            }
+            let mut chosen = [None; MAX_LANES];
+            scene.lights.choose_batch(&ctx[..n], &u[..n], &mut chosen[..n]);
+            for (&i, &c) in asked[..n].iter().zip(&chosen) {
+                choices[i] = c;
+            }
+        }
+        for i in 0..lanes {
+            if !live[i] || !cont[i] {
+                continue;
+            }
+            let u_light = Vec2::new(u_light_x.lane(i), u_light_y.lane(i));
+            if let Some((light, pdf, u_x)) = choices[i] {
                 has_light[i] = true;
                 choice_pdf.set_lane(i, pdf);
                 ul_x.set_lane(i, u_x);

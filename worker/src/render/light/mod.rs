@@ -26,7 +26,7 @@ pub use area::TriangleLight;
 pub use environment::{Environment, MapEnvironment};
 pub use mixture::{PowerMixture, EMITTER_SHARE};
 pub use punctual::{spot_falloff, DirectionalLight, PointLight, SpotLight};
-pub use tree::{LightBounds, LightTree};
+pub use tree::{LightBounds, LightTree, BATCH as CHOOSE_BATCH};
 
 use std::{f32::consts::PI, sync::Arc};
 
@@ -423,6 +423,37 @@ impl LightSampler {
     /// Whether the scene chooses by the tree.
     pub fn uses_tree(&self) -> bool {
         matches!(self.strategy, Strategy::Tree(_))
+    }
+
+    /// `choose` at each of `ctx` with each of `u` (at most `tree::BATCH`), into `out`: the same
+    /// choices bit for bit, the tree's walks interleaved.
+    pub fn choose_batch(
+        &self,
+        ctx: &[ShadingContext],
+        u: &[f32],
+        out: &mut [Option<(u32, f32, f32)>],
+    ) {
+        match &self.strategy {
+            Strategy::Mixture(m) => {
+                for ((c, &u), o) in ctx.iter().zip(u).zip(out) {
+                    *o = ChooseLight::choose(m, c, u);
+                }
+            }
+            Strategy::Tree(t) => t.choose_batch(ctx, u, out),
+        }
+    }
+
+    /// `pmf` at each of `ctx` for each of `light` (at most `tree::BATCH`), into `out`: the same
+    /// probabilities bit for bit, the tree's walks interleaved.
+    pub fn pmf_batch(&self, ctx: &[ShadingContext], light: &[u32], out: &mut [f32]) {
+        match &self.strategy {
+            Strategy::Mixture(m) => {
+                for ((c, &l), o) in ctx.iter().zip(light).zip(out) {
+                    *o = m.pmf(c, l);
+                }
+            }
+            Strategy::Tree(t) => t.pmf_batch(ctx, light, out),
+        }
     }
 }
 

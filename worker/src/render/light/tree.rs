@@ -599,70 +599,135 @@ fn split(lights: &mut [(u32, LightBounds)], depth: usize) -> usize {
     mid
 }
 
-impl ChooseLight for LightTree {
-    fn choose(&self, ctx: &ShadingContext, u: f32) -> Option<(u32, f32, f32)> {
-        // The largest f32 below 1: remapped numbers stay in [0, 1).
-        const BELOW_ONE: f64 = 1.0 - f32::EPSILON as f64 / 2.0;
+/// A choice on its way down the tree: the node it stands at, the share of [0, 1) it has come
+/// down to (`start`, `width`), the probability so far, and the number being placed.
+#[derive(Clone, Copy, Debug)]
+struct Walk {
+    node: usize,
+    start: f64,
+    width: f64,
+    pmf: f32,
+    u: f64,
+}
+
+/// The largest f32 below 1: remapped numbers stay in [0, 1).
+const BELOW_ONE: f64 = 1.0 - f32::EPSILON as f64 / 2.0;
+
+/// Most receivers whose lights are chosen, or whose probabilities are worked out, together
+/// (`LightTree::choose_batch`, `pmf_batch`): their walks go down level by level side by side,
+/// each level's importances first for every walk (work without branches that the processor
+/// overlaps), then each walk's step. On Veach's scene under the tree this took 7-10% off a
+/// sample against one walk after another.
+pub const BATCH: usize = 16;
+
+impl LightTree {
+    /// A choice's first step: a light at infinity, or a walk from the root (`Err` holds a
+    /// finished choice).
+    #[inline(always)]
+    fn begin(&self, u: f32) -> Result<Walk, Option<(u32, f32, f32)>> {
         let p_infinite = self.infinite_share();
-        let mut u = u as f64;
+        let u = u as f64;
         if u < p_infinite as f64 {
             let n = self.infinite.len();
             let scaled = u / p_infinite as f64 * n as f64;
             let k = (scaled as usize).min(n - 1);
             let remapped = (scaled - k as f64).clamp(0.0, BELOW_ONE) as f32;
-            return Some((self.infinite[k], p_infinite / n as f32, remapped));
+            return Err(Some((self.infinite[k], p_infinite / n as f32, remapped)));
         }
         if self.nodes.is_empty() {
-            return None;
+            return Err(None);
         }
-        u = ((u - p_infinite as f64) / (1.0 - p_infinite) as f64).clamp(0.0, BELOW_ONE);
-        let mut pmf = 1.0 - p_infinite;
-        let mut node = 0usize;
         // The chosen node's share of [0, 1): `u` is stretched over it once, at the leaf, rather
         // than divided at every level (a chain of divisions the walk would wait on).
-        let (mut start, mut width) = (0.0f64, 1.0f64);
-        loop {
-            let probabilities = self.child_probabilities(node, ctx);
-            // The lane whose share holds `u`; the last with a share where rounding leaves `u`
-            // past them all.
-            let last = (0..4).rev().find(|&k| probabilities[k] > 0.0)?;
-            let mut k = last;
-            let mut lane_start = start;
-            for (j, &p) in probabilities[..last].iter().enumerate() {
-                if p > 0.0 {
-                    let end = lane_start + width * p as f64;
-                    if u < end {
-                        k = j;
-                        break;
+        Ok(Walk {
+            node: 0,
+            start: 0.0,
+            width: 1.0,
+            pmf: 1.0 - p_infinite,
+            u: ((u - p_infinite as f64) / (1.0 - p_infinite) as f64).clamp(0.0, BELOW_ONE),
+        })
+    }
+
+    /// One level of a walk, given its node's `child_probabilities`: down to the child whose
+    /// share holds the number, or the choice where that child is a light (`Some`).
+    #[inline(always)]
+    fn step(&self, w: &mut Walk, probabilities: [f32; 4]) -> Option<Option<(u32, f32, f32)>> {
+        // The lane whose share holds `u`; the last with a share where rounding leaves `u`
+        // past them all. Lanes without a share end where the one before them ends, so none is
+        // taken: the shares' ends rise, and the lane is the number of ends at or below `u`.
+        let last = match probabilities.map(|p| p > 0.0) {
+            [_, _, _, true] => 3,
+            [_, _, true, false] => 2,
+            [_, true, false, false] => 1,
+            [true, false, false, false] => 0,
+            [false, false, false, false] => return Some(None),
+        };
+        let mut ends = [0.0f64; 4];
+        let mut end = w.start;
+        for (e, &p) in ends.iter_mut().zip(&probabilities) {
+            end += w.width * p as f64;
+            *e = end;
+        }
+        let k = (ends[..3].iter().filter(|&&e| e <= w.u).count()).min(last);
+        let lane_start = if k == 0 { w.start } else { ends[k - 1] };
+        let p = probabilities[k];
+        w.start = lane_start;
+        w.width *= p as f64;
+        w.pmf *= p;
+        let n = &self.nodes[w.node];
+        if n.leaves & (1 << k) != 0 {
+            let remapped = ((w.u - w.start) / w.width).clamp(0.0, BELOW_ONE);
+            return Some(Some((n.children[k], w.pmf, remapped as f32)));
+        }
+        w.node = n.children[k] as usize;
+        None
+    }
+
+    /// `choose` at each of `ctx` with each of `u` (at most `BATCH`), into `out`: the same
+    /// choices bit for bit, the walks interleaved.
+    pub fn choose_batch(
+        &self,
+        ctx: &[ShadingContext],
+        u: &[f32],
+        out: &mut [Option<(u32, f32, f32)>],
+    ) {
+        assert!(ctx.len() <= BATCH && u.len() == ctx.len() && out.len() == ctx.len());
+        let mut walks = arrayvec::ArrayVec::<(usize, Walk), BATCH>::new();
+        for (i, &u) in u.iter().enumerate() {
+            match self.begin(u) {
+                Ok(w) => walks.push((i, w)),
+                Err(done) => out[i] = done,
+            }
+        }
+        // Each level in two passes: the probabilities of every walk's node (independent work,
+        // without branches, that the processor overlaps), then every walk's step.
+        let mut probabilities = [[0.0; 4]; BATCH];
+        while !walks.is_empty() {
+            for (p, (i, w)) in probabilities.iter_mut().zip(&walks) {
+                *p = self.child_probabilities(w.node, &ctx[*i]);
+            }
+            let mut kept = 0;
+            for k in 0..walks.len() {
+                let (i, mut w) = walks[k];
+                match self.step(&mut w, probabilities[k]) {
+                    Some(done) => out[i] = done,
+                    None => {
+                        walks[kept] = (i, w);
+                        kept += 1;
                     }
-                    lane_start = end;
                 }
             }
-            let p = probabilities[k];
-            start = lane_start;
-            width *= p as f64;
-            pmf *= p;
-            let n = &self.nodes[node];
-            if n.leaves & (1 << k) != 0 {
-                let remapped = ((u - start) / width).clamp(0.0, BELOW_ONE);
-                return Some((n.children[k], pmf, remapped as f32));
-            }
-            node = n.children[k] as usize;
+            walks.truncate(kept);
         }
     }
 
-    fn pmf(&self, ctx: &ShadingContext, light: u32) -> f32 {
-        let p_infinite = self.infinite_share();
-        let k = self.infinite_of[light as usize];
-        if k != u32::MAX {
-            return p_infinite / self.infinite.len() as f32;
-        }
+    /// The path from the root to `light`'s leaf, leaf first (empty for a light not in the tree).
+    fn path(&self, light: u32) -> arrayvec::ArrayVec<(u32, u8), MAX_DEPTH> {
+        let mut path = arrayvec::ArrayVec::new();
         let (leaf, lane) = self.leaf_of[light as usize];
         if leaf == u32::MAX {
-            return 0.0;
+            return path;
         }
-        // The path from the root, then the same products in the same order as `choose`.
-        let mut path = arrayvec::ArrayVec::<(u32, u8), MAX_DEPTH>::new();
         let mut at = (leaf, lane);
         loop {
             path.push(at);
@@ -671,6 +736,64 @@ impl ChooseLight for LightTree {
             }
             at = self.parents[at.0 as usize];
         }
+        path
+    }
+
+    /// `pmf` at each of `ctx` for each of `light` (at most `BATCH`), into `out`: the same
+    /// probabilities bit for bit, the walks interleaved.
+    pub fn pmf_batch(&self, ctx: &[ShadingContext], light: &[u32], out: &mut [f32]) {
+        assert!(ctx.len() <= BATCH && light.len() == ctx.len() && out.len() == ctx.len());
+        let p_infinite = self.infinite_share();
+        let mut walks =
+            arrayvec::ArrayVec::<(usize, arrayvec::ArrayVec<(u32, u8), MAX_DEPTH>), BATCH>::new();
+        for (i, &l) in light.iter().enumerate() {
+            if self.infinite_of[l as usize] != u32::MAX {
+                out[i] = p_infinite / self.infinite.len() as f32;
+                continue;
+            }
+            let path = self.path(l);
+            if path.is_empty() {
+                out[i] = 0.0;
+                continue;
+            }
+            out[i] = 1.0 - p_infinite;
+            walks.push((i, path));
+        }
+        // Root first, as `pmf` multiplies.
+        while !walks.is_empty() {
+            for (i, path) in walks.iter_mut() {
+                let (node, lane) = path.pop().expect("walks end when their paths do");
+                out[*i] *= self.child_probabilities(node as usize, &ctx[*i])[lane as usize];
+            }
+            walks.retain(|(_, path)| !path.is_empty());
+        }
+    }
+}
+
+impl ChooseLight for LightTree {
+    fn choose(&self, ctx: &ShadingContext, u: f32) -> Option<(u32, f32, f32)> {
+        let mut w = match self.begin(u) {
+            Ok(w) => w,
+            Err(done) => return done,
+        };
+        loop {
+            let probabilities = self.child_probabilities(w.node, ctx);
+            if let Some(done) = self.step(&mut w, probabilities) {
+                return done;
+            }
+        }
+    }
+
+    fn pmf(&self, ctx: &ShadingContext, light: u32) -> f32 {
+        let p_infinite = self.infinite_share();
+        if self.infinite_of[light as usize] != u32::MAX {
+            return p_infinite / self.infinite.len() as f32;
+        }
+        let path = self.path(light);
+        if path.is_empty() {
+            return 0.0;
+        }
+        // The same products in the same order as `choose`.
         let mut pmf = 1.0 - p_infinite;
         for &(node, lane) in path.iter().rev() {
             pmf *= self.child_probabilities(node as usize, ctx)[lane as usize];

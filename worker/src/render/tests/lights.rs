@@ -12,6 +12,7 @@ use super::chi2::{chi2_statistic, sidak_alpha, Chi2Test, Gnomonic, Rng};
 use crate::render::light::{
     spot_falloff, ChooseLight, DirectionalLight, Environment, Light, LightChoice, LightSampler,
     MapEnvironment, PointLight, PowerMixture, ShadingContext, SpotLight, TriangleLight,
+    CHOOSE_BATCH,
 };
 use common::envmap::EnvMap;
 
@@ -452,6 +453,44 @@ fn light_tree_probabilities_sum_to_one_and_match_choose() {
             assert!(pmf > 0.0 && (0.0..1.0).contains(&remapped));
         }
     }
+}
+
+/// The batched choice and probability (`choose_batch`, `pmf_batch`, which the wavefront calls for
+/// all its lanes at once) give `choose`'s and `pmf`'s bits, in batches of every size with
+/// receivers of every kind side by side (walks that end at different depths, lights at infinity).
+#[test]
+fn light_tree_batches_give_the_single_choices_bit_for_bit() {
+    let sampler = tree_sampler();
+    let k = sampler.lights.len() as u32;
+    let mut rng = Rng::from_name("light_tree_batches_give_the_single_choices_bit_for_bit");
+    let mut walked = 0;
+    for round in 0..2_000 {
+        let n = 1 + round % CHOOSE_BATCH;
+        let ctx: Vec<ShadingContext> = (0..n)
+            .map(|_| {
+                let (p, normal) = TREE_POINTS[(rng.next_u64() % TREE_POINTS.len() as u64) as usize];
+                let jitter = rng.next_vec3() - 0.5;
+                ShadingContext { p: p + jitter * 0.2, n: normal.normalize_or_zero() }
+            })
+            .collect();
+        let u: Vec<f32> = (0..n).map(|_| rng.next_f32()).collect();
+        let mut chosen = vec![None; n];
+        sampler.choose_batch(&ctx, &u, &mut chosen);
+        let light: Vec<u32> = (0..n).map(|_| (rng.next_u64() % k as u64) as u32).collect();
+        let mut pmf = vec![0.0; n];
+        sampler.pmf_batch(&ctx, &light, &mut pmf);
+        for i in 0..n {
+            let single = sampler.choose(&ctx[i], u[i]);
+            assert_eq!(
+                chosen[i].map(|(l, p, r)| (l, p.to_bits(), r.to_bits())),
+                single.map(|(l, p, r)| (l, p.to_bits(), r.to_bits())),
+                "round {round}, receiver {i} of {n}"
+            );
+            assert_eq!(pmf[i].to_bits(), sampler.pmf(&ctx[i], light[i]).to_bits());
+            walked += usize::from(pmf[i] > 0.0 && !sampler.lights[light[i] as usize].is_infinite());
+        }
+    }
+    assert!(walked > 1_000, "the batches walk the tree ({walked} probabilities)");
 }
 
 #[test]
