@@ -22,6 +22,16 @@ fn white_sphere(metallic: f64, roughness: f64) -> common::scene::Scene {
 
 /// [`white_sphere`]'s file (`tag` tells test files apart).
 fn white_sphere_file(metallic: f64, roughness: f64, tag: &str) -> std::path::PathBuf {
+    white_sphere_file_with(metallic, roughness, tag, json!({}))
+}
+
+/// [`white_sphere_file`] with the material's `extensions`.
+fn white_sphere_file_with(
+    metallic: f64,
+    roughness: f64,
+    tag: &str,
+    extensions: serde_json::Value,
+) -> std::path::PathBuf {
     let tag = format!("energy-{metallic}-{roughness}{tag}");
     edited_scene("furnace", &tag, |json| {
         let m = &mut json["materials"][0];
@@ -30,7 +40,9 @@ fn white_sphere_file(metallic: f64, roughness: f64, tag: &str) -> std::path::Pat
             "metallicFactor": metallic,
             "roughnessFactor": roughness
         });
-        m.as_object_mut().unwrap().remove("extensions");
+        let used: Vec<String> = extensions.as_object().unwrap().keys().cloned().collect();
+        m["extensions"] = extensions;
+        json["extensionsUsed"] = json!(used);
     })
 }
 
@@ -83,6 +95,26 @@ fn a_white_metal_reflects_all_it_receives_at_every_roughness() {
 #[test]
 fn a_white_dielectric_reflects_all_it_receives_at_every_roughness() {
     assert_white_spheres("dielectric", 0.0, &[0.0, 0.05, 0.2, 0.5, 1.0]);
+}
+
+/// A white metal under a thin film (`KHR_materials_iridescence`) is white too: a lossless film
+/// over a perfect mirror reflects all it receives, and the metal's multiple scattering gives back
+/// what single scattering loses. Without the lobe, a film of index 1.3 over a white metal of
+/// roughness 0.5 averaged 0.895, and this test fails at a pixel of 0.85.
+#[test]
+fn a_white_metal_under_a_thin_film_reflects_all_it_receives() {
+    for roughness in [0.5, 1.0] {
+        let film = json!({"KHR_materials_iridescence": {
+            "iridescenceFactor": 1.0, "iridescenceIor": 1.8, "iridescenceThicknessMaximum": 400.0
+        }});
+        let path = white_sphere_file_with(1.0, roughness, "-film", film);
+        let scene = common::gltf::load_path(&path).unwrap();
+        assert!(scene.materials[0].iridescence.is_some(), "the film is loaded");
+        let name = format!("film over metal r{roughness}");
+        let (mean, lo, hi) = white_in_the_furnace(&name, &scene, 0.01);
+        println!("{name}: mean {mean:.4}, pixels {lo:.4} .. {hi:.4}");
+        assert!((mean - 1.0).abs() < 4e-3, "{name}: the sphere's mean is {mean}");
+    }
 }
 
 /// The BSDFs are reciprocal (the albedo scaling and the multiple-scattering lobe are symmetric

@@ -171,7 +171,9 @@ impl<M: Microfacet> MetalRough<M> {
         let (f_d, f_m) = fresnel(wo.z);
         let f_d_max = f_d.max_element();
         let spec = self.metallic * generic::luminance(f_m.into()) + (1.0 - self.metallic) * f_d_max;
-        generic::lobe_weights_given(&self.lobes(), spec, f_d_max, 0.0)
+        let l = self.lobes();
+        let multiple = generic::multiple_weight(&l, self.ggx.albedo_alpha(), wo.z);
+        generic::lobe_weights_given(&l, spec, f_d_max, multiple)
     }
 
     /// The Schlick Fresnel terms at `cos` = |wo.h|: the dielectric's weighted by
@@ -195,12 +197,15 @@ impl<M: Microfacet> MetalRough<M> {
 
     /// f(wo, wi) with the Fresnel terms (s F_d, F_m) of `fresnel` at |wo.h| in place of
     /// Schlick's (a thin film's): the dielectric's specular lobe weighted by s F_d, the light
-    /// under it by 1 - max(s F_d) at the half vector, the metal's lobe by F_m, and no multiple
-    /// scattering (`generic::Kept::by_fresnel`). `eval` keeps energy by the albedo tables
-    /// instead (`generic::Kept::by_albedo`).
+    /// under it by 1 - max(s F_d) at the half vector, the metal's lobe by F_m, and the metal's
+    /// multiple scattering from the albedo tables (`generic::Kept::by_fresnel`). `eval` weighs
+    /// the light under the specular layer by the tables too (`generic::Kept::by_albedo`).
     #[inline]
     pub fn eval_with(&self, wo: Vec3, wi: Vec3, fresnel: impl Fn(f32) -> (Vec3, Vec3)) -> Vec3 {
-        self.eval_kept(wo, wi, fresnel, |_, f_d| generic::Kept::by_fresnel(f_d.into()))
+        let alpha = self.ggx.albedo_alpha();
+        self.eval_kept(wo, wi, fresnel, |l, f_d| {
+            generic::Kept::by_fresnel(l, f_d.into(), alpha, wo.z, wi.z.abs())
+        })
     }
 
     /// f(wo, wi) with the Fresnel terms of `fresnel` and what `kept` keeps of the light the
@@ -462,16 +467,14 @@ pub(crate) mod generic {
     }
 
     impl<R: Real> Kept<R> {
-        /// The glTF specification's sketch, which a thin film's Fresnel (`thin_film.rs`) keeps:
-        /// what lies under the specular layer weighted by 1 - max(s F_d) at the half vector, and
-        /// no multiple scattering.
+        /// What a thin film's Fresnel (`thin_film.rs`) keeps: under the specular layer, the glTF
+        /// specification's sketch, 1 - max(s F_d) at the half vector; and the metal's multiple
+        /// scattering as `by_albedo`'s, its colour F_ms from the base's Schlick mean (a film
+        /// over a white metal reflects all, as the metal does, so F_ms is 1 there too).
         #[inline(always)]
-        pub(crate) fn by_fresnel(f_d: V3<R>) -> Self {
-            let zero = f_d.x.konst(0.0);
-            Kept {
-                under: f_d.x.konst(1.0) - f_d.max_element(),
-                multiple: V3::new(zero, zero, zero),
-            }
+        pub(crate) fn by_fresnel(l: &Lobes<R>, f_d: V3<R>, alpha: R, mu_o: R, mu_i: R) -> Self {
+            let multiple = Kept::by_albedo(l, alpha, mu_o, mu_i).multiple;
+            Kept { under: f_d.x.konst(1.0) - f_d.max_element(), multiple }
         }
 
         /// Energy kept by the albedo tables (`ggx_albedo`) at roughness `alpha`, for `wo` and `wi`
@@ -496,6 +499,12 @@ pub(crate) mod generic {
             let lost = o.lost * (one - e_i).max0();
             Kept { under, multiple: o.colour.scale(lost) }
         }
+    }
+
+    /// The lobe choice's weight for the metal's multiple scattering at `wo_z` (`Seen::multiple`).
+    #[inline(always)]
+    pub(crate) fn multiple_weight<R: Real>(l: &Lobes<R>, alpha: R, wo_z: R) -> R {
+        l.seen.unwrap_or_else(|| Seen::new(l, alpha, wo_z)).multiple
     }
 
     /// The albedo tables read for the `wo` of a bounce, at the roughness `alpha` of the tables

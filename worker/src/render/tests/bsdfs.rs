@@ -656,13 +656,13 @@ fn sheen_albedo_table_matches_the_lobe() {
     }
 }
 
-/// A thin film over a white conductor gains no energy: the film's Fresnel reflectance is at
-/// most 1 in every channel, so no channel's albedo exceeds 1 beyond its noise, for any film.
-/// (A white dielectric is no such test: the glTF BRDF's scaling of the diffuse lobe by the
-/// Fresnel at |wo.h| gains energy at grazing angles with Schlick's Fresnel already, up to 1.7
-/// at cos 0.05, and the film's with it.)
+/// A thin film over a white conductor neither gains nor loses energy: a lossless film over a
+/// perfect mirror reflects all it receives, and the metal's multiple scattering gives back what
+/// single scattering off the microfacets loses. Every channel's albedo is 1 within 4 standard
+/// errors plus the albedo tables' interpolation error (4e-3, as `worker/tests/energy.rs`), for
+/// any film, roughness and angle. Without the multiple scattering, roughness 1 loses up to half.
 #[test]
-fn thin_films_over_a_white_conductor_gain_no_energy() {
+fn thin_films_over_a_white_conductor_keep_all_energy() {
     let mut rng = Rng::from_name("thin_films_over_a_white_conductor_gain_no_energy");
     let n = 100_000;
     {
@@ -687,7 +687,7 @@ fn thin_films_over_a_white_conductor_gain_no_energy() {
                     println!("{case} coswo{cos_wo}: albedo {mean:.4} +- {error:.4}");
                     for k in 0..3 {
                         assert!(
-                            mean[k] <= 1.0 + 4.0 * error[k] + 1e-6,
+                            (mean[k] - 1.0).abs() <= 4.0 * error[k] + 4e-3,
                             "{case} cos {cos_wo}: channel {k} {mean} +- {error}"
                         );
                     }
