@@ -172,8 +172,8 @@ impl<M: Microfacet> MetalRough<M> {
         let f_d_max = f_d.max_element();
         let spec = self.metallic * generic::luminance(f_m.into()) + (1.0 - self.metallic) * f_d_max;
         let l = self.lobes();
-        let multiple = generic::multiple_weight(&l, self.ggx.albedo_alpha(), wo.z);
-        generic::lobe_weights_given(&l, spec, f_d_max, multiple)
+        let (multiple, lost) = generic::multiple_weights(&l, self.ggx.albedo_alpha(), wo.z);
+        generic::lobe_weights_given(&l, spec, f_d_max, multiple, lost)
     }
 
     /// The Schlick Fresnel terms at `cos` = |wo.h|: the dielectric's weighted by
@@ -231,8 +231,7 @@ impl<M: Microfacet> MetalRough<M> {
             let spec_t = generic::specular(self.ggx.d(h), self.ggx.g2(wo, wm), wo.z, wm.z);
             let (f_d, _) = fresnel(wo.dot(h));
             let lobes = self.lobes();
-            let under = kept(&lobes, f_d).under;
-            return generic::transmitted(&lobes, f_d.into(), spec_t, under).into();
+            return generic::transmitted(&lobes, spec_t, kept(&lobes, f_d)).into();
         }
         let h = (wo + wi).normalize();
         let spec = generic::specular(self.ggx.d(h), self.ggx.g2(wo, wi), wo.z, wi.z);
@@ -414,19 +413,22 @@ pub(crate) mod generic {
         let f_m = toward_one(l.base, w);
         let f_d_max = toward_one(l.f0, w).max_element();
         let spec = l.metallic * luminance(f_m) + (one - l.metallic) * l.specular * f_d_max;
-        let multiple = l.seen.unwrap_or_else(|| Seen::new(l, alpha, wo_z)).multiple;
-        lobe_weights_given(l, spec, l.specular * f_d_max, multiple)
+        let (multiple, lost) = multiple_weights(l, alpha, wo_z);
+        lobe_weights_given(l, spec, l.specular * f_d_max, multiple, lost)
     }
 
     /// The lobe weights from the specular lobes' weight `spec`, the share `reflected` of the
-    /// light the dielectric's specular layer reflects (s max(F_d)), and the albedo `multiple`
-    /// of the metal's multiple scattering (sampled with the cosine lobe).
+    /// light the dielectric's specular layer reflects (s max(F_d)), the albedo `multiple` of
+    /// the metal's multiple scattering (sampled with the cosine lobe), and the share `lost`
+    /// (1 - E(mu_o)) of thin-walled transmission's multiple scattering (sampled with the far
+    /// side's cosine lobe).
     #[inline(always)]
     pub(crate) fn lobe_weights_given<R: Real>(
         l: &Lobes<R>,
         spec: R,
         reflected: R,
         multiple: R,
+        lost: R,
     ) -> (R, R, R, R) {
         let one = spec.konst(1.0);
         let entering = (one - l.metallic) * (one - reflected) * luminance(l.base);
@@ -436,7 +438,8 @@ pub(crate) mod generic {
             * (one - reflected)
             * (one - l.transmission)
             * l.diffuse_transmission
-            * luminance(l.diffuse_transmission_color);
+            * luminance(l.diffuse_transmission_color)
+            + trans * lost;
         let diff = diff * (one - l.diffuse_transmission);
         // Exact without a metal: x + 0 is x.
         let total = spec + diff + trans + dtrans + multiple;
@@ -464,6 +467,12 @@ pub(crate) mod generic {
         pub(crate) under: R,
         /// The metal's multiple-scattering lobe (before the weight `metallic`).
         pub(crate) multiple: V3<R>,
+        /// The weight of thin-walled transmission (the light that enters below the specular
+        /// layer, before `transmission` and the base colour).
+        pub(crate) through: R,
+        /// White multiple scattering, (1 - E(mu_o)) (1 - E(mu_i)) / (pi (1 - E_avg)), which
+        /// thin-walled transmission adds to its microfacet lobe.
+        pub(crate) lost: R,
     }
 
     impl<R: Real> Kept<R> {
@@ -473,8 +482,8 @@ pub(crate) mod generic {
         /// over a white metal reflects all, as the metal does, so F_ms is 1 there too).
         #[inline(always)]
         pub(crate) fn by_fresnel(l: &Lobes<R>, f_d: V3<R>, alpha: R, mu_o: R, mu_i: R) -> Self {
-            let multiple = Kept::by_albedo(l, alpha, mu_o, mu_i).multiple;
-            Kept { under: f_d.x.konst(1.0) - f_d.max_element(), multiple }
+            let under = f_d.x.konst(1.0) - f_d.max_element();
+            Kept { under, through: under, ..Kept::by_albedo(l, alpha, mu_o, mu_i) }
         }
 
         /// Energy kept by the albedo tables (`ggx_albedo`) at roughness `alpha`, for `wo` and `wi`
@@ -497,14 +506,16 @@ pub(crate) mod generic {
             let [e_i, w_i] = R::map_lanes([mu_i, o.alpha], albedos);
             let under = o.under * (one - layer(l, e_i, w_i)).max0();
             let lost = o.lost * (one - e_i).max0();
-            Kept { under, multiple: o.colour.scale(lost) }
+            Kept { under, multiple: o.colour.scale(lost), through: o.through, lost }
         }
     }
 
-    /// The lobe choice's weight for the metal's multiple scattering at `wo_z` (`Seen::multiple`).
+    /// The lobe choice's weights for multiple scattering at `wo_z`: the metal's
+    /// (`Seen::multiple`) and the share 1 - E(mu_o) of thin-walled transmission's.
     #[inline(always)]
-    pub(crate) fn multiple_weight<R: Real>(l: &Lobes<R>, alpha: R, wo_z: R) -> R {
-        l.seen.unwrap_or_else(|| Seen::new(l, alpha, wo_z)).multiple
+    pub(crate) fn multiple_weights<R: Real>(l: &Lobes<R>, alpha: R, wo_z: R) -> (R, R) {
+        let o = l.seen.unwrap_or_else(|| Seen::new(l, alpha, wo_z));
+        (o.multiple, o.lost_share)
     }
 
     /// The albedo tables read for the `wo` of a bounce, at the roughness `alpha` of the tables
@@ -521,6 +532,11 @@ pub(crate) mod generic {
         colour: V3<R>,
         /// metallic luminance(F_ms) (1 - E(mu_o)): the lobe choice's weight for it.
         multiple: R,
+        /// 1 - L(mu_o): what enters below the specular layer, the weight of thin-walled
+        /// transmission.
+        through: R,
+        /// 1 - E(mu_o).
+        lost_share: R,
     }
 
     impl<R: Real> Seen<R> {
@@ -535,7 +551,9 @@ pub(crate) mod generic {
             let f_avg = l.base + (V3::new(one, one, one) - l.base).scale(one.konst(1.0 / 21.0));
             let colour = multiple_colour(f_avg, e_avg);
             let multiple = l.metallic * luminance(colour) * (one - e_o).max0();
-            Seen { alpha, under, lost, colour, multiple }
+            let through = (one - layer(l, e_o, w_o)).max0();
+            let lost_share = (one - e_o).max0();
+            Seen { alpha, under, lost, colour, multiple, through, lost_share }
         }
     }
 
@@ -603,16 +621,18 @@ pub(crate) mod generic {
             + kept.multiple.scale(l.metallic)
     }
 
-    /// f for `wi` below (thin-walled transmission), from the dielectric Fresnel term at the
-    /// mirrored half vector, the mirrored microfacet lobe's value `spec_t`, and the weight
-    /// `under` of the light under the specular layer (`Kept::under` for `wi` mirrored).
+    /// f for `wi` below: thin-walled transmission, the mirrored microfacet lobe's value `spec_t`
+    /// plus white multiple scattering, weighted by what `kept` lets through (1 - L(mu_o), the
+    /// albedo scaling of glTF's layering extensions, so that a white surface passes all that its
+    /// specular layer does not reflect); and diffuse transmission, weighted by `Kept::under`
+    /// (for `wi` mirrored).
     #[inline(always)]
-    pub(crate) fn transmitted<R: Real>(l: &Lobes<R>, f_d: V3<R>, spec_t: R, under: R) -> V3<R> {
+    pub(crate) fn transmitted<R: Real>(l: &Lobes<R>, spec_t: R, kept: Kept<R>) -> V3<R> {
         let (zero, one) = (spec_t.konst(0.0), spec_t.konst(1.0));
-        let entering = one - f_d.max_element();
-        let through = l.base.scale((one - l.metallic) * entering * l.transmission).scale(spec_t);
+        let weight = (one - l.metallic) * kept.through * l.transmission;
+        let through = l.base.scale(weight * (spec_t + kept.lost));
         // The diffused light's share that leaves on the far side, Lambertian there.
-        let diffused = (one - l.metallic) * under * (one - l.transmission);
+        let diffused = (one - l.metallic) * kept.under * (one - l.transmission);
         let far = through
             + l.diffuse_transmission_color
                 .scale(diffused * l.diffuse_transmission)
@@ -672,8 +692,7 @@ pub(crate) mod generic {
             let wm = mirror(wi);
             let h = (wo + wm).normalize();
             let spec_t = specular(m.d(h), m.g2(wo, wm), wo.z, wm.z);
-            let (f_d, _) = schlick_fresnel(l, wo.dot(h));
-            V3::select(lane_transmits(l), transmitted(l, f_d, spec_t, kept.under), z3)
+            V3::select(lane_transmits(l), transmitted(l, spec_t, kept), z3)
         } else {
             z3
         };

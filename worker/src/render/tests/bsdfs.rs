@@ -197,7 +197,10 @@ fn albedo_both_sides(bsdf: &Bsdf, wo: Vec3, n: usize, rng: &mut Rng) -> [(f64, f
 fn thin_transmission_passes_what_the_surface_does_not_reflect() {
     // White, fully transmitting glass (ior 1.5, f0 = 0.04): nothing is diffused, so everything
     // either reflects or passes through. Near-specular at normal incidence: 4% reflects and 96%
-    // passes (single scattering loses a little more as roughness grows); never more than 100%.
+    // passes. At every roughness and angle all of it, within the albedo tables' interpolation
+    // error (4e-3, as `worker/tests/energy.rs`): the transmitted lobe passes all that the
+    // specular layer does not reflect, its multiple scattering included (single scattering
+    // alone lost up to 20% at roughness 1).
     let mut rng = Rng::from_name("thin_transmission_passes_what_the_surface_does_not_reflect");
     let n = 200_000;
     for roughness in ROUGHNESS {
@@ -209,7 +212,10 @@ fn thin_transmission_passes_what_the_surface_does_not_reflect() {
                 "transmitting r{roughness} coswo{cos_wo}: albedo {total:.5} +- {e_total:.5}, \
                  through {through:.5} +- {e_through:.5}"
             );
-            assert!(total <= 1.0 + 3.0 * e_total + 1e-6, "r{roughness} cos {cos_wo}: {total}");
+            assert!(
+                (total - 1.0).abs() <= 3.0 * e_total + 4e-3,
+                "r{roughness} cos {cos_wo}: {total}"
+            );
             if roughness == 0.05 && cos_wo == 1.0 {
                 assert!((total - 1.0).abs() < 5e-3, "near-specular albedo {total} +- {e_total}");
                 assert!((through - 0.96).abs() < 5e-3, "near-specular through {through}");
