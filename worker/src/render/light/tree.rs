@@ -616,8 +616,9 @@ const BELOW_ONE: f64 = 1.0 - f32::EPSILON as f64 / 2.0;
 /// Most receivers whose lights are chosen, or whose probabilities are worked out, together
 /// (`LightTree::choose_batch`, `pmf_batch`): their walks go down level by level side by side,
 /// each level's importances first for every walk (work without branches that the processor
-/// overlaps), then each walk's step. On Veach's scene under the tree this took 7-10% off a
-/// sample against one walk after another.
+/// overlaps), then each walk's step. With the step's branchless choice, this took 13-18% off
+/// a sample of Veach's scene with the tree forced, and about 10% off one of 1,024 lamps
+/// (`docs/perf/light-tree.md`).
 pub const BATCH: usize = 16;
 
 impl LightTree {
