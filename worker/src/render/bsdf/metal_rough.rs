@@ -544,14 +544,13 @@ pub(crate) mod generic {
         pub(crate) fn new(l: &Lobes<R>, alpha: R, mu_o: R) -> Self {
             let [e_o, w_o, e_avg, w_avg] = R::map_lanes([mu_o, alpha], seen);
             let (one, floor) = (e_avg.konst(1.0), e_avg.konst(1e-4));
-            let under =
-                (one - layer(l, e_o, w_o)).max0() / (one - layer(l, e_avg, w_avg)).glam_max(floor);
+            let through = (one - layer(l, e_o, w_o)).max0();
+            let under = through / (one - layer(l, e_avg, w_avg)).glam_max(floor);
             let lost = (one - e_o).max0()
                 / ((one - e_avg).glam_max(floor) * one.konst(std::f32::consts::PI));
             let f_avg = l.base + (V3::new(one, one, one) - l.base).scale(one.konst(1.0 / 21.0));
             let colour = multiple_colour(f_avg, e_avg);
             let multiple = l.metallic * luminance(colour) * (one - e_o).max0();
-            let through = (one - layer(l, e_o, w_o)).max0();
             let lost_share = (one - e_o).max0();
             Seen { alpha, under, lost, colour, multiple, through, lost_share }
         }

@@ -610,6 +610,9 @@ struct Walk {
     u: f64,
 }
 
+/// The (node, lane) steps from a light's leaf up to the root.
+type Path = arrayvec::ArrayVec<(u32, u8), MAX_DEPTH>;
+
 /// The largest f32 below 1: remapped numbers stay in [0, 1).
 const BELOW_ONE: f64 = 1.0 - f32::EPSILON as f64 / 2.0;
 
@@ -723,7 +726,7 @@ impl LightTree {
     }
 
     /// The path from the root to `light`'s leaf, leaf first (empty for a light not in the tree).
-    fn path(&self, light: u32) -> arrayvec::ArrayVec<(u32, u8), MAX_DEPTH> {
+    fn path(&self, light: u32) -> Path {
         let mut path = arrayvec::ArrayVec::new();
         let (leaf, lane) = self.leaf_of[light as usize];
         if leaf == u32::MAX {
@@ -740,25 +743,35 @@ impl LightTree {
         path
     }
 
+    /// `pmf`'s start: the probability of a light at infinity or of one not in the tree
+    /// (`Err`), or the tree's share and the path down to the light's leaf, which `pmf`
+    /// multiplies root first.
+    #[inline(always)]
+    fn pmf_begin(&self, light: u32) -> Result<(f32, Path), f32> {
+        let p_infinite = self.infinite_share();
+        if self.infinite_of[light as usize] != u32::MAX {
+            return Err(p_infinite / self.infinite.len() as f32);
+        }
+        let path = self.path(light);
+        if path.is_empty() {
+            return Err(0.0);
+        }
+        Ok((1.0 - p_infinite, path))
+    }
+
     /// `pmf` at each of `ctx` for each of `light` (at most `BATCH`), into `out`: the same
     /// probabilities bit for bit, the walks interleaved.
     pub fn pmf_batch(&self, ctx: &[ShadingContext], light: &[u32], out: &mut [f32]) {
         assert!(ctx.len() <= BATCH && light.len() == ctx.len() && out.len() == ctx.len());
-        let p_infinite = self.infinite_share();
-        let mut walks =
-            arrayvec::ArrayVec::<(usize, arrayvec::ArrayVec<(u32, u8), MAX_DEPTH>), BATCH>::new();
+        let mut walks = arrayvec::ArrayVec::<(usize, Path), BATCH>::new();
         for (i, &l) in light.iter().enumerate() {
-            if self.infinite_of[l as usize] != u32::MAX {
-                out[i] = p_infinite / self.infinite.len() as f32;
-                continue;
+            match self.pmf_begin(l) {
+                Ok((share, path)) => {
+                    out[i] = share;
+                    walks.push((i, path));
+                }
+                Err(done) => out[i] = done,
             }
-            let path = self.path(l);
-            if path.is_empty() {
-                out[i] = 0.0;
-                continue;
-            }
-            out[i] = 1.0 - p_infinite;
-            walks.push((i, path));
         }
         // Root first, as `pmf` multiplies.
         while !walks.is_empty() {
@@ -786,16 +799,11 @@ impl ChooseLight for LightTree {
     }
 
     fn pmf(&self, ctx: &ShadingContext, light: u32) -> f32 {
-        let p_infinite = self.infinite_share();
-        if self.infinite_of[light as usize] != u32::MAX {
-            return p_infinite / self.infinite.len() as f32;
-        }
-        let path = self.path(light);
-        if path.is_empty() {
-            return 0.0;
-        }
+        let (mut pmf, path) = match self.pmf_begin(light) {
+            Ok(start) => start,
+            Err(done) => return done,
+        };
         // The same products in the same order as `choose`.
-        let mut pmf = 1.0 - p_infinite;
         for &(node, lane) in path.iter().rev() {
             pmf *= self.child_probabilities(node as usize, ctx)[lane as usize];
         }
