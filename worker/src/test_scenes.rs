@@ -19,8 +19,18 @@ pub fn many_lights_gltf(n: usize) -> String {
 /// 1,024 quads, 0.56 apart, a height of 0.15 and a side of 0.05 are street lamps about four
 /// heights apart, as in a city at night.
 pub fn many_lights_gltf_at(n: usize, height: f64, side: f64) -> String {
+    many_lights_gltf_in(n, height, side, None)
+}
+
+/// [`many_lights_gltf_at`] with its lamps merged into `meshes` emissive meshes (`None`: each
+/// lamp its own node), lamp `k` in mesh `k % meshes`, its corners written in place. Each mesh
+/// is one power class: mesh `c`'s radiance is the lamps' times 2 (c + 1) / (meshes + 1), so
+/// that the classes span a range and the mean lamp emits what an unmerged one does. One
+/// placement holds many lamps, as when an exporter joins a street's lamps into one object.
+pub fn many_lights_gltf_in(n: usize, height: f64, side: f64, meshes: Option<usize>) -> String {
     assert!(height > 0.0 && height <= 4.0, "lamp height {height} is outside (0, 4]");
     assert!(side > 0.0 && side <= 0.5, "lamp side {side} is outside (0, 0.5]");
+    assert!(meshes.is_none_or(|m| m >= 1 && m <= n), "{meshes:?} meshes for {n} lamps");
     let floor: [[f32; 3]; 4] =
         [[-10.0, 0.0, -10.0], [10.0, 0.0, -10.0], [10.0, 0.0, 10.0], [-10.0, 0.0, 10.0]];
     let radiance = 8.0 * (0.25 / side).powi(2);
@@ -28,14 +38,6 @@ pub fn many_lights_gltf_at(n: usize, height: f64, side: f64) -> String {
     // Counter-clockwise seen from below: the quad emits downward.
     let quad: [[f32; 3]; 4] =
         [[-side, 0.0, -side], [side, 0.0, -side], [side, 0.0, side], [-side, 0.0, side]];
-    let mut bytes: Vec<u8> = Vec::new();
-    for v in floor.iter().chain(&quad).flatten() {
-        bytes.extend(v.to_le_bytes());
-    }
-    // Floor: seen from above counter-clockwise; quad: seen from below.
-    for i in [0u16, 2, 1, 0, 3, 2, 0, 1, 2, 0, 2, 3] {
-        bytes.extend(i.to_le_bytes());
-    }
     let grid = (n as f64).sqrt().ceil() as usize;
     let cell = 18.0 / grid as f64;
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -47,17 +49,14 @@ pub fn many_lights_gltf_at(n: usize, height: f64, side: f64) -> String {
         z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
         ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
     };
-    let mut nodes = vec![
-        json!({"camera": 0, "translation": [0.0, 5.0, 0.0],
-        "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}),
-        json!({"mesh": 0}),
-    ];
-    for k in 0..n {
-        let (i, j) = (k % grid, k / grid);
-        let x = -9.0 + cell * (i as f64 + 0.15 + 0.7 * next());
-        let z = -9.0 + cell * (j as f64 + 0.15 + 0.7 * next());
-        nodes.push(json!({"mesh": 1, "translation": [x, height, z]}));
-    }
+    let places: Vec<[f64; 3]> = (0..n)
+        .map(|k| {
+            let (i, j) = (k % grid, k / grid);
+            let x = -9.0 + cell * (i as f64 + 0.15 + 0.7 * next());
+            let z = -9.0 + cell * (j as f64 + 0.15 + 0.7 * next());
+            [x, height, z]
+        })
+        .collect();
     let lambert = |color: f64, emission: f64| {
         json!({
             "pbrMetallicRoughness": {"baseColorFactor": [color, color, color, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
@@ -71,30 +70,72 @@ pub fn many_lights_gltf_at(n: usize, height: f64, side: f64) -> String {
     floor_material["extensions"]
         .as_object_mut()
         .map(|e| e.remove("KHR_materials_emissive_strength"));
+    // The floor first, then each lamp mesh: positions (f32) and u32 indices, each 4-aligned.
+    let mut bytes: Vec<u8> = Vec::new();
+    let (mut views, mut accessors, mut meshes_json) = (Vec::new(), Vec::new(), Vec::new());
+    let mut add_mesh = |bytes: &mut Vec<u8>, corners: &[[f32; 3]], indices: &[u32], material| {
+        let at = bytes.len();
+        for v in corners.iter().flatten() {
+            bytes.extend(v.to_le_bytes());
+        }
+        let mid = bytes.len();
+        for i in indices {
+            bytes.extend(i.to_le_bytes());
+        }
+        let (lo, hi) = corners.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), c| {
+            (std::array::from_fn(|a| lo[a].min(c[a])), std::array::from_fn(|a| hi[a].max(c[a])))
+        });
+        let v = views.len();
+        views.push(json!({"buffer": 0, "byteOffset": at, "byteLength": mid - at}));
+        views.push(json!({"buffer": 0, "byteOffset": mid, "byteLength": bytes.len() - mid}));
+        let a = accessors.len();
+        accessors.push(json!({"bufferView": v, "componentType": 5126, "count": corners.len(), "type": "VEC3", "min": lo, "max": hi}));
+        accessors.push(json!({"bufferView": v + 1, "componentType": 5125, "count": indices.len(), "type": "SCALAR"}));
+        meshes_json.push(json!({"primitives": [{"attributes": {"POSITION": a}, "indices": a + 1, "material": material}]}));
+    };
+    // Floor: seen from above counter-clockwise; a lamp: seen from below.
+    add_mesh(&mut bytes, &floor, &[0, 2, 1, 0, 3, 2], 0);
+    let lamp = [0u32, 1, 2, 0, 2, 3];
+    let mut nodes = vec![
+        json!({"camera": 0, "translation": [0.0, 5.0, 0.0],
+        "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2]}),
+        json!({"mesh": 0}),
+    ];
+    let mut materials = vec![floor_material];
+    match meshes {
+        None => {
+            add_mesh(&mut bytes, &quad, &lamp, 1);
+            materials.push(lambert(0.0, radiance));
+            nodes.extend(places.iter().map(|&t| json!({"mesh": 1, "translation": t})));
+        }
+        Some(m) => {
+            for c in 0..m {
+                let (mut corners, mut indices) = (Vec::new(), Vec::new());
+                for place in places.iter().skip(c).step_by(m) {
+                    let base = corners.len() as u32;
+                    indices.extend(lamp.map(|i| base + i));
+                    corners.extend(
+                        quad.map(|q| std::array::from_fn(|a| (q[a] as f64 + place[a]) as f32)),
+                    );
+                }
+                add_mesh(&mut bytes, &corners, &indices, 1 + c);
+                let class = 2.0 * (c + 1) as f64 / (m + 1) as f64;
+                materials.push(lambert(0.0, radiance * class));
+                nodes.push(json!({"mesh": 1 + c}));
+            }
+        }
+    }
     let json = json!({
         "asset": {"version": "2.0"},
         "scene": 0,
         "scenes": [{"nodes": (0..nodes.len()).collect::<Vec<_>>()}],
         "nodes": nodes,
         "cameras": [{"type": "orthographic", "orthographic": {"xmag": 10.0, "ymag": 10.0, "znear": 0.01, "zfar": 100.0}}],
-        "meshes": [
-            {"primitives": [{"attributes": {"POSITION": 0}, "indices": 2, "material": 0}]},
-            {"primitives": [{"attributes": {"POSITION": 1}, "indices": 3, "material": 1}]}
-        ],
-        "materials": [floor_material, lambert(0.0, radiance)],
+        "meshes": meshes_json,
+        "materials": materials,
         "extensionsUsed": ["KHR_materials_specular", "KHR_materials_emissive_strength"],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-10.0, 0.0, -10.0], "max": [10.0, 0.0, 10.0]},
-            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-side, 0.0, -side], "max": [side, 0.0, side]},
-            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
-            {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 48, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 96, "byteLength": 12},
-            {"buffer": 0, "byteOffset": 108, "byteLength": 12}
-        ],
+        "accessors": accessors,
+        "bufferViews": views,
         "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
     });
     json.to_string()

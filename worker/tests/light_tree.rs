@@ -1,8 +1,8 @@
 //! The light tree through the whole renderer: a floor lit by many small emitters
 //! (`worker::test_scenes::many_lights_gltf`) renders the same image with the tree as with the
-//! power mixture, within the noise, and with less noise at equal samples; and the shipped
-//! scenes, with few emitters, keep the mixture (so they render as before, the Cornell box on
-//! the wavefront).
+//! power mixture, within the noise, and with less noise at equal samples; lamps merged into a
+//! few meshes choose by the tree too; and the shipped scenes, with few emitters, keep the
+//! mixture (so they render as before, the Cornell box on the wavefront).
 
 mod support;
 
@@ -13,7 +13,7 @@ use worker::{
         light::{LightChoice, TREE_MIN_EMITTERS},
         scene::{prepare, prepare_with_light_choice},
     },
-    test_scenes::many_lights_gltf,
+    test_scenes::{many_lights_gltf, many_lights_gltf_in},
 };
 
 fn many_lights(n: usize) -> common::scene::Scene {
@@ -72,6 +72,24 @@ fn many_emitters_choose_by_the_tree_on_the_wavefront() {
     assert!(!few.lights.uses_tree() && few.wavefront().is_some());
     let many = prepare(&many_lights(TREE_MIN_EMITTERS), &settings(8, 1)).unwrap();
     assert!(many.lights.uses_tree() && many.wavefront().is_some());
+}
+
+/// A thousand lamps merged into eight meshes (one power class each) are eight placements but a
+/// thousand pieces: they choose by the tree, on the wavefront, as when each is its own node.
+#[test]
+fn lamps_merged_into_a_few_meshes_choose_by_the_tree() {
+    let dir = std::env::temp_dir().join(format!("renderfarm-merged-lamps-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("merged.gltf");
+    std::fs::write(&path, many_lights_gltf_in(1024, 0.15, 0.05, Some(8))).unwrap();
+    let scene = common::gltf::load_path(&path).unwrap();
+    assert_eq!(scene.instances.len(), 9, "the floor and eight lamp meshes");
+    let prepared = prepare(&scene, &settings(8, 1)).unwrap();
+    assert!(prepared.lights.uses_tree() && prepared.wavefront().is_some());
+    // Fewer merged lamps than the threshold keep the mixture.
+    std::fs::write(&path, many_lights_gltf_in(TREE_MIN_EMITTERS - 1, 0.15, 0.05, Some(2))).unwrap();
+    let few = prepare(&common::gltf::load_path(&path).unwrap(), &settings(8, 1)).unwrap();
+    assert!(!few.lights.uses_tree());
 }
 
 #[test]

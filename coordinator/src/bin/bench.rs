@@ -14,7 +14,8 @@
 //! With `--many-lights` it measures the light choice instead, on a floor lit by N small
 //! emitters (`worker::test_scenes::many_lights_gltf`): the tree against the power mixture at
 //! equal samples for N = 4 to 1024, then at equal time for 1024 (`docs/perf/light-tree.md`);
-//! `--lamp-height` and `--lamp-side` hang smaller lamps lower, each lighting its own pool.
+//! `--lamp-height` and `--lamp-side` hang smaller lamps lower, each lighting its own pool;
+//! `--lamp-meshes K` merges the lamps into K emissive meshes, one power class each.
 //!
 //! With `--materials` it renders the glass and the subsurface scene of `scenes/materials/`
 //! instead, at the size of their Mitsuba references (`ref/<scene>-48.exr`), prints the same
@@ -43,7 +44,7 @@
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights
-//! [--lamp-height 0.6] [--lamp-side 0.25]]
+//! [--lamp-height 0.6] [--lamp-side 0.25] [--lamp-meshes K]]
 //! [--materials] [--deform] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]
 //! [--caustic-scene OUT.gltf]] [--rainbow]
 //! [--no-warmup]`; the figures in `docs/perf/` come from this command.
@@ -94,6 +95,10 @@ struct Args {
     /// the same power whatever its size.
     #[arg(long, value_name = "METRES", default_value_t = 0.25)]
     lamp_side: f64,
+    /// With `--many-lights`: the lamps merged into this many emissive meshes, one power class
+    /// each (`worker::test_scenes::many_lights_gltf_in`), instead of one node each.
+    #[arg(long, value_name = "N")]
+    lamp_meshes: Option<usize>,
     /// Only the glass and subsurface scenes against their Mitsuba references (no Cornell box);
     /// `--peer-csv` files then hold runs of those scenes.
     #[arg(long)]
@@ -234,7 +239,7 @@ fn csv_row(
 fn main() -> Result<()> {
     let args = Args::parse();
     if args.many_lights {
-        return many_lights(args.threads, args.lamp_height, args.lamp_side);
+        return many_lights(args.threads, args.lamp_height, args.lamp_side, args.lamp_meshes);
     }
     if args.caustic {
         return caustic(&args);
@@ -636,8 +641,14 @@ fn render_prepared(
 /// (interpolated log-log) over the tree's; at 1,024 emitters also the path tracer, bidirectional
 /// path tracing and photon mapping through the farm's code path. Each run's seconds count
 /// preparing the scene (the tree's build) and rendering; the reference is the tree at 1024 spp
-/// with another seed. The lamps, squares of side `lamp_side`, hang at `lamp_height`.
-fn many_lights(threads: usize, lamp_height: f64, lamp_side: f64) -> Result<()> {
+/// with another seed. The lamps, squares of side `lamp_side`, hang at `lamp_height`, each its
+/// own node or merged into `lamp_meshes` meshes (N at least that many).
+fn many_lights(
+    threads: usize,
+    lamp_height: f64,
+    lamp_side: f64,
+    lamp_meshes: Option<usize>,
+) -> Result<()> {
     anyhow::ensure!(
         lamp_height > 0.0 && lamp_height <= 4.0,
         "--lamp-height {lamp_height} is not in (0, 4]"
@@ -658,9 +669,12 @@ fn many_lights(threads: usize, lamp_height: f64, lamp_side: f64) -> Result<()> {
         anyhow::Ok((start.elapsed().as_secs_f64(), image))
     };
     println!("emitters,sampler,spp,seconds,relmse");
+    anyhow::ensure!(lamp_meshes.is_none_or(|m| m >= 1), "--lamp-meshes must be at least 1");
     for n in [4usize, 16, 64, 256, 1024] {
+        let meshes = lamp_meshes.map(|m| m.min(n));
         let path = dir.join(format!("many-{n}.gltf"));
-        std::fs::write(&path, worker::test_scenes::many_lights_gltf_at(n, lamp_height, lamp_side))?;
+        let gltf = worker::test_scenes::many_lights_gltf_in(n, lamp_height, lamp_side, meshes);
+        std::fs::write(&path, gltf)?;
         let scene = common::gltf::load_path(&path)?;
         let (_, reference) = run(&scene, LightChoice::Tree, 1024, 1)?;
         let spps: &[u32] = if n == 1024 { &[4, 16, 64, 256] } else { &[16, 64] };

@@ -639,3 +639,66 @@ fn light_emission_samples_carry_the_lights_power() {
         );
     }
 }
+
+/// The automatic choice counts emitters two ways: placements, and the pieces of a placement
+/// that share no corner. Lamps merged into one mesh count one each (so many of them choose by
+/// the tree), a lamp of many triangles counts once, and pieces give way where lights at
+/// infinity carry more power than the rest.
+#[test]
+fn the_automatic_choice_counts_lamps_merged_into_one_mesh() {
+    use super::super::light::TREE_MIN_EMITTERS;
+    // Quad k at x = 2k, its two triangles sharing two corners, facing down.
+    let quad = |k: usize| {
+        let x = 2.0 * k as f32;
+        let [a, b, c, d] =
+            [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]].map(|[u, v]| Vec3::new(x + u, 1.0, v));
+        [[a, b, c], [a, c, d]]
+            .map(|p| Light::Triangle(TriangleLight::new(p, Vec3::ONE, false).unwrap()))
+    };
+    let quads = |n: usize| -> Vec<Light> { (0..n).flat_map(quad).collect() };
+    let auto = |lights: Vec<Light>, emitters: &[u32]| {
+        LightSampler::with_choice(lights, emitters, 8.0, LightChoice::Auto).uses_tree()
+    };
+    let n = TREE_MIN_EMITTERS;
+    // In one placement: n - 1 lamps keep the mixture, n choose by the tree.
+    assert!(!auto(quads(n - 1), &vec![0; 2 * (n - 1)]));
+    assert!(auto(quads(n), &vec![0; 2 * n]));
+    // Each lamp its own placement: the same.
+    let own = |n: usize| (0..2 * n as u32).map(|i| i / 2).collect::<Vec<_>>();
+    assert!(!auto(quads(n - 1), &own(n - 1)));
+    assert!(auto(quads(n), &own(n)));
+    // A fan of 4n triangles around one corner (a disc lamp): one piece.
+    let fan: Vec<Light> = (0..4 * n)
+        .map(|k| {
+            let angle = |k: usize| k as f32 * std::f32::consts::TAU / (4 * n) as f32;
+            let rim = |k: usize| Vec3::new(angle(k).cos(), 1.0, angle(k).sin());
+            let p = [Vec3::Y, rim(k), rim(k + 1)];
+            Light::Triangle(TriangleLight::new(p, Vec3::ONE, false).unwrap())
+        })
+        .collect();
+    assert!(fan.iter().all(|l| matches!(l, Light::Triangle(t) if t.normal.y < 0.0)));
+    assert!(!auto(fan, &vec![0; 4 * n]));
+    // Under a sky that outshines them, merged lamps keep the mixture; placements still count.
+    let sky = |mut lights: Vec<Light>, radiance: f32| {
+        lights.push(Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(
+            radiance,
+        )))));
+        lights
+    };
+    let merged = |n: usize| {
+        let mut e = vec![0; 2 * n];
+        e.push(1);
+        e
+    };
+    let placed = |n: usize| {
+        let mut e = own(n);
+        e.push(n as u32);
+        e
+    };
+    // The quads' power: n pi (unit area, radiance 1, one side); the sky's: 4 pi² r² L, r = 8.
+    // A sky of half their power, then of twice it.
+    let dim = 0.5 * n as f32 / (4.0 * std::f32::consts::PI * 64.0);
+    assert!(auto(sky(quads(n), dim), &merged(n)));
+    assert!(!auto(sky(quads(n), 4.0 * dim), &merged(n)));
+    assert!(auto(sky(quads(n), 4.0 * dim), &placed(n)));
+}
