@@ -92,6 +92,76 @@ def rgb(value):
 NEAR_MATCHED_IOR = 1.0001
 
 
+# Whether a rough dielectric is divided by its own single-scattering albedo, as ours is
+# (`--single-scattering` turns it off: Mitsuba's `roughdielectric` as it is).
+COMPENSATED = True
+
+
+def register_compensated(mi, dr):
+    """Registers `compensated`: Mitsuba's `roughdielectric` (GGX) with its eval and sample weight
+    divided by E(|cos wi|), the single-scattering albedo of that BSDF itself from the side `wi`
+    is on, counted as energy (a refracted weight times bs.eta², undoing radiance's 1 / eta²):
+    Cycles' energy compensation for glass, which ours applies (`bsdf/dielectric.rs`). E is
+    estimated here from Mitsuba's own samples (2^16 at each of 128 cosines per side, read
+    linearly between them), independently of our tables."""
+    n_mu, n_samples = 128, 1 << 16
+
+    class Compensated(mi.BSDF):
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.inner = mi.load_dict({"type": "roughdielectric", "distribution": "ggx",
+                                       "alpha": props["alpha"], "int_ior": props["int_ior"],
+                                       "ext_ior": 1.0})
+            self.m_flags = self.inner.m_flags
+            self.m_components = [self.inner.flags(i) for i in range(self.inner.component_count())]
+            table = []
+            for side in (1.0, -1.0):
+                for k in range(n_mu):
+                    mu = (k + 0.5) / n_mu
+                    si = dr.zeros(mi.SurfaceInteraction3f, n_samples)
+                    si.wi = mi.Vector3f(math.sqrt(1.0 - mu * mu), 0.0, side * mu)
+                    si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+                    rng = mi.PCG32(size=n_samples, initstate=mi.UInt64(1 + 2 * k + (side < 0)))
+                    bs, weight = self.inner.sample(mi.BSDFContext(), si, rng.next_float32(),
+                                                   mi.Point2f(rng.next_float32(),
+                                                              rng.next_float32()), True)
+                    energy = weight[0] * dr.square(bs.eta)
+                    table.append(float(dr.mean(dr.select(dr.isfinite(energy), energy, 0.0))[0]))
+            self.table = mi.Float(table)
+
+        def albedo(self, si):
+            cos = mi.Frame3f.cos_theta(si.wi)
+            x = dr.clip(dr.abs(cos) * n_mu - 0.5, 0.0, n_mu - 1.0)
+            i = dr.minimum(mi.UInt32(x), n_mu - 2)
+            f = x - mi.Float(i)
+            base = dr.select(cos >= 0.0, 0, n_mu) + i
+            a = dr.gather(mi.Float, self.table, base)
+            b = dr.gather(mi.Float, self.table, base + 1)
+            return a + (b - a) * f
+
+        def sample(self, ctx, si, sample1, sample2, active):
+            bs, weight = self.inner.sample(ctx, si, sample1, sample2, active)
+            return bs, weight / self.albedo(si)
+
+        def eval(self, ctx, si, wo, active):
+            return self.inner.eval(ctx, si, wo, active) / self.albedo(si)
+
+        def pdf(self, ctx, si, wo, active):
+            return self.inner.pdf(ctx, si, wo, active)
+
+        def eval_pdf(self, ctx, si, wo, active):
+            value, pdf = self.inner.eval_pdf(ctx, si, wo, active)
+            return value / self.albedo(si), pdf
+
+        def traverse(self, cb):
+            pass
+
+        def to_string(self):
+            return "Compensated[%s]" % self.inner
+
+    mi.register_bsdf("compensated", lambda props: Compensated(props))
+
+
 def surface(mi, material, boundary):
     """The BSDF and (for a transmitting volume) the interior medium of a glTF material; `boundary`
     (`dielectric` or `null`) is what an ior-1 boundary becomes."""
@@ -110,6 +180,8 @@ def surface(mi, material, boundary):
         else:
             bsdf = {"type": "roughdielectric", "distribution": "ggx", "alpha": roughness**2,
                     "int_ior": ior, "ext_ior": 1.0}
+            if COMPENSATED:
+                bsdf = {"type": "compensated", "alpha": roughness**2, "int_ior": ior}
         volume = ext.get("KHR_materials_volume")
         if volume is None:
             return mi.load_dict(bsdf), None, False
@@ -265,6 +337,9 @@ def main():
                          "that BSDF or phase sampling hits, not into that of the light sample, and so "
                          "darkens light reached after a bounce at depth > rr_depth "
                          "(docs/perf/materials.md)")
+    ap.add_argument("--single-scattering", action="store_true",
+                    help="a rough dielectric as Mitsuba's roughdielectric, without the energy "
+                         "compensation ours applies (the references before it)")
     ap.add_argument("--ref", metavar="OUT.exr", help="render a reference in chunks to OUT.exr")
     ap.add_argument("--chunk", type=int, default=2048, help="spp of a reference's chunk")
     ap.add_argument("--minutes", type=float, default=10.0, help="wall clock of a reference")
@@ -275,6 +350,9 @@ def main():
     import mitsuba as mi
     mi.set_variant(VARIANT)
     dr.set_thread_count(a.threads)
+    global COMPENSATED
+    COMPENSATED = not a.single_scattering
+    register_compensated(mi, dr)
     t_import = time.perf_counter() - t0
     path = HERE / f"{a.scene}.gltf"
     if a.ref:

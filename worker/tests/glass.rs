@@ -11,7 +11,7 @@
 //!   tau = exp(-absorption x thickness), R = r + (1 - r)² r tau² / (1 - r² tau²) and
 //!   T = (1 - r)² tau / (1 - r² tau²), and the pixel is R + T.
 //! - A tilted slab shifts what lies behind it sideways by the Snell-law offset.
-//! - Rough glass in the furnace never exceeds 1 beyond its noise.
+//! - Rough glass in the furnace stays 1 within 1% (its single-scattering loss given back).
 //! - A volume of thickness 0 stays thin-walled; out-of-range volume values are refused.
 //!
 //! Scattering volumes (`KHR_materials_volume_scatter`): light is neither made nor lost by a
@@ -40,24 +40,30 @@ fn a_clear_glass_box_in_a_white_furnace_is_exactly_white() {
     assert!(worst < 1e-5, "a pixel is {worst} away from 1");
 }
 
-/// Rough glass makes no light either: in the white furnace no pixel exceeds 1 beyond its noise
-/// (single scattering off microfacets loses a little), and the box stays nearly white.
+/// Rough glass keeps energy too: its boundary's lobes are divided by their single-scattering
+/// albedo (`bsdf/ggx_glass_albedo.rs`), so in the white furnace the box's image averages 1
+/// within 1% at roughness 0.3 and 1, and no pixel exceeds 1 beyond its noise and the albedo
+/// tables' interpolation.
 #[test]
-fn a_rough_glass_box_in_a_white_furnace_never_exceeds_white() {
-    let mut material = dielectric_material(1.5, 1.0, None);
-    material["pbrMetallicRoughness"]["roughnessFactor"] = json!(0.3);
-    let path = furnace_box("rough-furnace", material);
-    let scene = common::gltf::load_path(&path).unwrap();
-    let film = render(&scene, &white_furnace(16, 256));
-    let means = film.mean_rgb();
-    let mut total = 0.0;
-    for (p, m) in film.pixels.iter().zip(&means) {
-        let se = p.variance_of_mean()[0].sqrt();
-        assert!((m[0] as f64) <= 1.0 + 5.0 * se + 1e-5, "a pixel of {} +- {se}", m[0]);
-        total += m[0] as f64;
+fn a_rough_glass_box_in_a_white_furnace_stays_white() {
+    for roughness in [0.3, 1.0] {
+        let mut material = dielectric_material(1.5, 1.0, None);
+        material["pbrMetallicRoughness"]["roughnessFactor"] = json!(roughness);
+        let path = furnace_box(&format!("rough-furnace-{roughness}"), material);
+        let scene = common::gltf::load_path(&path).unwrap();
+        let film = render(&scene, &white_furnace(16, 256));
+        let means = film.mean_rgb();
+        let mut total = 0.0;
+        for (p, m) in film.pixels.iter().zip(&means) {
+            let se = p.variance_of_mean()[0].sqrt();
+            let m = m[0] as f64;
+            assert!(m <= 1.0 + 5.0 * se + 0.01, "roughness {roughness}: a pixel of {m} +- {se}");
+            total += m;
+        }
+        let mean = total / means.len() as f64;
+        eprintln!("roughness {roughness}: the image's mean is {mean}");
+        assert!((mean - 1.0).abs() < 0.01, "roughness {roughness}: the image's mean is {mean}");
     }
-    let mean = total / means.len() as f64;
-    assert!(mean > 0.97 && mean <= 1.0 + 1e-3, "the image's mean is {mean}");
 }
 
 /// An absorbing slab at normal incidence: R + T of the Fresnel multiple-reflection series with

@@ -9,6 +9,7 @@
 mod dielectric;
 pub(crate) mod diffuse;
 pub(crate) mod ggx_albedo;
+pub(crate) mod ggx_glass_albedo;
 pub(crate) mod layered;
 pub(crate) mod metal_rough;
 pub(crate) mod sheen;
