@@ -163,12 +163,7 @@ fn bidirectional_and_photon_mapping_see_the_same_white_spheres() {
         let scene = common::gltf::load_path(&path).unwrap();
         let furnace = white_furnace(16, 256);
         let (camera, light) = render_bdpt_with(&scene, &furnace, None);
-        let sum = bdpt_sum(&camera, &light);
-        let n = sum.len() as f64;
-        let means = [0, 1, 2].map(|c| {
-            let mean = sum.iter().map(|p| p.0[c]).sum::<f64>() / n;
-            (mean, (sum.iter().map(|p| p.1[c]).sum::<f64>() / (n * n)).sqrt())
-        });
+        let means = bdpt_image_mean(&camera, &light);
         assert_white(&format!("bdpt m{metallic} r{roughness}"), means, 2e-3);
         let film = render_sppm_with(&scene, &furnace, 64, 2, None);
         assert_white(&format!("sppm m{metallic} r{roughness}"), image_mean(&film), 2e-3);

@@ -470,12 +470,7 @@ fn bidirectional_and_photon_mapping_see_rough_glass_white() {
     let scene = common::gltf::load_path(&path).unwrap();
     let furnace = white_furnace(16, 256);
     let (camera, light) = render_bdpt_with(&scene, &furnace, None);
-    let sum = bdpt_sum(&camera, &light);
-    let n = sum.len() as f64;
-    let means = [0, 1, 2].map(|c| {
-        let mean = sum.iter().map(|p| p.0[c]).sum::<f64>() / n;
-        (mean, (sum.iter().map(|p| p.1[c]).sum::<f64>() / (n * n)).sqrt())
-    });
+    let means = bdpt_image_mean(&camera, &light);
     assert_white("bdpt rough glass", means, 5e-3);
     let film = render_sppm_with(&scene, &furnace, 64, 2, None);
     assert_white("sppm rough glass", image_mean(&film), 0.03);

@@ -949,6 +949,16 @@ pub fn bdpt_sum(camera: &Film, light: &Film) -> Vec<([f64; 3], [f64; 3])> {
         .collect()
 }
 
+/// The mean over the image of `bdpt_sum`, per channel, with its standard error.
+pub fn bdpt_image_mean(camera: &Film, light: &Film) -> [(f64, f64); 3] {
+    let sum = bdpt_sum(camera, light);
+    let n = sum.len() as f64;
+    [0, 1, 2].map(|c| {
+        let mean = sum.iter().map(|p| p.0[c]).sum::<f64>() / n;
+        (mean, (sum.iter().map(|p| p.1[c]).sum::<f64>() / (n * n)).sqrt())
+    })
+}
+
 /// Photon mapping of frame 0 (the settings' integrator set to `sppm`, their environment map
 /// decoded as `map`) in tasks of `per_task` passes on `threads` threads, as the farm splits it
 /// (the frame is one tile).
