@@ -319,8 +319,9 @@ pub trait ChooseLight {
 /// power (see `PowerMixture`), and as pieces, the parts of a placement that share no corner, so
 /// that lamps merged into a few meshes count one each. Placements alone decide as before; pieces
 /// decide where the lights at infinity carry no more power than the others (the tree gives
-/// lights at infinity half its choices, and DamagedHelmet's 55 emissive pieces beside its map,
-/// which carries 99% of the power, rendered 25% slower at equal error by the tree). On a floor
+/// lights at infinity a fixed half of its choices, the mixture their share of the power: under
+/// a map that carries most of it, half the tree's samples would go to lamps that carry little,
+/// where the mixture's go by power). On a floor
 /// lit by N small quads, each its own placement (`docs/perf/light-tree.md`), the tree had the
 /// lower error at equal time from N = 4 on; the threshold sits above the 9 placements and 5
 /// pieces (without a map's dominance) of the busiest shipped scenes, so that scenes like those
