@@ -17,6 +17,10 @@
 //! `--lamp-height` and `--lamp-side` hang smaller lamps lower, each lighting its own pool;
 //! `--lamp-meshes K` merges the lamps into K emissive meshes, one power class each.
 //!
+//! With `--light-choice SCENE` it measures the same two choices on any glTF file (`--size`,
+//! 192x128 unless given; `--spp`, 16,64,256 unless given), scored against the tree at 4096 spp
+//! with another seed, and says which the automatic choice takes.
+//!
 //! With `--materials` it renders the glass and the subsurface scene of `scenes/materials/`
 //! instead, at the size of their Mitsuba references (`ref/<scene>-48.exr`), prints the same
 //! columns plus the median pixel's relative error, the equal-time ratios against the peer runs of
@@ -44,7 +48,7 @@
 //!
 //! `cargo run --release -p coordinator --bin bench -- [--spp 1,4,16,64,256,1024] [--threads 2]
 //! [--plot bench.svg] [--peer-csv peers.csv] [--large] [--time-scenes] [--many-lights
-//! [--lamp-height 0.6] [--lamp-side 0.25] [--lamp-meshes K]]
+//! [--lamp-height 0.6] [--lamp-side 0.25] [--lamp-meshes K]] [--light-choice SCENE [--size WxH]]
 //! [--materials] [--deform] [--caustic [--caustic-light 0.125] [--caustic-reference OUT.exr]
 //! [--caustic-scene OUT.gltf]] [--rainbow]
 //! [--no-warmup]`; the figures in `docs/perf/` come from this command.
@@ -99,6 +103,12 @@ struct Args {
     /// each (`worker::test_scenes::many_lights_gltf_in`), instead of one node each.
     #[arg(long, value_name = "N")]
     lamp_meshes: Option<usize>,
+    /// Only the light choice on this glTF file: the tree against the mixture at equal time.
+    #[arg(long, value_name = "SCENE")]
+    light_choice: Option<PathBuf>,
+    /// With `--light-choice`: the image's size.
+    #[arg(long, value_name = "WxH", default_value = "192x128")]
+    size: String,
     /// Only the glass and subsurface scenes against their Mitsuba references (no Cornell box);
     /// `--peer-csv` files then hold runs of those scenes.
     #[arg(long)]
@@ -240,6 +250,9 @@ fn main() -> Result<()> {
     let args = Args::parse();
     if args.many_lights {
         return many_lights(args.threads, args.lamp_height, args.lamp_side, args.lamp_meshes);
+    }
+    if let Some(scene) = &args.light_choice {
+        return light_choice(scene, &args);
     }
     if args.caustic {
         return caustic(&args);
@@ -713,6 +726,52 @@ fn many_lights(
             )?;
             print_against_path(&curves, &prefix);
         }
+    }
+    Ok(())
+}
+
+/// The light tree against the power mixture on `scene` at `args.size`: relative MSE and seconds
+/// (preparing the scene and rendering) at each of `args.spp` (16, 64, 256 unless given), and the
+/// mixture's error at the tree's time over the tree's; the reference is the tree at 4096 spp with
+/// another seed. Also which the automatic choice takes.
+fn light_choice(scene: &Path, args: &Args) -> Result<()> {
+    use worker::render::{light::LightChoice, scene::prepare_with_light_choice};
+    let (width, height) = args
+        .size
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+        .filter(|&(w, h)| (1..=4096).contains(&w) && (1..=4096).contains(&h))
+        .with_context(|| format!("--size {} is not WIDTHxHEIGHT within 1..=4096", args.size))?;
+    let loaded =
+        common::gltf::load_path(scene).with_context(|| format!("loading {}", scene.display()))?;
+    let base = RenderSettings { width, height, ..Default::default() };
+    let run = |choice: LightChoice, spp: u32, seed: u64| {
+        let settings = RenderSettings { spp, seed, ..base.clone() };
+        let start = Instant::now();
+        let prepared = prepare_with_light_choice(&loaded, &settings, choice)?;
+        let image = render_prepared(&prepared, &settings, args.threads);
+        anyhow::Ok((start.elapsed().as_secs_f64(), image))
+    };
+    let auto = prepare(&loaded, &base)?.lights.uses_tree();
+    println!("automatic choice: {}", if auto { "tree" } else { "mixture" });
+    let (_, reference) = run(LightChoice::Tree, 4096, 1)?;
+    let spps = if args.spp.is_empty() { vec![16, 64, 256] } else { args.spp.clone() };
+    println!("sampler,spp,seconds,relmse");
+    let mut curves = Vec::new();
+    for (name, choice) in [("tree", LightChoice::Tree), ("mixture", LightChoice::Mixture)] {
+        let mut points = Vec::new();
+        for &spp in &spps {
+            let (seconds, image) = run(choice, spp, 0)?;
+            let (_, rel_mse) = metrics(&image, &reference);
+            println!("{name},{spp},{seconds:.4},{rel_mse:.6e}");
+            points.push((seconds, rel_mse, spp));
+        }
+        curves.push(Series { name: name.into(), points });
+    }
+    println!("spp,tree_seconds,tree_relmse,mixture_relmse_at_tree_seconds,ratio");
+    for &(seconds, rel_mse, spp) in &curves[0].points {
+        let theirs = curves[1].rel_mse_at(seconds);
+        println!("{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
     }
     Ok(())
 }

@@ -315,32 +315,55 @@ pub trait ChooseLight {
 }
 
 /// Scenes with at least this many emitters choose lights by the tree, the others by the
-/// mixture. Emitters are counted twice (`emitter_counts`): as placements of emissive meshes with
-/// power (see `PowerMixture`), and as pieces, the parts of a placement that share no corner, so
-/// that lamps merged into a few meshes count one each. Placements alone decide as before; pieces
-/// decide where the lights at infinity carry no more power than the others (the tree gives
-/// lights at infinity a fixed half of its choices, the mixture their share of the power: under
-/// a map that carries most of it, half the tree's samples would go to lamps that carry little,
-/// where the mixture's go by power). On a floor
-/// lit by N small quads, each its own placement (`docs/perf/light-tree.md`), the tree had the
-/// lower error at equal time from N = 4 on; the threshold sits above the 9 placements and 5
-/// pieces (without a map's dominance) of the busiest shipped scenes, so that scenes like those
-/// (a few lamps, one emissive mesh of many triangles) keep their images.
+/// mixture, unless their emitters enclose (see `closed_power`). Emitters are counted twice
+/// (`emitter_counts`): as placements of emissive meshes with power (see `PowerMixture`), and as
+/// pieces, the parts of a placement that share no corner, so that lamps merged into a few meshes
+/// count one each. Placements alone decide as before; pieces decide where the lights at infinity
+/// carry no more power than the others (the tree gives lights at infinity a fixed half of its
+/// choices, the mixture their share of the power: under a map that carries most of it, half the
+/// tree's samples would go to lamps that carry little, where the mixture's go by power). On a
+/// floor lit by N small quads, each its own placement (`docs/perf/light-tree.md`), the tree had
+/// the lower error at equal time from N = 4 on; the threshold sits above the 9 placements and 5
+/// pieces (without a map's dominance) of the busiest shipped scenes, so that a few flat lamps
+/// keep the mixture, which is cheaper per choice.
 pub const TREE_MIN_EMITTERS: usize = 16;
 
-/// The emitters among `lights` with power: (placements, pieces). A placement is an emitter of
+/// The most a piece's vector area (the sum of its triangles' areas times their normals) may be,
+/// as a share of its area, for the piece to count as closed: zero for any closed surface, a
+/// fifth for a box without its lid, one for a flat panel.
+const CLOSED_NET_AREA: f32 = 0.25;
+
+/// What `emitter_counts` finds among a scene's emitters.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct EmitterCounts {
+    /// Placements of emissive meshes with power.
+    placements: usize,
+    /// Their pieces: triangles joined where they share a corner.
+    pieces: usize,
+    /// The power of the pieces that enclose a volume and emit outward only, from untextured
+    /// triangles. From any point outside such a piece (a tessellated bulb, a glowing box) about
+    /// half of its area faces away, so half the mixture's choices on it are wasted, where the
+    /// tree's bounds on the emitters' normals pass them by: on Veach's scene of four spheres
+    /// and on `EmissiveStrengthTest`'s five cubes the tree rendered 1.2-1.4 and 2.3 times as
+    /// efficiently (`docs/perf/light-tree.md`).
+    closed_power: f32,
+}
+
+/// The emitters among `lights` with power (`EmitterCounts`). A placement is an emitter of
 /// `emitters` (a placement of an emissive mesh); its pieces are its triangles with power
-/// joined where they share a corner, so that lamps merged into one mesh count one each, while a
-/// lamp of many triangles (a tessellated sphere, a panel) counts once. A textured emitter (or
-/// one under a clear coat) is one piece whatever its shape: each of its triangles is chosen by
-/// the texture's mean, so its pieces look alike to the tree (DamagedHelmet's 55 rendered 40%
-/// slower at equal error by the tree, without a map).
-fn emitter_counts(lights: &[Light], emitters: &[u32], scene_radius: f32) -> (usize, usize) {
-    let lit: Vec<(u32, [Vec3; 3], bool)> = lights
+/// joined where they share a corner, bit for bit, so that lamps merged into one mesh count one
+/// each, while a lamp of many triangles (a tessellated sphere, a panel) counts once. A textured
+/// emitter (or one under a clear coat) is one piece whatever its shape, and never closed: each
+/// of its triangles is chosen by the texture's mean, so its pieces look alike to the tree
+/// (DamagedHelmet's 55 rendered 40% slower at equal error by the tree, without a map).
+fn emitter_counts(lights: &[Light], emitters: &[u32], scene_radius: f32) -> EmitterCounts {
+    let lit: Vec<(u32, &TriangleLight, f32)> = lights
         .iter()
         .zip(emitters)
         .filter_map(|(l, &e)| match l {
-            Light::Triangle(t) if l.power(scene_radius) > 0.0 => Some((e, t.p, t.textured)),
+            Light::Triangle(t) if l.power(scene_radius) > 0.0 => {
+                Some((e, t, l.power(scene_radius)))
+            }
             _ => None,
         })
         .collect();
@@ -359,9 +382,9 @@ fn emitter_counts(lights: &[Light], emitters: &[u32], scene_radius: f32) -> (usi
     };
     let mut first = std::collections::HashMap::with_capacity(lit.len() * 2);
     let mut pieces = lit.len();
-    for (k, &(e, p, textured)) in lit.iter().enumerate() {
+    for (k, &(e, t, _)) in lit.iter().enumerate() {
         // A textured emitter's triangles all take the texture's mean: one piece.
-        let corners = if textured { [Vec3::ZERO; 3] } else { p };
+        let corners = if t.textured { [Vec3::ZERO; 3] } else { t.p };
         for q in corners {
             let other = *first.entry((e, q.to_array().map(f32::to_bits))).or_insert(k as u32);
             let (a, b) = (root(&mut parent, k as u32), root(&mut parent, other));
@@ -371,14 +394,55 @@ fn emitter_counts(lights: &[Light], emitters: &[u32], scene_radius: f32) -> (usi
             }
         }
     }
-    (placements.len(), pieces)
+    // Each piece's area, vector area, area-weighted centre and whether it may enclose, then its
+    // signed volume about that centre (positive where the normals point out).
+    #[derive(Clone, Copy, Default)]
+    struct Piece {
+        area: f64,
+        vector_area: glam::DVec3,
+        centre: glam::DVec3,
+        volume: f64,
+        power: f64,
+        may_enclose: bool,
+    }
+    let roots: Vec<u32> = (0..lit.len() as u32).map(|k| root(&mut parent, k)).collect();
+    let mut piece: Vec<Piece> = vec![Piece { may_enclose: true, ..Piece::default() }; lit.len()];
+    for (&(_, t, power), &r) in lit.iter().zip(&roots) {
+        let at = &mut piece[r as usize];
+        let area = t.area as f64;
+        at.area += area;
+        at.vector_area += t.normal.as_dvec3() * area;
+        at.centre += (t.p[0] + t.p[1] + t.p[2]).as_dvec3() / 3.0 * area;
+        at.power += power as f64;
+        at.may_enclose &= !t.textured && !t.two_sided;
+    }
+    for (&(_, t, _), &r) in lit.iter().zip(&roots) {
+        let at = &mut piece[r as usize];
+        let c = at.centre / at.area;
+        let [a, b, d] = t.p.map(|q| q.as_dvec3() - c);
+        at.volume += a.dot(b.cross(d)) / 6.0;
+    }
+    let closed_power = roots
+        .iter()
+        .enumerate()
+        .filter(|&(k, &r)| k == r as usize)
+        .map(|(k, _)| piece[k])
+        .filter(|p| {
+            p.may_enclose
+                && p.volume > 0.0
+                && p.vector_area.length() <= CLOSED_NET_AREA as f64 * p.area
+        })
+        .map(|p| p.power)
+        .sum::<f64>() as f32;
+    EmitterCounts { placements: placements.len(), pieces, closed_power }
 }
 
 /// Which way a scene chooses its lights.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LightChoice {
     /// The tree from `TREE_MIN_EMITTERS` emitters on (placements, or pieces where lights at
-    /// infinity do not dominate), else the mixture.
+    /// infinity do not dominate), or where closed emitters carry most of the power (and lights
+    /// at infinity do not dominate), else the mixture.
     #[default]
     Auto,
     /// Always the mixture.
@@ -433,13 +497,16 @@ impl LightSampler {
         assert_eq!(lights.len(), emitters.len(), "one emitter per light");
         let tree = match choice {
             LightChoice::Auto => {
-                let (placements, pieces) = emitter_counts(&lights, emitters, scene_radius);
+                let counts = emitter_counts(&lights, emitters, scene_radius);
                 let at_infinity: f32 =
                     lights.iter().filter(|l| l.is_infinite()).map(|l| l.power(scene_radius)).sum();
                 let finite: f32 =
                     lights.iter().filter(|l| !l.is_infinite()).map(|l| l.power(scene_radius)).sum();
-                placements >= TREE_MIN_EMITTERS
-                    || (pieces >= TREE_MIN_EMITTERS && finite >= at_infinity)
+                // Closed emitters decide where they carry at least half the power of the
+                // lights at a finite distance.
+                let enclosing = counts.closed_power > 0.0 && 2.0 * counts.closed_power >= finite;
+                counts.placements >= TREE_MIN_EMITTERS
+                    || ((counts.pieces >= TREE_MIN_EMITTERS || enclosing) && finite >= at_infinity)
             }
             LightChoice::Mixture => false,
             LightChoice::Tree => true,

@@ -702,3 +702,87 @@ fn the_automatic_choice_counts_lamps_merged_into_one_mesh() {
     assert!(!auto(sky(quads(n), 4.0 * dim), &merged(n)));
     assert!(auto(sky(quads(n), 4.0 * dim), &placed(n)));
 }
+
+/// The automatic choice takes the tree where emitters that enclose a volume and face out carry
+/// most of the finite power (half of such an emitter faces away from any point outside it), and
+/// the mixture for the same box turned inside out (every face toward the points that see it),
+/// emitting from both faces, textured, outshone by a flat panel, or under a brighter sky.
+#[test]
+fn the_automatic_choice_takes_the_tree_for_closed_emitters() {
+    // A unit box of twelve triangles (two per face) at x0, wound so the normals point out.
+    let cube = |x0: f32, inward: bool, two_sided: bool, textured: bool| -> Vec<Light> {
+        let corner =
+            |i: usize| Vec3::new(x0 + (i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32);
+        // Faces -x, +x, -y, +y, -z, +z, each a loop of corners.
+        let faces =
+            [[0, 2, 6, 4], [1, 5, 7, 3], [0, 4, 5, 1], [2, 3, 7, 6], [0, 1, 3, 2], [4, 6, 7, 5]];
+        faces
+            .iter()
+            .flat_map(|&[a, b, c, d]| [[a, b, c], [a, c, d]])
+            .map(|t| {
+                let mut p = t.map(corner);
+                // Wound counter-clockwise seen from outside (or from inside, turned inward).
+                let normal = (p[1] - p[0]).cross(p[2] - p[0]);
+                let out = normal.dot(p[0] + p[1] + p[2] - 3.0 * Vec3::new(x0 + 0.5, 0.5, 0.5));
+                if (out < 0.0) != inward {
+                    p.swap(1, 2);
+                }
+                let mut l = TriangleLight::new(p, Vec3::ONE, two_sided).unwrap();
+                l.textured = textured;
+                Light::Triangle(l)
+            })
+            .collect()
+    };
+    let centre = Vec3::new(0.5, 0.5, 0.5);
+    for l in cube(0.0, false, false, false) {
+        let Light::Triangle(t) = l else { unreachable!() };
+        let mid = (t.p[0] + t.p[1] + t.p[2]) / 3.0;
+        assert!(t.normal.dot(mid - centre) > 0.0, "the box's normals point out");
+    }
+    let auto = |lights: Vec<Light>| {
+        let emitters = vec![0; lights.len()];
+        LightSampler::with_choice(lights, &emitters, 8.0, LightChoice::Auto).uses_tree()
+    };
+    assert!(auto(cube(0.0, false, false, false)));
+    assert!(!auto(cube(0.0, true, false, false)), "turned inside out");
+    assert!(!auto(cube(0.0, false, true, false)), "emitting from both faces");
+    assert!(!auto(cube(0.0, false, false, true)), "textured");
+    // The box without its top and bottom (a tube, open at both ends) still encloses; the box
+    // without its +z face (vector area a fifth of its area) does too; one face alone does not.
+    let without = |faces: &[usize]| -> Vec<Light> {
+        cube(0.0, false, false, false)
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| !faces.contains(&(k / 2)))
+            .map(|(_, l)| l)
+            .collect()
+    };
+    assert!(auto(without(&[2, 3])));
+    assert!(auto(without(&[5])));
+    assert!(!auto(without(&[0, 1, 2, 3, 4])));
+    // Beside a flat panel: the tree while the box carries at least half the finite power.
+    let panel = |emission: f32| {
+        let p = [Vec3::new(3.0, 2.0, 0.0), Vec3::new(3.0, 2.0, 1.0), Vec3::new(4.0, 2.0, 1.0)];
+        Light::Triangle(TriangleLight::new(p, Vec3::splat(emission), false).unwrap())
+    };
+    // The box's power: 6 pi (area 6, radiance 1, one side); the panel's: 0.5 pi emission.
+    let with_panel = |emission: f32| {
+        let mut lights = cube(0.0, false, false, false);
+        lights.push(panel(emission));
+        lights
+    };
+    assert!(auto(with_panel(11.0)));
+    assert!(!auto(with_panel(13.0)));
+    // Under a sky of more power than the box, the mixture.
+    let sky = |radiance: f32| {
+        let mut lights = cube(0.0, false, false, false);
+        lights.push(Light::Environment(std::sync::Arc::new(Environment::Uniform(Vec3::splat(
+            radiance,
+        )))));
+        lights
+    };
+    // The sky's power: 4 pi² r² L with r = 8; half and twice the box's.
+    let even = 6.0 / (4.0 * std::f32::consts::PI * 64.0);
+    assert!(auto(sky(0.5 * even)));
+    assert!(!auto(sky(2.0 * even)));
+}
