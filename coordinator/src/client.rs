@@ -40,12 +40,14 @@ impl Remote {
         }
     }
 
-    /// Uploads a scene bundle and creates a job on it; returns (scene hash, job id).
+    /// Uploads a scene bundle and creates a job on it (named `name`, where given); returns
+    /// (scene hash, job id).
     pub fn create_job(
         &self,
         bundle: &[u8],
         settings: &RenderSettings,
         priority: i32,
+        name: Option<&str>,
     ) -> Result<(String, String)> {
         let agent = self.agent();
         let base = self.url.trim_end_matches('/');
@@ -58,7 +60,9 @@ impl Remote {
         let hash = scene["scene"].as_str().context("upload answer without a hash")?.to_string();
         let job: Value = self
             .with_auth(agent.post(&format!("{base}/api/v1/jobs")))
-            .send_json(json!({"scene": hash, "settings": settings, "priority": priority}))
+            .send_json(
+                json!({"scene": hash, "settings": settings, "priority": priority, "name": name}),
+            )
             .map_err(|e| http_error("creating the job", e))?
             .into_json()?;
         let id = job["id"].as_str().context("job answer without an id")?.to_string();
@@ -83,20 +87,25 @@ pub struct Submitted {
     pub nearly_black: Option<f64>,
 }
 
-/// Submits `scene_path` with `settings` to the farm, waits for the job, and writes its frames to
-/// `out` (`OUT_####.exr` for frame ranges) with PNG previews.
+/// Submits `scene_path` with `settings` to the farm (a job named `name`, where given), waits for
+/// the job, and writes its frames to `out` (`OUT_####.exr` for frame ranges) with PNG previews.
 pub fn submit(
     remote: &Remote,
     scene_path: &Path,
     settings: &RenderSettings,
     priority: i32,
+    name: Option<&str>,
     out: &Path,
     progress: Progress<'_>,
 ) -> Result<Submitted> {
     settings.validate()?;
+    if let Some(name) = name {
+        crate::farm::validate_job_name(name)
+            .map_err(|e| anyhow::anyhow!("--name: {}", e.message))?;
+    }
     progress(Stage::Loading);
     let bundle = bundle_scene(scene_path, settings, &Default::default())?;
-    let (hash, id) = remote.create_job(&bundle.bytes, &bundle.settings, priority)?;
+    let (hash, id) = remote.create_job(&bundle.bytes, &bundle.settings, priority, name)?;
     let agent = remote.agent();
     tracing::info!(job = %id, scene = %hash, "job submitted");
     let mut unreachable_since: Option<Instant> = None;

@@ -281,6 +281,10 @@ enum Command {
         /// Job priority (higher runs first).
         #[arg(long, default_value_t = 0)]
         priority: i32,
+        /// A name for the job, shown in the dashboard and the job's status instead of its id
+        /// (up to 200 characters, one line).
+        #[arg(long)]
+        name: Option<String>,
         #[command(flatten)]
         settings: SettingsArgs,
     },
@@ -482,7 +486,7 @@ fn main() -> Result<()> {
             })
         }
         Command::Healthcheck { url } => healthcheck(&url),
-        Command::Submit { scene, output, url, api_token, priority, settings } => {
+        Command::Submit { scene, output, url, api_token, priority, name, settings } => {
             let settings = settings.load()?;
             let output = outputs(&output, &settings)?;
             let remote = Remote { url, api_token: token(api_token) };
@@ -492,7 +496,8 @@ fn main() -> Result<()> {
                     show_stage(bar, stage);
                 }
             };
-            let done = submit(&remote, &scene, &settings, priority, &output, &progress)?;
+            let done =
+                submit(&remote, &scene, &settings, priority, name.as_deref(), &output, &progress)?;
             if let Some(bar) = bar {
                 bar.finish_and_clear();
             }

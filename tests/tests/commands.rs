@@ -98,7 +98,15 @@ fn submit_warns_about_an_unlit_scene_and_takes_env_and_zip() {
     let lit = dir.join("lit.exr");
     let output = submit(
         &cluster.url,
-        &[zip.to_str().unwrap(), "--env", sky.to_str().unwrap(), "-o", lit.to_str().unwrap()],
+        &[
+            zip.to_str().unwrap(),
+            "--env",
+            sky.to_str().unwrap(),
+            "-o",
+            lit.to_str().unwrap(),
+            "--name",
+            "box, lit",
+        ],
     );
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "{stderr}");
@@ -106,6 +114,14 @@ fn submit_warns_about_an_unlit_scene_and_takes_env_and_zip() {
     assert!(stderr.contains("estimated relative error"), "{stderr}");
     let (_, _, rgb) = coordinator::output::read_exr_rgb(&lit).unwrap();
     assert!(!coordinator::output::is_black(&rgb));
+    // `--name` names the job; a name that is not one line of text is refused before the upload.
+    let listed = get(&format!("{}/api/v1/jobs?order=newest&limit=1", cluster.url)).json();
+    assert_eq!(listed["jobs"][0]["name"], "box, lit", "{listed}");
+    let output = submit(&cluster.url, &[zip.to_str().unwrap(), "-o", "x.exr", "--name", "a\tb"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("--name"), "{stderr}");
+    let listed = get(&format!("{}/api/v1/jobs", cluster.url)).json();
+    assert_eq!(listed["jobs"].as_array().map(Vec::len), Some(2), "nothing was submitted");
 }
 
 /// `render --integrator NAME` and `--time-limit SECONDS` reach the job's settings, which the

@@ -46,15 +46,21 @@ fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
 
     // Jobs come a page at a time, newest first: with pages of two, the newest two, then the
     // one before them through the API's cursor; a state filter shows only its jobs.
-    let more: Vec<String> = (0..2)
-        .map(|_| create_job(&url, &scene, &json!({"width": 8, "height": 8, "spp": 1}), 0))
-        .collect();
+    // The newest has a name, shown as text in place of its id (the id on hover).
+    let small = json!({"width": 8, "height": 8, "spp": 1});
+    let named = json!({"scene": scene, "settings": small, "name": "<b>lobby</b> & co"});
+    let a = post_json(&format!("{url}/api/v1/jobs"), &named);
+    assert_eq!(a.status, 201, "{}", a.error());
+    let more =
+        vec![create_job(&url, &scene, &small, 0), a.json()["id"].as_str().unwrap().to_string()];
     for job in &more {
         wait_done(&url, job, Duration::from_secs(120));
     }
     let page = jobs_table(&dump(&browser, &dir, &format!("{url}/?jobs=2")));
     assert!(page.contains(&more[0]) && page.contains(&more[1]), "{page}");
     assert!(!page.contains(&id), "the oldest job is on the next page:\n{page}");
+    assert!(page.contains("&lt;b&gt;lobby&lt;/b&gt; &amp; co"), "the name is not shown:\n{page}");
+    assert!(page.contains(&format!("title=\"{}\"", more[1])), "no id on the name:\n{page}");
     let next = get(&format!("{url}/api/v1/jobs?order=newest&limit=2")).json()["next"].clone();
     let next = next.as_str().expect("a next page").to_string();
     let older = dump(&browser, &dir, &format!("{url}/?jobs=2&after={next}"));

@@ -301,6 +301,10 @@ fn bad_requests_get_a_json_error_naming_the_problem() {
             "tasks",
         ),
         (json!({"scene": scene, "priority": "high"}), 422, "priority"),
+        (json!({"scene": scene, "name": 7}), 422, "name"),
+        (json!({"scene": scene, "name": "x".repeat(201)}), 422, "over the limit of 200"),
+        (json!({"scene": scene, "name": "two\nlines"}), 422, "control character"),
+        (json!({"scene": scene, "name": "  "}), 422, "name: must not be empty"),
         (
             json!({"scene": scene, "settings": {"frames": {"start": 0, "end": 72057594037927935i64}}}),
             422,
@@ -642,8 +646,21 @@ fn jobs_are_listed_by_pages_cancelled_and_removed_for_good() {
     // No worker: every job stays queued until it is cancelled.
     let animation =
         json!({"width": 16, "height": 16, "spp": 4, "frames": {"start": 5, "end": 104}});
-    let ids: Vec<String> = (0..3).map(|_| create_job(&url, &scene, &animation, 0)).collect();
     let jobs = format!("{url}/api/v1/jobs");
+    // The second job has a name (any text on one line): its status and the list show it, and
+    // it survives a restart (below).
+    let name = "lobby, take 3 · ünïcode";
+    let create = |k: usize| {
+        if k != 1 {
+            return create_job(&url, &scene, &animation, 0);
+        }
+        let a = post_json(&jobs, &json!({"scene": scene, "settings": animation, "name": name}));
+        assert_eq!((a.status, a.json()["name"].as_str()), (201, Some(name)), "{}", a.error());
+        a.json()["id"].as_str().unwrap().to_string()
+    };
+    let ids: Vec<String> = (0..3).map(create).collect();
+    assert_eq!(job_status(&url, &ids[1])["name"], name);
+    assert_eq!(job_status(&url, &ids[0])["name"], Value::Null, "a job without a name");
     let listed = |query: &str| {
         let a = get(&format!("{jobs}{query}"));
         assert_eq!(a.status, 200, "{query}: {}", a.error());
@@ -663,6 +680,7 @@ fn jobs_are_listed_by_pages_cancelled_and_removed_for_good() {
     assert_eq!((item["frame_count"].as_u64(), item["first_frame"].as_i64()), (Some(100), Some(5)));
     assert!(item.get("frame_progress").is_none() && item.get("frames").is_none(), "{item:#}");
     assert_eq!(item["scene"], scene.as_str());
+    assert_eq!((&page["jobs"][0]["name"], &page["jobs"][1]["name"]), (&Value::Null, &json!(name)));
 
     let (first, page) = listed("?limit=2");
     assert_eq!(first, ids[..2]);
@@ -710,6 +728,7 @@ fn jobs_are_listed_by_pages_cancelled_and_removed_for_good() {
     let _coordinator = start_coordinator(&data, port, &[]);
     let (left, _) = listed("");
     assert_eq!(left, ids[1..2], "a removed job came back after a restart");
+    assert_eq!(job_status(&url, &ids[1])["name"], name, "the name is kept");
     // The scene stays for other jobs.
     create_job(&url, &scene, &animation, 0);
 }

@@ -217,6 +217,8 @@ pub struct Job {
     /// When it ended (done, failed or cancelled), seconds since the Unix epoch: what
     /// `--retain-finished-hours` counts from. Noted by the farm, which reads the clock.
     pub finished_unix: Option<f64>,
+    /// Its name, as the submitter gave it (`validate_job_name`).
+    pub name: Option<String>,
 }
 
 /// A job refuses more than this many tasks (absurd settings would only fill memory).
@@ -304,6 +306,7 @@ impl Job {
             time_up: false,
             evicted: false,
             finished_unix: None,
+            name: None,
         })
     }
 

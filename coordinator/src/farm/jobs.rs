@@ -19,6 +19,30 @@ use super::{
 };
 use crate::output::{FrameImage, FrameInfo};
 
+/// The longest job name, in characters.
+pub const MAX_JOB_NAME_CHARS: usize = 200;
+
+/// A job's name: text of 1 to [`MAX_JOB_NAME_CHARS`] characters, not all white space, without
+/// control characters (a name is shown on one line, in tables and logs).
+pub fn validate_job_name(name: &str) -> FarmResult<()> {
+    let chars = name.chars().count();
+    if name.trim().is_empty() {
+        return Err(FarmError::invalid("name: must not be empty".to_string()));
+    }
+    if chars > MAX_JOB_NAME_CHARS {
+        return Err(FarmError::invalid(format!(
+            "name: {chars} characters, over the limit of {MAX_JOB_NAME_CHARS}"
+        )));
+    }
+    if let Some(c) = name.chars().find(|c| c.is_control()) {
+        return Err(FarmError::invalid(format!(
+            "name: holds the control character {:?}; a name is one line of text",
+            c
+        )));
+    }
+    Ok(())
+}
+
 impl Farm {
     /// Checks and stores an upload (call [`super::validate_upload`] first, outside any lock).
     pub fn put_scene(&mut self, bytes: &[u8], info: &mut SceneInfo) -> FarmResult<()> {
@@ -49,6 +73,20 @@ impl Farm {
         settings: RenderSettings,
         priority: i32,
     ) -> FarmResult<JobStatus> {
+        self.create_named_job(scene, settings, priority, None)
+    }
+
+    /// [`Farm::create_job`] with a name for people to know it by (`validate_job_name`).
+    pub fn create_named_job(
+        &mut self,
+        scene: &str,
+        settings: RenderSettings,
+        priority: i32,
+        name: Option<String>,
+    ) -> FarmResult<JobStatus> {
+        if let Some(name) = &name {
+            validate_job_name(name)?;
+        }
         self.check_settings(&settings)?;
         if !is_hash(scene) || self.store.scene_format(scene)?.is_none() {
             return Err(FarmError::not_found(format!(
@@ -58,13 +96,14 @@ impl Farm {
         let id = random_id();
         let now = self.clock.now();
         let created = self.clock.unix();
-        let job =
+        let mut job =
             Job::new(id.clone(), self.next_seq, scene.to_string(), settings, priority, created)
                 .map_err(|e| FarmError::invalid(format!("settings: {e}")))?;
+        job.name = name;
         self.store.insert_job(&job, now)?;
         self.next_seq += 1;
         let status = job.status(now);
-        tracing::info!(job = %id, scene, priority, "job created");
+        tracing::info!(job = %id, name = job.name.as_deref().unwrap_or(""), scene, priority, "job created");
         self.jobs.insert(id, job);
         Ok(status)
     }

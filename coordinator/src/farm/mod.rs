@@ -36,7 +36,8 @@ pub mod workers;
 
 pub use error::{ErrorKind, FarmError, FarmResult};
 pub use jobs::{
-    FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, DEFAULT_LIST_LIMIT, MAX_LIST_LIMIT,
+    validate_job_name, FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, DEFAULT_LIST_LIMIT,
+    MAX_JOB_NAME_CHARS, MAX_LIST_LIMIT,
 };
 pub use validate::{
     hex, is_hash, validate_job_scene, validate_upload, validate_upload_loaded, SceneInfo,
@@ -183,6 +184,7 @@ impl Farm {
             };
             job.elapsed_before = stored.elapsed_s;
             job.finished_unix = stored.finished_unix;
+            job.name = stored.name;
             for tile in store.tiles(&stored.id)? {
                 job.restore_tile(tile.frame, tile.tile, tile.prefix, tile.sums, tile.pending)
                     .map_err(|e| anyhow::anyhow!("job {}: {e}", stored.id))?;

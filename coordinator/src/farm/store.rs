@@ -56,6 +56,8 @@ pub struct StoredJob {
     /// When it ended (Unix seconds); `None` while it runs, and for jobs that ended before the
     /// column existed.
     pub finished_unix: Option<f64>,
+    /// Its name (`None` for jobs without one, and those from before the column existed).
+    pub name: Option<String>,
 }
 
 /// A tile row as stored.
@@ -170,7 +172,7 @@ impl Store {
                  id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
                  settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
                  error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
-                 scales TEXT NOT NULL DEFAULT '[]', finished REAL);
+                 scales TEXT NOT NULL DEFAULT '[]', finished REAL, name TEXT);
              CREATE TABLE IF NOT EXISTS tiles (
                  job TEXT NOT NULL, frame INTEGER NOT NULL, tile INTEGER NOT NULL,
                  prefix INTEGER NOT NULL, sums BLOB NOT NULL,
@@ -195,6 +197,13 @@ impl Store {
         if !has_finished {
             db.execute_batch("ALTER TABLE jobs ADD COLUMN finished REAL")
                 .context("adding the jobs' end time")?;
+        }
+        // And before jobs had names (none).
+        let has_name =
+            db.prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'name'")?.exists([])?;
+        if !has_name {
+            db.execute_batch("ALTER TABLE jobs ADD COLUMN name TEXT")
+                .context("adding the jobs' names")?;
         }
         // A reader ([`Store::tile_reader`]) may hold the database a moment (without a write-ahead
         // log): a commit waits for it rather than fail.
@@ -238,8 +247,9 @@ impl Store {
     /// Inserts a new job, as it is at `now`.
     pub fn insert_job(&self, job: &Job, now: Moment) -> Result<()> {
         self.db.execute(
-            "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created, elapsed_s)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created, elapsed_s,
+                               name)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
             params![
                 job.id,
                 job.seq as i64,
@@ -250,6 +260,7 @@ impl Store {
                 job.error,
                 job.created_unix,
                 job.elapsed(now),
+                job.name,
             ],
         )?;
         Ok(())
@@ -350,7 +361,7 @@ impl Store {
     pub fn jobs(&self) -> Result<Vec<StoredJob>> {
         let mut stmt = self.db.prepare(
             "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s, scales,
-                    finished
+                    finished, name
              FROM jobs ORDER BY seq",
         )?;
         let rows = stmt.query_map([], |r| {
@@ -366,6 +377,7 @@ impl Store {
                 r.get::<_, f64>(8)?,
                 r.get::<_, String>(9)?,
                 r.get::<_, Option<f64>>(10)?,
+                r.get::<_, Option<String>>(11)?,
             ))
         })?;
         let mut out = Vec::new();
@@ -382,6 +394,7 @@ impl Store {
                 elapsed_s,
                 scales,
                 finished_unix,
+                name,
             ) = row?;
             let bits: Vec<Option<u64>> = serde_json::from_str(&scales)
                 .with_context(|| format!("job {id}: stored adaptive scales"))?;
@@ -402,6 +415,7 @@ impl Store {
                 elapsed_s,
                 scales,
                 finished_unix,
+                name,
             });
         }
         Ok(out)
@@ -527,7 +541,8 @@ impl TileReader {
 mod tests {
     use super::*;
 
-    /// A database from before jobs had an end time opens, gains the column, and keeps its rows.
+    /// A database from before jobs had an end time or a name opens, gains the columns, and keeps
+    /// its rows.
     #[test]
     fn an_older_database_gains_the_end_time() {
         let dir = tempfile::tempdir().unwrap();
@@ -548,6 +563,7 @@ mod tests {
         let jobs = store.jobs().unwrap();
         assert_eq!(jobs.len(), 1);
         assert_eq!((jobs[0].state, jobs[0].finished_unix), (JobState::Done, None));
+        assert_eq!(jobs[0].name, None, "it gains the name column too, empty");
         drop(store);
         // Opening it again finds the column there.
         assert_eq!(Store::open(dir.path(), true).unwrap().jobs().unwrap().len(), 1);

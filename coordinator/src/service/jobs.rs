@@ -41,8 +41,12 @@ pub(super) fn create_checked_job(
     scene: &str,
     settings: RenderSettings,
     priority: i32,
+    name: Option<String>,
     loaded: Option<(&Scene, bool)>,
 ) -> ApiResult<JobStatus> {
+    if let Some(name) = &name {
+        crate::farm::validate_job_name(name)?;
+    }
     lock_farm(farm).check_settings(&settings)?;
     let path = lock_farm(farm).scene_file(scene).map_err(|e| match e.kind {
         ErrorKind::NotFound => {
@@ -53,7 +57,7 @@ pub(super) fn create_checked_job(
     let bytes = std::fs::read(path).map_err(|e| FarmError::internal(format!("scene: {e}")))?;
     let budget = lock_farm(farm).config().scene_budget;
     validate_job_scene(&bytes, &settings, &budget, loaded)?;
-    lock_farm(farm).create_job(scene, settings, priority)
+    lock_farm(farm).create_named_job(scene, settings, priority, name)
 }
 
 #[derive(Deserialize)]
@@ -64,6 +68,9 @@ struct CreateJob {
     settings: serde_json::Value,
     #[serde(default)]
     priority: i32,
+    /// A name for people to know the job by.
+    #[serde(default)]
+    name: Option<String>,
 }
 
 async fn create_job(
@@ -80,9 +87,10 @@ async fn create_job(
             FarmError::invalid(format!("settings{at}: {}", e.into_inner()))
         })?;
     let farm = state.farm.clone();
-    let status =
-        blocking(move || create_checked_job(&farm, &req.scene, settings, req.priority, None))
-            .await?;
+    let status = blocking(move || {
+        create_checked_job(&farm, &req.scene, settings, req.priority, req.name, None)
+    })
+    .await?;
     state.work.notify_waiters();
     Ok((StatusCode::CREATED, Json(status)).into_response())
 }

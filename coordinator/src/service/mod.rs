@@ -364,7 +364,8 @@ impl Running {
         priority: i32,
     ) -> Result<(String, String), FarmError> {
         let info = scenes::store_upload(&self.farm, bundle, None)?;
-        let status = jobs::create_checked_job(&self.farm, &info.scene, settings, priority, None)?;
+        let status =
+            jobs::create_checked_job(&self.farm, &info.scene, settings, priority, None, None)?;
         self.work.notify_waiters();
         Ok((info.scene, status.id))
     }
@@ -382,7 +383,8 @@ impl Running {
     ) -> Result<(String, String), FarmError> {
         let info = scenes::store_loaded(&self.farm, bundle, scene)?;
         let loaded = Some((scene, env_loaded));
-        let status = jobs::create_checked_job(&self.farm, &info.scene, settings, priority, loaded)?;
+        let status =
+            jobs::create_checked_job(&self.farm, &info.scene, settings, priority, None, loaded)?;
         self.work.notify_waiters();
         Ok((info.scene, status.id))
     }

@@ -13,6 +13,8 @@ use crate::farm::clock::Moment;
 pub struct JobStatus {
     /// The job id.
     pub id: String,
+    /// Its name, where the submitter gave one.
+    pub name: Option<String>,
     /// The scene hash.
     pub scene: String,
     /// Scheduling priority.
@@ -55,6 +57,8 @@ pub struct JobStatus {
 pub struct JobSummary {
     /// The job id.
     pub id: String,
+    /// Its name, where the submitter gave one.
+    pub name: Option<String>,
     /// The scene hash.
     pub scene: String,
     /// Scheduling priority.
@@ -170,6 +174,7 @@ impl Job {
         let t = self.totals(now);
         JobStatus {
             id: self.id.clone(),
+            name: self.name.clone(),
             scene: self.scene.clone(),
             priority: self.priority,
             state: self.state,
@@ -204,6 +209,7 @@ impl Job {
         let t = self.totals(now);
         JobSummary {
             id: self.id.clone(),
+            name: self.name.clone(),
             scene: self.scene.clone(),
             priority: self.priority,
             state: self.state,
