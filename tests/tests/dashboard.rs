@@ -42,6 +42,9 @@ fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
     let workers = dom.split("id=\"workers-table\"").nth(1).expect("a workers table in the page");
     let workers = workers.split("</table>").next().unwrap();
     assert!(workers.contains("<td"), "no worker listed:\n{workers}");
+    // Its row: name, threads, tasks and samples done, leases, failed, expired, last seen.
+    let row = workers.split("<tbody>").nth(1).unwrap().split("</tr>").next().unwrap();
+    assert_eq!(row.matches("<td").count(), 8, "the worker's health is not shown:\n{row}");
     assert!(dom.contains("id=\"upload-form\""), "no upload form");
 
     // Jobs come a page at a time, newest first: with pages of two, the newest two, then the

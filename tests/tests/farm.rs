@@ -480,6 +480,14 @@ fn a_task_that_keeps_failing_fails_its_job_with_the_reason() {
     // Its other task is not handed out any more.
     let a = post_json(&format!("{url}/api/v1/workers/{worker}/lease?wait_s=0"), &json!({}));
     assert_eq!(a.status, 204);
+    // The worker's health says so.
+    let listed = get(&format!("{url}/api/v1/workers")).json();
+    let flaky = &listed["workers"][0];
+    assert_eq!(
+        (flaky["tasks_failed"].as_u64(), flaky["leases_expired"].as_u64()),
+        (Some(3), Some(0))
+    );
+    assert_eq!(flaky["last_error"], "out of memory building the BVH", "{listed:#}");
 }
 
 #[test]

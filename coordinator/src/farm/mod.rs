@@ -478,11 +478,13 @@ impl Farm {
                             let max = self.config.max_task_failures;
                             let worker = worker.as_str();
                             tracing::warn!(job = %job, worker, "task failed ({count}/{max}): {error}");
+                            self.leases.workers_mut().note_failure(worker, &error);
                         }
                         Release::Expired { count } => {
                             self.counters.tasks_expired += 1;
                             let max = self.config.max_task_expiries;
                             tracing::warn!(job = %job, worker = %worker, "lease expired ({count}/{max})");
+                            self.leases.workers_mut().note_expiry(&worker);
                         }
                         Release::GivenBack => {}
                     }

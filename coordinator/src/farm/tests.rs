@@ -157,7 +157,31 @@ fn a_hung_worker_loses_its_lease_at_the_maximum_lifetime() {
     assert!(farm.tick(), "the lease did not expire at its deadline");
     assert_eq!(farm.status(&id).unwrap().tasks_in_flight, 0);
     assert_eq!(farm.counters.tasks_expired, 1);
+    let health = &farm.workers()[0];
+    assert_eq!((health.leases_expired, health.tasks_failed), (1, 0), "the worker's health");
     assert!(farm.lease(&w).unwrap().is_some(), "the task is leased again");
+}
+
+/// A worker's failures count against it in the worker list, with what it said last (cut to
+/// 300 characters); another worker's record stays clean.
+#[test]
+fn a_workers_failures_show_in_its_health() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let other =
+        farm.join(JoinRequest { name: "x".into(), threads: 1, version: String::new() }).unwrap().id;
+    farm.create_job(&hash, one_tile(8), 0).unwrap();
+    let first = farm.lease(&w).unwrap().unwrap();
+    farm.fail(&first.lease, &w, "out of memory").unwrap();
+    let second = farm.lease(&w).unwrap().unwrap();
+    farm.fail(&second.lease, &w, &"é".repeat(400)).unwrap();
+    let listed = farm.workers();
+    let of = |id: &str| listed.iter().find(|i| i.id == id).unwrap().clone();
+    let (mine, theirs) = (of(&w), of(&other));
+    assert_eq!((mine.tasks_failed, mine.leases_expired), (2, 0));
+    assert_eq!(mine.last_error.as_deref(), Some("é".repeat(300).as_str()));
+    assert_eq!((theirs.tasks_failed, theirs.last_error), (0, None));
 }
 
 /// Past a job's time limit no task is leased; the job ends when its last lease lapses, and

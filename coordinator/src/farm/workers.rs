@@ -1,5 +1,5 @@
-//! The workers the farm knows: who joined, when each was last heard from, and what each has
-//! had merged. Plain data in memory (a restart forgets every worker, and they join again); the
+//! The workers the farm knows: who joined, when each was last heard from, what each has had
+//! merged, and how often its tasks failed or its leases expired (its health). Plain data in memory (a restart forgets every worker, and they join again); the
 //! leases they hold are the lease table's ([`super::lease`]).
 
 use std::{collections::HashMap, time::Duration};
@@ -23,7 +23,13 @@ struct Worker {
     last_seen: Moment,
     tasks_done: u64,
     samples_done: u64,
+    tasks_failed: u64,
+    leases_expired: u64,
+    last_error: Option<String>,
 }
+
+/// The longest failure message a worker's entry keeps, in characters.
+const MAX_ERROR_CHARS: usize = 300;
 
 /// A worker as the API shows it.
 #[derive(Clone, Debug, Serialize)]
@@ -46,6 +52,13 @@ pub struct WorkerInfo {
     pub samples_done: u64,
     /// Leases it holds now.
     pub leases: u32,
+    /// Tasks it reported it could not render.
+    pub tasks_failed: u64,
+    /// Leases it held past their deadline without renewing them (it stalled, crashed or lost
+    /// the network).
+    pub leases_expired: u64,
+    /// What it said of its last failed task (at most 300 characters).
+    pub last_error: Option<String>,
 }
 
 /// The registry of workers, by id.
@@ -68,6 +81,9 @@ impl Workers {
             last_seen: now,
             tasks_done: 0,
             samples_done: 0,
+            tasks_failed: 0,
+            leases_expired: 0,
+            last_error: None,
         };
         self.by_id.insert(id.to_string(), worker);
         Ok(())
@@ -106,6 +122,21 @@ impl Workers {
         }
     }
 
+    /// Counts a task `id` reported it could not render, and keeps what it said.
+    pub fn note_failure(&mut self, id: &str, error: &str) {
+        if let Some(w) = self.by_id.get_mut(id) {
+            w.tasks_failed += 1;
+            w.last_error = Some(error.chars().take(MAX_ERROR_CHARS).collect());
+        }
+    }
+
+    /// Counts a lease of `id`'s that expired.
+    pub fn note_expiry(&mut self, id: &str) {
+        if let Some(w) = self.by_id.get_mut(id) {
+            w.leases_expired += 1;
+        }
+    }
+
     /// Every worker as the API shows it at `now`, by name then id; `leases` says how many
     /// leases a worker holds.
     pub fn list(&self, now: Moment, leases: impl Fn(&str) -> u32) -> Vec<WorkerInfo> {
@@ -122,6 +153,9 @@ impl Workers {
                 tasks_done: w.tasks_done,
                 samples_done: w.samples_done,
                 leases: leases(id),
+                tasks_failed: w.tasks_failed,
+                leases_expired: w.leases_expired,
+                last_error: w.last_error.clone(),
             })
             .collect();
         out.sort_by(|a, b| a.name.cmp(&b.name).then(a.id.cmp(&b.id)));
