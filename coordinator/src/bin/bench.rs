@@ -691,22 +691,8 @@ fn many_lights(
         let scene = common::gltf::load_path(&path)?;
         let (_, reference) = run(&scene, LightChoice::Tree, 1024, 1)?;
         let spps: &[u32] = if n == 1024 { &[4, 16, 64, 256] } else { &[16, 64] };
-        let mut curves = Vec::new();
-        for (name, choice) in [("tree", LightChoice::Tree), ("mixture", LightChoice::Mixture)] {
-            let mut points = Vec::new();
-            for &spp in spps {
-                let (seconds, image) = run(&scene, choice, spp, 0)?;
-                let (_, rel_mse) = metrics(&image, &reference);
-                println!("{n},{name},{spp},{seconds:.4},{rel_mse:.6e}");
-                points.push((seconds, rel_mse, spp));
-            }
-            curves.push(Series { name: name.into(), points });
-        }
-        println!("emitters,spp,tree_seconds,tree_relmse,mixture_relmse_at_tree_seconds,ratio");
-        for &(seconds, rel_mse, spp) in &curves[0].points {
-            let theirs = curves[1].rel_mse_at(seconds);
-            println!("{n},{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
-        }
+        let run = |choice, spp, seed| run(&scene, choice, spp, seed);
+        tree_against_mixture(run, &reference, spps, ("emitters,", &format!("{n},")))?;
         if n == 1024 {
             // The integrators on the same scene through the farm's code path (bidirectional
             // path tracing's and photon mapping's light samples choose by the tree, their light
@@ -757,21 +743,36 @@ fn light_choice(scene: &Path, args: &Args) -> Result<()> {
     let (_, reference) = run(LightChoice::Tree, 4096, 1)?;
     let spps = if args.spp.is_empty() { vec![16, 64, 256] } else { args.spp.clone() };
     println!("sampler,spp,seconds,relmse");
+    tree_against_mixture(run, &reference, &spps, ("", ""))
+}
+
+/// The tree's and the mixture's renders by `run` (choice, spp, seed; seconds and the image) at
+/// each of `spps` with seed 0: a CSV row each (sampler, spp, seconds, relative MSE against
+/// `reference`), then for each of the tree's runs the mixture's error at its time over its own.
+/// `columns`: the leading columns' names and this call's values, for the second table's header
+/// and every row.
+fn tree_against_mixture(
+    run: impl Fn(worker::render::light::LightChoice, u32, u64) -> Result<(f64, Vec<[f32; 3]>)>,
+    reference: &[[f32; 3]],
+    spps: &[u32],
+    (names, values): (&str, &str),
+) -> Result<()> {
+    use worker::render::light::LightChoice;
     let mut curves = Vec::new();
     for (name, choice) in [("tree", LightChoice::Tree), ("mixture", LightChoice::Mixture)] {
         let mut points = Vec::new();
-        for &spp in &spps {
+        for &spp in spps {
             let (seconds, image) = run(choice, spp, 0)?;
-            let (_, rel_mse) = metrics(&image, &reference);
-            println!("{name},{spp},{seconds:.4},{rel_mse:.6e}");
+            let (_, rel_mse) = metrics(&image, reference);
+            println!("{values}{name},{spp},{seconds:.4},{rel_mse:.6e}");
             points.push((seconds, rel_mse, spp));
         }
         curves.push(Series { name: name.into(), points });
     }
-    println!("spp,tree_seconds,tree_relmse,mixture_relmse_at_tree_seconds,ratio");
+    println!("{names}spp,tree_seconds,tree_relmse,mixture_relmse_at_tree_seconds,ratio");
     for &(seconds, rel_mse, spp) in &curves[0].points {
         let theirs = curves[1].rel_mse_at(seconds);
-        println!("{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
+        println!("{values}{spp},{seconds:.4},{rel_mse:.6e},{theirs:.6e},{:.2}", theirs / rel_mse);
     }
     Ok(())
 }
