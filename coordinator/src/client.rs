@@ -58,11 +58,14 @@ impl Remote {
             .map_err(|e| http_error("uploading the scene", e))?
             .into_json()?;
         let hash = scene["scene"].as_str().context("upload answer without a hash")?.to_string();
+        let mut body = json!({"scene": hash, "settings": settings, "priority": priority});
+        // Only where given: a coordinator from before job names refuses the key.
+        if let Some(name) = name {
+            body["name"] = json!(name);
+        }
         let job: Value = self
             .with_auth(agent.post(&format!("{base}/api/v1/jobs")))
-            .send_json(
-                json!({"scene": hash, "settings": settings, "priority": priority, "name": name}),
-            )
+            .send_json(body)
             .map_err(|e| http_error("creating the job", e))?
             .into_json()?;
         let id = job["id"].as_str().context("job answer without an id")?.to_string();
@@ -100,8 +103,7 @@ pub fn submit(
 ) -> Result<Submitted> {
     settings.validate()?;
     if let Some(name) = name {
-        crate::farm::validate_job_name(name)
-            .map_err(|e| anyhow::anyhow!("--name: {}", e.message))?;
+        crate::farm::validate_job_name(name).map_err(|e| anyhow::anyhow!("--{}", e.message))?;
     }
     progress(Stage::Loading);
     let bundle = bundle_scene(scene_path, settings, &Default::default())?;

@@ -305,6 +305,8 @@ fn bad_requests_get_a_json_error_naming_the_problem() {
         (json!({"scene": scene, "name": "x".repeat(201)}), 422, "over the limit of 200"),
         (json!({"scene": scene, "name": "two\nlines"}), 422, "control character"),
         (json!({"scene": scene, "name": "  "}), 422, "name: must not be empty"),
+        (json!({"scene": scene, "name": "one\u{2028}two"}), 422, "U+2028"),
+        (json!({"scene": scene, "name": "abc\u{202E}fdp.exe"}), 422, "U+202E"),
         (
             json!({"scene": scene, "settings": {"frames": {"start": 0, "end": 72057594037927935i64}}}),
             422,

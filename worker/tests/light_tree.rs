@@ -44,19 +44,27 @@ fn relative_variance(film: &Film) -> f64 {
 #[test]
 fn shipped_scenes_choose_as_measured() {
     // Flat lamps, a textured emitter and a sphere lit from inside keep the mixture; Veach's
-    // four spheres and `EmissiveStrengthTest`'s five boxes enclose volumes and take the tree
-    // (`docs/perf/light-tree.md`).
+    // spheres (its fill light carries most of the power) and `EmissiveStrengthTest`'s five
+    // boxes enclose volumes and take the tree (`docs/perf/light-tree.md`).
     let choices = [
         (assets().join("real/DamagedHelmet/glTF-Binary/DamagedHelmet.glb"), false),
         (assets().join("real/EmissiveStrengthTest/glTF/EmissiveStrengthTest.gltf"), true),
         (scenes().join("cornell-box.gltf"), false),
+        (scenes().join("cornell-glass.gltf"), false),
+        (scenes().join("cornell-motion.gltf"), false),
         (scenes().join("veach-mis.gltf"), true),
         (scenes().join("furnace-closed.gltf"), false),
     ];
-    for (path, tree) in &choices {
-        let scene = common::gltf::load_path(path).unwrap();
+    // The materials scenes: glass, media and the extensions under flat lamps.
+    let materials = std::fs::read_dir(scenes().join("materials"))
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.extension().is_some_and(|e| e == "gltf"))
+        .map(|path| (path, false));
+    for (path, tree) in choices.into_iter().chain(materials) {
+        let scene = common::gltf::load_path(&path).unwrap();
         let prepared = prepare(&scene, &RenderSettings::default()).unwrap();
-        assert_eq!(prepared.lights.uses_tree(), *tree, "{}", path.display());
+        assert_eq!(prepared.lights.uses_tree(), tree, "{}", path.display());
     }
     let cornell = prepare(&load("cornell-box.gltf"), &RenderSettings::default()).unwrap();
     assert!(cornell.wavefront().is_some(), "the Cornell box stays on the wavefront");

@@ -23,21 +23,27 @@ use crate::output::{FrameImage, FrameInfo};
 pub const MAX_JOB_NAME_CHARS: usize = 200;
 
 /// A job's name: text of 1 to [`MAX_JOB_NAME_CHARS`] characters, not all white space, without
-/// control characters (a name is shown on one line, in tables and logs).
+/// control characters, line or paragraph separators, or bidirectional overrides (a name is
+/// shown on one line, in tables and logs, and must not pass itself off as another).
 pub fn validate_job_name(name: &str) -> FarmResult<()> {
     let chars = name.chars().count();
     if name.trim().is_empty() {
-        return Err(FarmError::invalid("name: must not be empty".to_string()));
+        return Err(FarmError::invalid("name: must not be empty or all white space"));
     }
     if chars > MAX_JOB_NAME_CHARS {
         return Err(FarmError::invalid(format!(
             "name: {chars} characters, over the limit of {MAX_JOB_NAME_CHARS}"
         )));
     }
-    if let Some(c) = name.chars().find(|c| c.is_control()) {
+    let breaks_the_line = |c: &char| {
+        c.is_control()
+            || matches!(c, '\u{2028}' | '\u{2029}' | '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}')
+    };
+    if let Some(c) = name.chars().find(breaks_the_line) {
         return Err(FarmError::invalid(format!(
-            "name: holds the control character {:?}; a name is one line of text",
-            c
+            "name: holds the control character U+{:04X} (a control, a line or paragraph \
+             separator, or a bidirectional override); a name is one line of text",
+            c as u32
         )));
     }
     Ok(())

@@ -568,4 +568,27 @@ mod tests {
         // Opening it again finds the column there.
         assert_eq!(Store::open(dir.path(), true).unwrap().jobs().unwrap().len(), 1);
     }
+
+    /// A database with the end time but from before job names gains the name column alone,
+    /// and keeps its rows and their end times.
+    #[test]
+    fn a_database_with_end_times_gains_the_names() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let db = Connection::open(dir.path().join("farm.sqlite")).unwrap();
+            db.execute_batch(
+                "CREATE TABLE jobs (
+                     id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
+                     settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
+                     error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
+                     scales TEXT NOT NULL DEFAULT '[]', finished REAL);
+                 INSERT INTO jobs (id, seq, scene, settings, priority, state, created, elapsed_s,
+                                   finished)
+                 VALUES ('j', 0, 's', '{}', 0, 'done', 1.0, 2.0, 3.0);",
+            )
+            .unwrap();
+        }
+        let jobs = Store::open(dir.path(), true).unwrap().jobs().unwrap();
+        assert_eq!((jobs.len(), jobs[0].finished_unix, jobs[0].name.clone()), (1, Some(3.0), None));
+    }
 }

@@ -333,6 +333,11 @@ pub const TREE_MIN_EMITTERS: usize = 16;
 /// fifth for a box without its lid, one for a flat panel.
 const CLOSED_NET_AREA: f32 = 0.25;
 
+/// The least a piece's signed volume may be, as a share of its area to the power 1.5, for the
+/// piece to count as closed: a cube's is 0.068, a sphere's 0.094, two sheets laid back to back
+/// (no vector area, no volume) are not closed whatever their rounding.
+const CLOSED_MIN_VOLUME: f32 = 1e-3;
+
 /// What `emitter_counts` finds among a scene's emitters.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct EmitterCounts {
@@ -343,9 +348,10 @@ struct EmitterCounts {
     /// The power of the pieces that enclose a volume and emit outward only, from untextured
     /// triangles. From any point outside such a piece (a tessellated bulb, a glowing box) about
     /// half of its area faces away, so half the mixture's choices on it are wasted, where the
-    /// tree's bounds on the emitters' normals pass them by: on Veach's scene of four spheres
-    /// and on `EmissiveStrengthTest`'s five cubes the tree rendered 1.2-1.4 and 2.3 times as
-    /// efficiently (`docs/perf/light-tree.md`).
+    /// tree's bounds on the emitters' normals pass them by: on Veach's scene (spheres; the
+    /// fill light, a sphere too, carries 98% of the power) and on `EmissiveStrengthTest`'s five
+    /// cubes the tree reached a given error 0.97-1.30 and 1.95-2.88 times sooner
+    /// (`docs/perf/light-tree.md`).
     closed_power: f32,
 }
 
@@ -429,7 +435,7 @@ fn emitter_counts(lights: &[Light], emitters: &[u32], scene_radius: f32) -> Emit
         .map(|(k, _)| piece[k])
         .filter(|p| {
             p.may_enclose
-                && p.volume > 0.0
+                && p.volume > CLOSED_MIN_VOLUME as f64 * p.area.powf(1.5)
                 && p.vector_area.length() <= CLOSED_NET_AREA as f64 * p.area
         })
         .map(|p| p.power)

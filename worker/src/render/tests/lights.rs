@@ -760,6 +760,17 @@ fn the_automatic_choice_takes_the_tree_for_closed_emitters() {
     assert!(auto(without(&[2, 3])));
     assert!(auto(without(&[5])));
     assert!(!auto(without(&[0, 1, 2, 3, 4])));
+    // One face and the same face turned over, sharing its corners: no vector area, and no
+    // volume to speak of either, so not closed (a flat lamp lit on both sides).
+    let sheets: Vec<Light> = without(&[0, 1, 2, 3, 4])
+        .into_iter()
+        .flat_map(|l| {
+            let Light::Triangle(t) = l else { unreachable!() };
+            let turned = [t.p[0], t.p[2], t.p[1]];
+            [l, Light::Triangle(TriangleLight::new(turned, Vec3::ONE, false).unwrap())]
+        })
+        .collect();
+    assert!(!auto(sheets));
     // Beside a flat panel: the tree while the box carries at least half the finite power.
     let panel = |emission: f32| {
         let p = [Vec3::new(3.0, 2.0, 0.0), Vec3::new(3.0, 2.0, 1.0), Vec3::new(4.0, 2.0, 1.0)];
