@@ -541,24 +541,32 @@ impl TileReader {
 mod tests {
     use super::*;
 
+    /// A folder with a database of one finished job as an older coordinator wrote it: the jobs
+    /// table of before end times and names, plus the columns `extra` (", finished REAL" and
+    /// its value ", 3.0" for one from before names alone).
+    fn older_database(extra: (&str, &str)) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let (column, value) = extra;
+        let name = if column.is_empty() { "" } else { ", finished" };
+        let db = Connection::open(dir.path().join("farm.sqlite")).unwrap();
+        db.execute_batch(&format!(
+            "CREATE TABLE jobs (
+                 id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
+                 settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
+                 error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
+                 scales TEXT NOT NULL DEFAULT '[]'{column});
+             INSERT INTO jobs (id, seq, scene, settings, priority, state, created, elapsed_s{name})
+             VALUES ('j', 0, 's', '{{}}', 0, 'done', 1.0, 2.0{value});"
+        ))
+        .unwrap();
+        dir
+    }
+
     /// A database from before jobs had an end time or a name opens, gains the columns, and keeps
     /// its rows.
     #[test]
     fn an_older_database_gains_the_end_time() {
-        let dir = tempfile::tempdir().unwrap();
-        {
-            let db = Connection::open(dir.path().join("farm.sqlite")).unwrap();
-            db.execute_batch(
-                "CREATE TABLE jobs (
-                     id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
-                     settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
-                     error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
-                     scales TEXT NOT NULL DEFAULT '[]');
-                 INSERT INTO jobs (id, seq, scene, settings, priority, state, created, elapsed_s)
-                 VALUES ('j', 0, 's', '{}', 0, 'done', 1.0, 2.0);",
-            )
-            .unwrap();
-        }
+        let dir = older_database(("", ""));
         let store = Store::open(dir.path(), true).unwrap();
         let jobs = store.jobs().unwrap();
         assert_eq!(jobs.len(), 1);
@@ -573,21 +581,7 @@ mod tests {
     /// and keeps its rows and their end times.
     #[test]
     fn a_database_with_end_times_gains_the_names() {
-        let dir = tempfile::tempdir().unwrap();
-        {
-            let db = Connection::open(dir.path().join("farm.sqlite")).unwrap();
-            db.execute_batch(
-                "CREATE TABLE jobs (
-                     id TEXT PRIMARY KEY, seq INTEGER NOT NULL, scene TEXT NOT NULL,
-                     settings TEXT NOT NULL, priority INTEGER NOT NULL, state TEXT NOT NULL,
-                     error TEXT, created REAL NOT NULL, elapsed_s REAL NOT NULL,
-                     scales TEXT NOT NULL DEFAULT '[]', finished REAL);
-                 INSERT INTO jobs (id, seq, scene, settings, priority, state, created, elapsed_s,
-                                   finished)
-                 VALUES ('j', 0, 's', '{}', 0, 'done', 1.0, 2.0, 3.0);",
-            )
-            .unwrap();
-        }
+        let dir = older_database((", finished REAL", ", 3.0"));
         let jobs = Store::open(dir.path(), true).unwrap().jobs().unwrap();
         assert_eq!((jobs.len(), jobs[0].finished_unix, jobs[0].name.clone()), (1, Some(3.0), None));
     }
