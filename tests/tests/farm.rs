@@ -38,6 +38,10 @@ fn three_workers_give_the_image_of_coordinator_render() {
     let workers = get(&format!("{url}/api/v1/workers")).json();
     assert_eq!(workers["workers"].as_array().unwrap().len(), 3, "{workers:#}");
     assert_eq!(metric(&url, "renderfarm_tasks_merged_total"), 4.0 * 4.0);
+    // Each result is committed in a transaction of its own or with others queued meanwhile.
+    let commits = metric(&url, "renderfarm_commits_total");
+    assert!((1.0..=16.0).contains(&commits), "{commits} transactions for 16 merges");
+    assert!(metric(&url, "renderfarm_commit_seconds_total") > 0.0);
 }
 
 #[test]

@@ -132,7 +132,8 @@ pub struct Counters {
     pub samples_merged: u64,
     /// Bytes of results merged.
     pub bytes_merged: u64,
-    /// Seconds spent merging and committing results.
+    /// Seconds spent merging results under the farm lock (their commits, in groups, are
+    /// counted apart: [`Farm::commit_groups`]).
     pub merge_seconds: f64,
     /// Rays traced by merged tasks.
     pub rays: u64,
@@ -271,6 +272,12 @@ impl Farm {
         self.leases.worker_infos(self.clock.now())
     }
 
+    /// The transactions that committed merged results (each commits every merge queued
+    /// meanwhile), and the seconds they took.
+    pub fn commit_groups(&self) -> (u64, f64) {
+        self.store.groups()
+    }
+
     /// Leases out now.
     pub fn leases_out(&self) -> usize {
         self.leases.len()
@@ -363,6 +370,23 @@ impl Farm {
         result: TaskResult,
         bytes: u64,
     ) -> FarmResult<()> {
+        match self.submit_queued(lease, worker, result, bytes)? {
+            Some(commit) => Ok(commit.wait()?),
+            None => Ok(()),
+        }
+    }
+
+    /// [`Farm::submit`], its database writes queued rather than committed: the result must not
+    /// be answered "merged" before the returned [`Commit`] is waited for, which a caller does
+    /// after letting go of the farm (group commit: one transaction for the merges queued
+    /// meanwhile). `None` where nothing needs committing (a scratch store).
+    pub fn submit_queued(
+        &mut self,
+        lease: &str,
+        worker: &str,
+        result: TaskResult,
+        bytes: u64,
+    ) -> FarmResult<Option<store::Commit>> {
         let now = self.clock.now();
         let answered = self.leases.step(Event::Result { lease, worker, result: &result }, now)?;
         let [Effect::Answered { job: job_id, key }] = answered.as_slice() else {
@@ -376,13 +400,10 @@ impl Farm {
         job.merge(key, result.tile, samples, now);
         job.note_end(self.clock.unix());
         // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
-        if self.config.durable {
-            if let Err(e) = self.store.commit_task(job, key.frame, key.tile, key.k, now) {
-                // The sums in memory are ahead of the database: fail loudly rather than go on.
-                tracing::error!("committing a merged result failed: {e:#}");
-                return Err(e.into());
-            }
-        }
+        let commit = self
+            .config
+            .durable
+            .then(|| self.store.queue_task(job, key.frame, key.tile, key.k, now));
         if job.state == JobState::Done {
             tracing::info!(job = %job_id, samples = job.samples_done, seconds = job.elapsed(now), "job done");
         }
@@ -390,7 +411,8 @@ impl Farm {
         if let Some(job) = self.jobs.get_mut(job_id) {
             let f = key.frame as usize;
             if !job.frames[f].evicted && job.frames.len() > 1 && job.frame_complete(f) {
-                // Committed (above, or by `keep_frame`): its images are read back from SQLite.
+                // Queued (above; committed before the database is next read) or written by
+                // `keep_frame`: its images are read back from SQLite.
                 if keep_frame(&mut self.store, self.config.durable, job, f, now) {
                     job.evict_frame(f);
                 }
@@ -403,7 +425,7 @@ impl Farm {
         c.rays += rays;
         c.merge_seconds += self.clock.now().since(now).as_secs_f64();
         self.leases.workers_mut().credit(worker, samples);
-        Ok(())
+        Ok(commit)
     }
 
     /// Counts a refused result (from the farm's checks, or from the service's before them: an

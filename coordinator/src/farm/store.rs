@@ -2,14 +2,23 @@
 //! content-addressed by SHA-256), jobs, each tile's sums of its tasks `0..prefix`, and the
 //! accepted results still waiting for an earlier task (`pending`).
 //!
-//! A result is accepted in memory and written in one transaction (tile row, pending rows, job
-//! row) before the worker hears "merged", so after a `kill -9` the database holds exactly the
+//! A result is accepted in memory and its writes (tile row, pending rows, job row) committed
+//! before the worker hears "merged", so after a `kill -9` the database holds exactly the
 //! accepted tasks: the tasks that were leased but not yet committed are simply leased again. WAL with `synchronous = NORMAL` survives a process crash at any point; only a power
 //! loss may lose the last transactions (which are then re-rendered, never double counted).
+//!
+//! Group commit: under the farm lock a merge only queues a copy of what it changed
+//! ([`Store::queue_task`]); the worker's request then waits for its [`Commit`] outside the lock,
+//! and whichever waiter takes the database first writes every write queued so far in one
+//! transaction (one tile row for several results of a tile, one job row per job). Every other
+//! use of the database first commits what is queued, so the database always holds a prefix of
+//! the farm's changes in the order the farm made them.
 
 use std::{
+    collections::{HashMap, HashSet},
     io::Write,
     path::{Path, PathBuf},
+    sync::{Arc, Mutex, MutexGuard},
 };
 
 use anyhow::{Context, Result};
@@ -23,12 +32,195 @@ use super::{
 
 /// The database and the scene folder.
 pub struct Store {
-    db: Connection,
+    shared: Arc<Shared>,
     /// The database file.
     path: PathBuf,
     scenes_dir: PathBuf,
     /// Whether what is written must survive a crash (scene files are synced to disk).
     durable: bool,
+    /// The frames (job, frame) whose pilot image is queued or stored: a merge copies it once.
+    pilots_queued: HashSet<(String, u32)>,
+}
+
+/// The most merges queued for a commit: the next one commits them all before the farm goes on.
+pub(crate) const MAX_QUEUED: usize = 64;
+
+/// What the farm and the requests waiting for their commits share.
+struct Shared {
+    /// The connection; whoever holds it commits the queue before anything else.
+    db: Mutex<Connection>,
+    queue: Mutex<Queue>,
+}
+
+/// Merges accepted in memory whose writes are not yet committed.
+#[derive(Default)]
+struct Queue {
+    writes: Vec<TaskWrite>,
+    /// The number of the next write queued.
+    next: u64,
+    /// Writes numbered below this are settled: committed, or failed with their error in
+    /// `failed`.
+    settled: u64,
+    /// The error of each write whose transaction failed, until its waiter takes it.
+    failed: HashMap<u64, String>,
+    /// Transactions of queued writes, and the seconds they took (for `/metrics`).
+    groups: u64,
+    group_seconds: f64,
+}
+
+/// What accepting one result changed, copied out of its job under the farm lock and encoded by
+/// whoever commits it.
+struct TaskWrite {
+    seq: u64,
+    job: String,
+    frame: u32,
+    tile: u32,
+    change: Change,
+    /// The frame's pilot image, the first time a merge finds it fixed.
+    pilot: Option<Vec<[f32; 3]>>,
+    kernels: Vec<String>,
+    row: JobRow,
+}
+
+/// A result's change to its tile.
+enum Change {
+    /// It waits for an earlier task of its tile.
+    Pending { k: u32, sums: TileAccum },
+    /// The tile's new prefix and sums (the pending results below the prefix absorbed).
+    Tile { prefix: u32, sums: TileAccum },
+}
+
+/// The mutable columns of a job's row.
+struct JobRow {
+    state: &'static str,
+    error: Option<String>,
+    elapsed_s: f64,
+    scales: String,
+    finished: Option<f64>,
+}
+
+impl JobRow {
+    fn of(job: &Job, now: Moment) -> JobRow {
+        JobRow {
+            state: job.state.name(),
+            error: job.error.clone(),
+            elapsed_s: job.elapsed(now),
+            scales: scales_json(job),
+            finished: job.finished_unix,
+        }
+    }
+
+    fn write(&self, db: &Connection, id: &str) -> Result<()> {
+        db.prepare_cached(
+            "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5, finished = ?6
+             WHERE id = ?1",
+        )?
+        .execute(params![
+            id,
+            self.state,
+            self.error,
+            self.elapsed_s,
+            self.scales,
+            self.finished
+        ])?;
+        Ok(())
+    }
+}
+
+/// A merge's writes, queued: [`Commit::wait`] returns once they are committed.
+#[must_use = "a merge is answered only once its writes are committed"]
+pub struct Commit {
+    shared: Arc<Shared>,
+    seq: u64,
+}
+
+impl Commit {
+    /// Waits until the write is committed, committing the queue itself if no one else is; the
+    /// error of the transaction it was in, if that failed.
+    pub fn wait(self) -> Result<()> {
+        loop {
+            {
+                let mut queue = lock(&self.shared.queue);
+                if queue.settled > self.seq {
+                    return match queue.failed.remove(&self.seq) {
+                        Some(e) => Err(anyhow::anyhow!("committing a merged result failed: {e}")),
+                        None => Ok(()),
+                    };
+                }
+            }
+            let mut db = lock(&self.shared.db);
+            // This write's own outcome is read above.
+            let _ = commit_queue(&self.shared, &mut db);
+        }
+    }
+}
+
+/// A mutex's guard, whether or not a thread panicked holding it (the data are written whole or
+/// not at all by SQLite's transactions).
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Writes every queued write in one transaction (the caller holds the connection, so queued
+/// writes are taken and committed in the order they were queued).
+fn commit_queue(shared: &Shared, db: &mut Connection) -> Result<()> {
+    let writes = std::mem::take(&mut lock(&shared.queue).writes);
+    let Some(last) = writes.last().map(|w| w.seq) else { return Ok(()) };
+    let start = std::time::Instant::now();
+    let outcome = write_batch(db, &writes);
+    let mut queue = lock(&shared.queue);
+    queue.settled = last + 1;
+    queue.groups += 1;
+    queue.group_seconds += start.elapsed().as_secs_f64();
+    if let Err(e) = &outcome {
+        let e = format!("{e:#}");
+        for w in &writes {
+            queue.failed.insert(w.seq, e.clone());
+        }
+    }
+    outcome
+}
+
+/// The writes of a batch, in order, in one transaction: of several new sums of one tile only the
+/// last is written, and of several rows of one job only the last.
+fn write_batch(db: &mut Connection, writes: &[TaskWrite]) -> Result<()> {
+    let mut last_tile = HashMap::new();
+    let mut last_row = HashMap::new();
+    for (i, w) in writes.iter().enumerate() {
+        if let Change::Tile { .. } = w.change {
+            last_tile.insert((w.job.as_str(), w.frame, w.tile), i);
+        }
+        last_row.insert(w.job.as_str(), i);
+    }
+    let tx = db.transaction()?;
+    for (i, w) in writes.iter().enumerate() {
+        let (job, frame, tile) = (w.job.as_str(), w.frame, w.tile);
+        match &w.change {
+            Change::Pending { k, sums } => put_pending(&tx, job, frame, tile, *k, sums)?,
+            Change::Tile { prefix, sums } => {
+                if last_tile[&(job, frame, tile)] == i {
+                    put_tile(&tx, job, frame, tile, *prefix, sums)?;
+                }
+                tx.prepare_cached(
+                    "DELETE FROM pending WHERE job = ?1 AND frame = ?2 AND tile = ?3 AND task < ?4",
+                )?
+                .execute(params![job, frame, tile, prefix])?;
+            }
+        }
+        if let Some(means) = &w.pilot {
+            let blob = bincode::serde::encode_to_vec(means, bincode_config())?;
+            tx.prepare_cached(
+                "INSERT OR IGNORE INTO pilots (job, frame, means) VALUES (?1, ?2, ?3)",
+            )?
+            .execute(params![job, frame, blob])?;
+        }
+        put_kernels(&tx, job, frame, &w.kernels)?;
+        if last_row[job] == i {
+            w.row.write(&tx, job)?;
+        }
+    }
+    tx.commit()?;
+    Ok(())
 }
 
 /// A job row as stored.
@@ -88,24 +280,25 @@ fn bincode_config() -> impl bincode::config::Config {
 /// Upserts a tile's prefix and its sums.
 fn put_tile(
     tx: &rusqlite::Transaction<'_>,
-    job: &Job,
+    job: &str,
     frame: u32,
     tile: u32,
-    t: &super::job::Tile,
+    prefix: u32,
+    sums: &TileAccum,
 ) -> Result<()> {
-    let sums = bincode::serde::encode_to_vec(&t.sums, bincode_config())?;
+    let sums = bincode::serde::encode_to_vec(sums, bincode_config())?;
     tx.prepare_cached(
         "INSERT INTO tiles (job, frame, tile, prefix, sums) VALUES (?1, ?2, ?3, ?4, ?5)
          ON CONFLICT (job, frame, tile) DO UPDATE SET prefix = ?4, sums = ?5",
     )?
-    .execute(params![job.id, frame, tile, t.prefix, sums])?;
+    .execute(params![job, frame, tile, prefix, sums])?;
     Ok(())
 }
 
 /// Stores task `k`'s result, waiting for an earlier task of its tile.
 fn put_pending(
     tx: &rusqlite::Transaction<'_>,
-    job: &Job,
+    job: &str,
     frame: u32,
     tile: u32,
     k: u32,
@@ -115,35 +308,28 @@ fn put_pending(
     tx.prepare_cached(
         "INSERT OR REPLACE INTO pending (job, frame, tile, task, sums) VALUES (?1, ?2, ?3, ?4, ?5)",
     )?
-    .execute(params![job.id, frame, tile, k, sums])?;
+    .execute(params![job, frame, tile, k, sums])?;
     Ok(())
 }
 
-/// Updates the job's row: state, error, elapsed time, adaptive scales, end time.
 /// Stores the kernels that rendered frame index `frame` of `job` (those stored already stay).
-fn put_kernels(db: &Connection, job: &Job, frame: u32) -> Result<()> {
+fn put_kernels<'k>(
+    db: &Connection,
+    job: &str,
+    frame: u32,
+    kernels: impl IntoIterator<Item = &'k String>,
+) -> Result<()> {
     let mut insert = db
         .prepare_cached("INSERT OR IGNORE INTO kernels (job, frame, kernel) VALUES (?1, ?2, ?3)")?;
-    for kernel in &job.frames[frame as usize].kernels {
-        insert.execute(params![job.id, frame, kernel])?;
+    for kernel in kernels {
+        insert.execute(params![job, frame, kernel])?;
     }
     Ok(())
 }
 
+/// Updates the job's row: state, error, elapsed time, adaptive scales, end time.
 fn put_job_state(db: &Connection, job: &Job, now: Moment) -> Result<()> {
-    db.prepare_cached(
-        "UPDATE jobs SET state = ?2, error = ?3, elapsed_s = ?4, scales = ?5, finished = ?6
-         WHERE id = ?1",
-    )?
-    .execute(params![
-        job.id,
-        job.state.name(),
-        job.error,
-        job.elapsed(now),
-        scales_json(job),
-        job.finished_unix
-    ])?;
-    Ok(())
+    JobRow::of(job, now).write(db, &job.id)
 }
 
 impl Store {
@@ -208,7 +394,16 @@ impl Store {
         // A reader ([`Store::tile_reader`]) may hold the database a moment (without a write-ahead
         // log): a commit waits for it rather than fail.
         db.busy_timeout(std::time::Duration::from_secs(10))?;
-        Ok(Store { db, path, scenes_dir, durable })
+        let shared = Arc::new(Shared { db: Mutex::new(db), queue: Mutex::default() });
+        Ok(Store { shared, path, scenes_dir, durable, pilots_queued: HashSet::new() })
+    }
+
+    /// The connection, once every queued write is committed (the error of that commit, if it
+    /// failed: the farm's memory is then ahead of the database).
+    fn db(&self) -> Result<MutexGuard<'_, Connection>> {
+        let mut db = lock(&self.shared.db);
+        commit_queue(&self.shared, &mut db)?;
+        Ok(db)
     }
 
     /// Path of a stored scene's bytes.
@@ -219,7 +414,7 @@ impl Store {
     /// Whether a scene is stored, and its format.
     pub fn scene_format(&self, hash: &str) -> Result<Option<String>> {
         Ok(self
-            .db
+            .db()?
             .query_row("SELECT format FROM scenes WHERE hash = ?1", [hash], |r| r.get(0))
             .optional()?)
     }
@@ -237,7 +432,7 @@ impl Store {
             }
             tmp.persist(&path).map_err(|e| e.error)?;
         }
-        self.db.execute(
+        self.db()?.execute(
             "INSERT OR IGNORE INTO scenes (hash, format, bytes, created) VALUES (?1, ?2, ?3, ?4)",
             params![hash, format, bytes.len() as i64, unix_now()],
         )?;
@@ -246,7 +441,7 @@ impl Store {
 
     /// Inserts a new job, as it is at `now`.
     pub fn insert_job(&self, job: &Job, now: Moment) -> Result<()> {
-        self.db.execute(
+        self.db()?.execute(
             "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created, elapsed_s,
                                name)
              VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
@@ -268,13 +463,15 @@ impl Store {
 
     /// Updates a job's state, error, elapsed time and end time, as they are at `now`.
     pub fn update_job(&self, job: &Job, now: Moment) -> Result<()> {
-        put_job_state(&self.db, job, now)
+        put_job_state(&*self.db()?, job, now)
     }
 
     /// Removes a job and everything stored for it (its tiles and pending results) in one
     /// transaction. Its scene stays: other jobs may render it.
     pub fn delete_job(&mut self, id: &str) -> Result<()> {
-        let tx = self.db.transaction()?;
+        self.pilots_queued.retain(|(job, _)| job != id);
+        let mut db = self.db()?;
+        let tx = db.transaction()?;
         tx.execute("DELETE FROM pending WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM tiles WHERE job = ?1", [id])?;
         tx.execute("DELETE FROM pilots WHERE job = ?1", [id])?;
@@ -284,9 +481,54 @@ impl Store {
         Ok(())
     }
 
-    /// Writes what accepting task `k` of a tile changed, and the job's row, in one transaction:
-    /// the result itself when it is pending, else the tile's new prefix and sums (and the pending
-    /// rows they absorbed), and the frame's pilot image when this result fixed it.
+    /// Queues what accepting task `k` of a tile changed, and the job's row: the result itself
+    /// when it is pending, else the tile's new prefix and sums (and the pending rows they
+    /// absorbed), and the frame's pilot image when a result fixed it. Cheap (copies of the tile's
+    /// sums): call it under the farm lock, and wait for the [`Commit`] outside it.
+    pub fn queue_task(&mut self, job: &Job, frame: u32, tile: u32, k: u32, now: Moment) -> Commit {
+        let t = &job.frames[frame as usize].tiles[tile as usize];
+        let change = match t.pending.get(&k) {
+            Some(acc) => Change::Pending { k, sums: acc.clone() },
+            None => Change::Tile { prefix: t.prefix, sums: t.sums.clone() },
+        };
+        let pilot = match job.pilot(frame) {
+            Some(means) if self.pilots_queued.insert((job.id.clone(), frame)) => {
+                Some(means.to_vec())
+            }
+            _ => None,
+        };
+        let mut queue = lock(&self.shared.queue);
+        let seq = queue.next;
+        queue.next += 1;
+        queue.writes.push(TaskWrite {
+            seq,
+            job: job.id.clone(),
+            frame,
+            tile,
+            change,
+            pilot,
+            kernels: job.frames[frame as usize].kernels.iter().cloned().collect(),
+            row: JobRow::of(job, now),
+        });
+        let full = queue.writes.len() >= MAX_QUEUED;
+        drop(queue);
+        if full {
+            // The farm outruns the disk: commit here, under the farm lock, so that what waits
+            // stays bounded (each write holds a copy of its tile's sums). The writes' own
+            // waiters read the outcome.
+            let _ = commit_queue(&self.shared, &mut lock(&self.shared.db));
+        }
+        Commit { shared: self.shared.clone(), seq }
+    }
+
+    /// The transactions that committed queued merges so far, and the seconds they took.
+    pub fn groups(&self) -> (u64, f64) {
+        let queue = lock(&self.shared.queue);
+        (queue.groups, queue.group_seconds)
+    }
+
+    /// [`Store::queue_task`] and [`Commit::wait`] in one (tests).
+    #[cfg(test)]
     pub fn commit_task(
         &mut self,
         job: &Job,
@@ -295,45 +537,22 @@ impl Store {
         k: u32,
         now: Moment,
     ) -> Result<()> {
-        let t = &job.frames[frame as usize].tiles[tile as usize];
-        let tx = self.db.transaction()?;
-        if let Some(acc) = t.pending.get(&k) {
-            put_pending(&tx, job, frame, tile, k, acc)?;
-        } else {
-            put_tile(&tx, job, frame, tile, t)?;
-            tx.prepare_cached(
-                "DELETE FROM pending WHERE job = ?1 AND frame = ?2 AND tile = ?3 AND task < ?4",
-            )?
-            .execute(params![job.id, frame, tile, t.prefix])?;
-        }
-        if let Some(means) = job.pilot(frame) {
-            let stored = tx
-                .prepare_cached("SELECT 1 FROM pilots WHERE job = ?1 AND frame = ?2")?
-                .exists(params![job.id, frame])?;
-            if !stored {
-                let blob = bincode::serde::encode_to_vec(means, bincode_config())?;
-                tx.prepare_cached("INSERT INTO pilots (job, frame, means) VALUES (?1, ?2, ?3)")?
-                    .execute(params![job.id, frame, blob])?;
-            }
-        }
-        put_kernels(&tx, job, frame)?;
-        put_job_state(&tx, job, now)?;
-        tx.commit()?;
-        Ok(())
+        self.queue_task(job, frame, tile, k, now).wait()
     }
 
     /// Writes every tile of frame `frame` (its prefix sums and pending results) and the job's
     /// row in one transaction: what a scratch store, which skips `commit_task`, keeps of a frame
     /// before it leaves memory.
     pub fn commit_frame(&mut self, job: &Job, frame: u32, now: Moment) -> Result<()> {
-        let tx = self.db.transaction()?;
+        let mut db = self.db()?;
+        let tx = db.transaction()?;
         for (i, t) in job.frames[frame as usize].tiles.iter().enumerate() {
             let tile = i as u32;
             if !t.sums.pixels.is_empty() {
-                put_tile(&tx, job, frame, tile, t)?;
+                put_tile(&tx, &job.id, frame, tile, t.prefix, &t.sums)?;
             }
             for (&k, acc) in &t.pending {
-                put_pending(&tx, job, frame, tile, k, acc)?;
+                put_pending(&tx, &job.id, frame, tile, k, acc)?;
             }
         }
         if let Some(means) = job.pilot(frame) {
@@ -343,7 +562,7 @@ impl Store {
             )?
             .execute(params![job.id, frame, blob])?;
         }
-        put_kernels(&tx, job, frame)?;
+        put_kernels(&tx, &job.id, frame, &job.frames[frame as usize].kernels)?;
         put_job_state(&tx, job, now)?;
         tx.commit()?;
         Ok(())
@@ -351,15 +570,17 @@ impl Store {
 
     /// The kernels that rendered each frame of a job (by frame index), as stored.
     pub fn kernels(&self, job: &str) -> Result<Vec<(u32, String)>> {
+        let db = self.db()?;
         let mut stmt =
-            self.db.prepare("SELECT frame, kernel FROM kernels WHERE job = ?1 ORDER BY frame")?;
+            db.prepare("SELECT frame, kernel FROM kernels WHERE job = ?1 ORDER BY frame")?;
         let rows = stmt.query_map([job], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, String>(1)?)))?;
         Ok(rows.collect::<rusqlite::Result<_>>()?)
     }
 
     /// Every job, oldest first.
     pub fn jobs(&self) -> Result<Vec<StoredJob>> {
-        let mut stmt = self.db.prepare(
+        let db = self.db()?;
+        let mut stmt = db.prepare(
             "SELECT id, seq, scene, settings, priority, state, error, created, elapsed_s, scales,
                     finished, name
              FROM jobs ORDER BY seq",
@@ -425,11 +646,12 @@ impl Store {
     /// (tests).
     #[cfg(test)]
     pub fn rows_of(&self, id: &str) -> i64 {
+        let db = self.db().unwrap();
         ["jobs WHERE id", "tiles WHERE job", "pending WHERE job", "pilots WHERE job"]
             .iter()
             .map(|t| {
                 let sql = format!("SELECT COUNT(*) FROM {t} = ?1");
-                self.db.query_row(&sql, [id], |r| r.get::<_, i64>(0)).unwrap()
+                db.query_row(&sql, [id], |r| r.get::<_, i64>(0)).unwrap()
             })
             .sum()
     }
@@ -446,6 +668,8 @@ impl Store {
     /// A second connection to the database, read-only, for reading tiles without the farm.
     pub fn tile_reader(&self) -> Result<TileReader> {
         use rusqlite::OpenFlags;
+        // What it reads is committed first.
+        drop(self.db()?);
         let db = Connection::open_with_flags(
             &self.path,
             OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
@@ -461,7 +685,8 @@ impl Store {
         sql: &str,
         args: impl rusqlite::Params,
     ) -> Result<Vec<(u32, u32, u32, TileAccum)>> {
-        let mut stmt = self.db.prepare(sql)?;
+        let db = self.db()?;
+        let mut stmt = db.prepare(sql)?;
         let rows = stmt.query_map(args, |r| {
             Ok((
                 r.get::<_, u32>(0)?,
@@ -483,7 +708,8 @@ impl Store {
     /// The stored pilot images of a job's bidirectional frames under adaptive sampling, by frame
     /// index.
     pub fn pilots(&self, job: &str) -> Result<Vec<(u32, Vec<[f32; 3]>)>> {
-        let mut stmt = self.db.prepare("SELECT frame, means FROM pilots WHERE job = ?1")?;
+        let db = self.db()?;
+        let mut stmt = db.prepare("SELECT frame, means FROM pilots WHERE job = ?1")?;
         let rows = stmt.query_map([job], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, Vec<u8>>(1)?)))?;
         let mut out = Vec::new();
         for row in rows {

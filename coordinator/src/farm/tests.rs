@@ -423,3 +423,121 @@ fn jobs_are_listed_a_page_at_a_time() {
     });
     assert_eq!(listed(&page), [ids[3].clone(), ids[4].clone()]);
 }
+
+/// The rows of `table` in the database under `dir`, read on a connection of the test's own.
+fn rows_in(dir: &std::path::Path, table: &str) -> i64 {
+    let db = rusqlite::Connection::open(dir.join("farm.sqlite")).unwrap();
+    db.query_row(&format!("SELECT COUNT(*) FROM {table}"), [], |r| r.get(0)).unwrap()
+}
+
+/// Group commit: merges queue their writes under the farm lock and commit outside it, all that
+/// is queued in one transaction, in the order they were merged. Nothing is in the database
+/// until a commit is waited for; waiting for the last commits the others with it; a use of the
+/// database commits what is queued first; and the database reopens to the same bits.
+#[test]
+fn merges_commit_in_groups_in_the_order_they_were_made() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = RenderSettings { width: 16, height: 16, ..one_tile(8) };
+    let hash = "cd".repeat(32);
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let mut grants = Vec::new();
+    while let Some(g) = farm.lease(&w).unwrap() {
+        grants.push(g);
+    }
+    assert_eq!(grants.len(), 8, "4 tiles x 2 sample ranges");
+    // Later sample ranges first: each tile's second task waits as pending, then its first
+    // absorbs it, all inside one group.
+    let mut commits = Vec::new();
+    for (i, g) in grants.iter().enumerate().rev() {
+        let commit = farm.submit_queued(&g.lease, &w, result_for(g, i as f32 * 0.1), 0).unwrap();
+        commits.push(commit.expect("a durable store commits each merge"));
+    }
+    assert_eq!(farm.status(&id).unwrap().state, JobState::Done);
+    assert_eq!((rows_in(dir.path(), "tiles"), rows_in(dir.path(), "pending")), (0, 0));
+    // The last merge's commit takes the seven before it along.
+    commits.pop().unwrap().wait().unwrap();
+    assert_eq!((rows_in(dir.path(), "tiles"), rows_in(dir.path(), "pending")), (4, 0));
+    for commit in commits {
+        commit.wait().unwrap();
+    }
+    let (film, _) = farm.film(&id, 0).unwrap();
+
+    // A merge queued and never waited for is committed before the database is next used.
+    let id2 = farm.create_job(&hash, RenderSettings { spp: 4, ..one_tile(4) }, 0).unwrap().id;
+    let g = farm.lease(&w).unwrap().unwrap();
+    let unwaited = farm.submit_queued(&g.lease, &w, result_for(&g, 0.25), 0).unwrap();
+    assert_eq!(rows_in(dir.path(), "tiles"), 4);
+    farm.store.scene_format(&hash).unwrap();
+    assert_eq!(rows_in(dir.path(), "tiles"), 5, "committed before the database was read");
+    unwaited.unwrap().wait().unwrap();
+    farm.remove_job(&id2).unwrap();
+    assert_eq!(rows_in(dir.path(), "tiles"), 4);
+    drop(farm);
+
+    let farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    assert_eq!(farm.status(&id).unwrap().state, JobState::Done);
+    assert_eq!(farm.film(&id, 0).unwrap().0, film);
+}
+
+/// A group whose transaction fails fails every merge in it, each waiter told why; the merges
+/// queued after it commit as usual.
+#[test]
+fn a_failed_group_commit_fails_every_merge_in_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = RenderSettings { width: 16, height: 16, ..one_tile(8) };
+    let hash = "cd".repeat(32);
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    farm.create_job(&hash, settings, 0).unwrap();
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
+    let db = rusqlite::Connection::open(dir.path().join("farm.sqlite")).unwrap();
+    db.execute_batch(
+        "CREATE TRIGGER full BEFORE INSERT ON tiles BEGIN SELECT RAISE(ABORT, 'disk full'); END;",
+    )
+    .unwrap();
+    // The first range of two tiles, in one group.
+    let failing: Vec<_> = grants[..2]
+        .iter()
+        .map(|g| farm.submit_queued(&g.lease, &w, result_for(g, 0.5), 0).unwrap().unwrap())
+        .collect();
+    for commit in failing {
+        let e = commit.wait().unwrap_err();
+        assert!(format!("{e:#}").contains("disk full"), "{e:#}");
+    }
+    db.execute_batch("DROP TRIGGER full").unwrap();
+    let g = &grants[2];
+    farm.submit(&g.lease, &w, result_for(g, 0.5), 0).unwrap();
+    assert_eq!(rows_in(dir.path(), "tiles"), 1);
+}
+
+/// What waits for a commit is bounded: the merge that fills the queue commits it, so that a
+/// farm outrunning its disk holds at most `MAX_QUEUED` copies of tile sums.
+#[test]
+fn a_full_queue_commits_before_the_farm_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let settings = RenderSettings { width: 16, height: 16, spp: 64, ..one_tile(64) };
+    let hash = "cd".repeat(32);
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    farm.create_job(&hash, settings, 0).unwrap();
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
+    assert_eq!(grants.len(), store::MAX_QUEUED);
+    let mut commits = Vec::new();
+    for (i, g) in grants.iter().enumerate() {
+        assert_eq!(rows_in(dir.path(), "tiles"), 0, "committed before the queue was full ({i})");
+        commits.push(farm.submit_queued(&g.lease, &w, result_for(g, 0.5), 0).unwrap().unwrap());
+    }
+    assert_eq!(rows_in(dir.path(), "tiles"), 4, "4 tiles");
+    assert_eq!(farm.commit_groups().0, 1);
+    for commit in commits {
+        commit.wait().unwrap();
+    }
+}

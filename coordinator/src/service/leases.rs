@@ -100,7 +100,18 @@ async fn merge_result(
     blocking(move || {
         let result = decode_result(&bytes)
             .map_err(|e| FarmError::malformed(format!("result refused: {e}")))?;
-        st.lock().submit(&lease, &worker, result, bytes.len() as u64)
+        let size = bytes.len() as u64;
+        // Nothing of the request's is kept while it waits for its commit.
+        drop(bytes);
+        let commit = st.lock().submit_queued(&lease, &worker, result, size)?;
+        // Committed outside the farm lock, with the merges queued meanwhile.
+        match commit {
+            Some(commit) => commit.wait().map_err(|e| {
+                tracing::error!("{e:#}");
+                FarmError::from(e)
+            }),
+            None => Ok(()),
+        }
     })
     .await?;
     state.work.notify_waiters();

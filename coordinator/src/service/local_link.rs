@@ -150,7 +150,7 @@ impl Link for LocalLink {
             let mut farm = self.lock();
             let job = farm.lease_job(lease).map(str::to_string);
             // No bytes crossed a wire: the merged-bytes counter is for results received.
-            let merged = farm.submit(lease, worker, result, 0);
+            let merged = farm.submit_queued(lease, worker, result, 0);
             if let Err(e) = &merged {
                 farm.result_refused();
                 let reason = e.message.strip_prefix("result refused: ").unwrap_or(&e.message);
@@ -158,6 +158,14 @@ impl Link for LocalLink {
             }
             (merged, job.is_none_or(|j| farm.job_ended(&j)))
         };
+        // Committed outside the farm lock, with the merges queued meanwhile.
+        let merged = merged.and_then(|commit| match commit {
+            Some(commit) => commit.wait().map_err(|e| {
+                tracing::error!("{e:#}");
+                FarmError::from(e)
+            }),
+            None => Ok(()),
+        });
         self.work.notify_waiters();
         self.handins.bump(ended);
         merged.map_err(refused)

@@ -13,6 +13,7 @@ use super::AppState;
 pub(super) async fn metrics(State(state): State<AppState>) -> Response {
     let farm = state.lock();
     let c = farm.counters.clone();
+    let (groups, group_seconds) = farm.commit_groups();
     let jobs = farm.job_counts();
     let workers = farm.workers();
     let leases = farm.leases_out();
@@ -99,8 +100,20 @@ pub(super) async fn metrics(State(state): State<AppState>) -> Response {
     put(
         "renderfarm_merge_seconds_total",
         "counter",
-        "Seconds spent merging and committing results.",
+        "Seconds spent merging results in memory.",
         &one(c.merge_seconds),
+    );
+    put(
+        "renderfarm_commits_total",
+        "counter",
+        "Transactions that committed merged results (each takes every merge queued meanwhile).",
+        &one(groups as f64),
+    );
+    put(
+        "renderfarm_commit_seconds_total",
+        "counter",
+        "Seconds spent in those transactions.",
+        &one(group_seconds),
     );
     put(
         "renderfarm_uptime_seconds",
