@@ -103,7 +103,7 @@ pub fn write_frame(
     // The preview needs only the mean (a 12-byte-a-pixel copy); the EXR takes the rest.
     let (width, height, mean) = (image.width, image.height, image.mean.clone());
     let (exr, png) = std::thread::scope(|s| {
-        let png = s.spawn(move || png_of_mean(width, height, &mean, 0.0));
+        let png = s.spawn(move || png_of_mean(width, height, &mean, 0.0, ToneMap::Clamp));
         (exr_bytes(image, info), png.join().expect("PNG encoding panicked"))
     });
     std::fs::write(exr_path, exr?).with_context(|| format!("writing {}", exr_path.display()))?;
@@ -325,7 +325,52 @@ fn srgb_encode(v: f32) -> f32 {
 
 /// Encodes an 8-bit sRGB PNG preview of a frame, scaled by 2^`exposure`.
 pub fn png_bytes(image: &FrameImage, exposure: f32) -> Result<Vec<u8>> {
-    png_of_mean(image.width, image.height, &image.mean, exposure)
+    png_of_mean(image.width, image.height, &image.mean, exposure, ToneMap::Clamp)
+}
+
+/// How a preview maps radiance (after the exposure) to the displayable [0, 1].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ToneMap {
+    /// Values above 1 are cut at 1: the image as it is (the EXR's values, in sRGB).
+    #[default]
+    Clamp,
+    /// v / (1 + v) per channel (Reinhard et al. 2002's global operator): nothing clips, highlights
+    /// compress.
+    Reinhard,
+    /// Narkowicz's 2015 fit of the ACES filmic curve, per channel: a toe, and a shoulder that
+    /// reaches 1 near v = 8 (and 1.03 at most).
+    Aces,
+}
+
+impl ToneMap {
+    /// The names the API takes, in the order of [`ToneMap::parse`]'s choices.
+    pub const NAMES: [&'static str; 3] = ["clamp", "reinhard", "aces"];
+
+    /// The tone map named `name` (one of [`ToneMap::NAMES`]).
+    pub fn parse(name: &str) -> Option<ToneMap> {
+        match name {
+            "clamp" => Some(ToneMap::Clamp),
+            "reinhard" => Some(ToneMap::Reinhard),
+            "aces" => Some(ToneMap::Aces),
+            _ => None,
+        }
+    }
+
+    /// `v` (>= 0 after the exposure) mapped toward [0, 1] (the caller clamps).
+    #[inline]
+    fn apply(self, v: f32) -> f32 {
+        match self {
+            ToneMap::Clamp => v,
+            ToneMap::Reinhard => {
+                let v = v.max(0.0);
+                v / (1.0 + v)
+            }
+            ToneMap::Aces => {
+                let v = v.max(0.0);
+                (v * (2.51 * v + 0.03)) / (v * (2.43 * v + 0.59) + 0.14)
+            }
+        }
+    }
 }
 
 /// The longest side of a preview: larger frames are previewed downscaled.
@@ -387,7 +432,12 @@ impl Preview {
     }
 
     /// The PNG, scaled by 2^`exposure`.
-    pub fn png(mut self, exposure: f32) -> Result<Vec<u8>> {
+    pub fn png(self, exposure: f32) -> Result<Vec<u8>> {
+        self.png_mapped(exposure, ToneMap::Clamp)
+    }
+
+    /// The PNG, scaled by 2^`exposure`, then tone-mapped by `tone`.
+    pub fn png_mapped(mut self, exposure: f32, tone: ToneMap) -> Result<Vec<u8>> {
         if self.factor > 1 {
             for (i, (s, &n)) in self.sum.iter().zip(&self.count).enumerate() {
                 for c in 0..3 {
@@ -395,18 +445,25 @@ impl Preview {
                 }
             }
         }
-        png_of_mean(self.width, self.height, &self.mean, exposure)
+        png_of_mean(self.width, self.height, &self.mean, exposure, tone)
     }
 }
 
-/// Encodes the 8-bit sRGB PNG of a `width` x `height` mean image, scaled by 2^`exposure`.
-fn png_of_mean(width: u32, height: u32, mean: &[Vec<f32>; 3], exposure: f32) -> Result<Vec<u8>> {
+/// Encodes the 8-bit sRGB PNG of a `width` x `height` mean image, scaled by 2^`exposure` and
+/// tone-mapped by `tone`.
+fn png_of_mean(
+    width: u32,
+    height: u32,
+    mean: &[Vec<f32>; 3],
+    exposure: f32,
+    tone: ToneMap,
+) -> Result<Vec<u8>> {
     let scale = exposure.exp2();
     let n = width as usize * height as usize;
     let mut bytes = Vec::with_capacity(n * 3);
     for i in 0..n {
         for channel in mean {
-            let v = (channel[i] * scale).clamp(0.0, 1.0);
+            let v = tone.apply(channel[i] * scale).clamp(0.0, 1.0);
             bytes.push((srgb_encode(v) * 255.0 + 0.5) as u8);
         }
     }
@@ -695,6 +752,49 @@ mod tests {
         })
         .unwrap_err();
         assert!(format!("{err:#}").contains("the job was removed"), "{err:#}");
+    }
+
+    /// The tone maps: the clamp is the plain image; Reinhard's operator and the ACES fit start
+    /// at 0, rise monotonically, keep what is bright near or below white (v / (1 + v) = 1/2 at 1;
+    /// the ACES fit 0.80 at 1, 1.0 at 8) and map a pixel of 2 below 255.
+    #[test]
+    fn tone_maps_keep_highlights_below_white() {
+        for name in ToneMap::NAMES {
+            assert_eq!(ToneMap::parse(name).map(|t| ToneMap::NAMES[t as usize]), Some(name));
+        }
+        assert_eq!(ToneMap::parse("filmic"), None);
+        assert_eq!(ToneMap::Clamp.apply(3.0), 3.0);
+        assert_eq!(ToneMap::Reinhard.apply(1.0), 0.5);
+        assert!((ToneMap::Aces.apply(1.0) - 0.8038).abs() < 1e-3);
+        assert!((ToneMap::Aces.apply(8.0) - 1.0).abs() < 0.01);
+        for tone in [ToneMap::Reinhard, ToneMap::Aces] {
+            assert_eq!(tone.apply(0.0), 0.0);
+            assert_eq!(tone.apply(-1.0), 0.0, "{tone:?}");
+            let mut last = 0.0;
+            for i in 1..1000 {
+                let v = tone.apply(i as f32 * 0.05);
+                assert!(v > last && v < 1.04, "{tone:?} at {}: {v}", i as f32 * 0.05);
+                last = v;
+            }
+        }
+        let pixels = |tone| {
+            let mut preview = Preview::new(2, 1);
+            let mut tile = TileAccum::new(Rect { x0: 0, y0: 0, width: 2, height: 1 });
+            tile.add_sample(0, 0, 0, [0.25; 3]);
+            tile.add_sample(1, 0, 0, [2.0; 3]);
+            preview.add_tile(&tile);
+            let png = preview.png_mapped(0.0, tone).unwrap();
+            let decoder = png::Decoder::new(std::io::Cursor::new(png));
+            let mut reader = decoder.read_info().unwrap();
+            let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+            reader.next_frame(&mut buf).unwrap();
+            [buf[0], buf[3]]
+        };
+        assert_eq!(pixels(ToneMap::Clamp)[1], 255);
+        // Reinhard: 2 -> 2/3, 0.25 -> 0.2, in sRGB.
+        assert_eq!(pixels(ToneMap::Reinhard), [124, 213]);
+        let aces = pixels(ToneMap::Aces);
+        assert!(aces[1] < 255 && aces[1] > pixels(ToneMap::Reinhard)[1], "{aces:?}");
     }
 
     /// A 3x2 frame with distinct values everywhere (pixel 4 has no samples yet).

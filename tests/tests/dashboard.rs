@@ -101,3 +101,47 @@ fn jobs_table(dom: &str) -> String {
     let jobs = dom.split("id=\"jobs-table\"").nth(1).expect("a jobs table in the page");
     jobs.split("</table>").next().unwrap().to_string()
 }
+
+/// The frame view in a real browser: opened from the page's address on a two-frame job, it
+/// shows the frame asked for through the tone map and exposure asked for, the error heat map
+/// with one cell per tile, the error-against-time plot, and the frame browser.
+#[test]
+fn the_frame_view_shows_a_frame_its_tiles_and_its_error_in_a_real_browser() {
+    let Some(browser) = chromium() else {
+        let required = std::env::var("RENDERFARM_BROWSER_TEST").is_ok_and(|v| v == "required");
+        assert!(!required, "no chromium found, but RENDERFARM_BROWSER_TEST=required");
+        eprintln!("SKIPPED: no chromium on this machine (apt-get install chromium)");
+        return;
+    };
+    let dir = temp_dir("dashboard-frame-view");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let scene = upload(&url, &cornell_zip());
+    let s = json!({"width": 32, "height": 32, "tile_size": 16, "spp": 16, "samples_per_task": 4,
+                   "frames": {"start": 0, "end": 1, "fps": 24}});
+    let id = create_job(&url, &scene, &s, 0);
+    wait_done(&url, &id, Duration::from_secs(120));
+    let dom =
+        dump(&browser, &dir, &format!("{url}/?view={id}&frame=1&exposure=1.5&tonemap=aces&heat=1"));
+    let view = dom.split("id=\"frame-view\"").nth(1).expect("a frame view in the page");
+    let view = view.split("</section>").next().unwrap();
+    assert!(view.starts_with('>'), "the frame view is hidden:\n{view}");
+    assert!(view.contains(": frame 1<"), "not frame 1:\n{view}");
+    let image = view.split("id=\"fv-image\"").nth(1).unwrap().split('>').next().unwrap();
+    assert!(image.contains("data-query=\"frames/1.png?exposure=1.5&amp;tonemap=aces\""), "{image}");
+    assert!(image.contains("data-loaded=\"1\""), "the image did not load: {image}");
+    let heat = view.split("id=\"fv-heatmap\"").nth(1).unwrap().split("</svg>").next().unwrap();
+    assert_eq!(heat.matches("<rect").count(), 4, "one cell per tile:\n{heat}");
+    assert!(heat.contains("16 spp (4 of 4 tasks)"), "{heat}");
+    assert!(!heat.split('>').next().unwrap().contains("display: none"), "the heat map is hidden");
+    let plot = view.split("id=\"fv-plot\"").nth(1).unwrap().split("</svg>").next().unwrap();
+    let points: usize =
+        plot.split("data-points=\"").nth(1).unwrap().split('"').next().unwrap().parse().unwrap();
+    // A point at least (the job took less than the history's first step), each marked.
+    assert!(points >= 1 && plot.contains("id=\"fv-error-line\""), "no error line:\n{plot}");
+    assert_eq!(plot.matches("<circle").count(), points, "{plot}");
+    let frames = view.split("id=\"fv-frame\"").nth(1).unwrap().split("</select>").next().unwrap();
+    assert_eq!(frames.matches("<option").count(), 2, "{frames}");
+}

@@ -768,3 +768,67 @@ fn finished_jobs_are_removed_after_the_retention_time() {
     assert_eq!(job_status(&url, &kept)["state"], "queued", "a job that waits was removed");
     assert_eq!(metric(&url, "renderfarm_jobs_removed_total"), 1.0);
 }
+
+/// What the dashboard's frame view reads: each tile's samples and estimated error, the job's
+/// error against time, and previews at an exposure and through a tone map (bad ones refused,
+/// naming what is allowed).
+#[test]
+fn a_frame_shows_its_tiles_its_error_history_and_tone_mapped_previews() {
+    let dir = temp_dir("frame-view");
+    let port = free_port();
+    let url = format!("http://127.0.0.1:{port}");
+    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let scene = upload(&url, &cornell_zip());
+    let s = json!({"width": 32, "height": 24, "tile_size": 16, "spp": 16, "samples_per_task": 4,
+                   "frames": {"start": 0, "end": 1, "fps": 24}});
+    let id = create_job(&url, &scene, &s, 0);
+    let status = wait_done(&url, &id, Duration::from_secs(120));
+
+    let tiles = get(&format!("{url}/api/v1/jobs/{id}/frames/1/tiles"));
+    assert_eq!(tiles.status, 200, "{}", tiles.error());
+    let map = tiles.json();
+    assert_eq!((map["frame"].as_i64(), map["width"].as_u64()), (Some(1), Some(32)));
+    let tiles = map["tiles"].as_array().unwrap();
+    // 2 x 2 tiles, the lower ones 8 rows high.
+    let rects: Vec<[u64; 4]> = tiles
+        .iter()
+        .map(|t| ["x", "y", "width", "height"].map(|k| t[k].as_u64().unwrap()))
+        .collect();
+    assert_eq!(rects, [[0, 0, 16, 16], [16, 0, 16, 16], [0, 16, 16, 8], [16, 16, 16, 8]]);
+    for t in tiles {
+        assert_eq!((t["samples"].as_u64(), t["tasks_done"].as_u64()), (Some(16), Some(4)), "{t}");
+        assert_eq!((t["tasks"].as_u64(), t["complete"].as_bool()), (Some(4), Some(true)), "{t}");
+        let err = t["est_rel_error"].as_f64().expect("an error estimate");
+        assert!(err > 0.0 && err < 1.0, "{t}");
+    }
+    for bad in ["2", "x"] {
+        assert_eq!(get(&format!("{url}/api/v1/jobs/{id}/frames/{bad}/tiles")).status, 404);
+    }
+
+    let history = status["history"].as_array().unwrap();
+    assert!(history.len() >= 2, "{history:?}");
+    let last = history.last().unwrap();
+    assert_eq!(last["samples_done"], status["samples_done"]);
+    assert_eq!(last["est_rel_error"], status["est_rel_error"]);
+    let times: Vec<f64> = history.iter().map(|p| p["elapsed_s"].as_f64().unwrap()).collect();
+    assert!(times.windows(2).all(|w| w[0] < w[1]), "{times:?}");
+
+    let png = |q: &str| get(&format!("{url}/api/v1/jobs/{id}/frames/0.png{q}"));
+    let plain = png("");
+    assert_eq!(plain.status, 200);
+    assert_eq!(png("?exposure=0&tonemap=clamp&v=7").body, plain.body);
+    for other in
+        ["?exposure=1.5", "?tonemap=reinhard", "?tonemap=aces", "?exposure=-2&tonemap=aces"]
+    {
+        let a = png(other);
+        assert_eq!(a.status, 200, "{other}: {}", a.error());
+        assert_ne!(a.body, plain.body, "{other} changed nothing");
+    }
+    let bad = png("?tonemap=filmic");
+    assert_eq!(bad.status, 400);
+    assert!(bad.error().contains("clamp, reinhard, aces"), "{}", bad.error());
+    let bad = png("?exposure=99");
+    assert_eq!(bad.status, 400);
+    assert!(bad.error().contains("exposure"), "{}", bad.error());
+}

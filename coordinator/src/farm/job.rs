@@ -48,7 +48,9 @@ use serde::Serialize;
 use super::clock::Moment;
 use crate::{output::FrameImage, split::tiles};
 
-pub use status::{FrameProgress, JobStatus, JobSummary};
+pub use status::{
+    ErrorPoint, FrameProgress, JobStatus, JobSummary, HISTORY_POINTS, HISTORY_STEP_S,
+};
 
 /// A tile's error estimate is trusted for stopping from this many samples per pixel on.
 pub const MIN_ADAPTIVE_SAMPLES: u32 = 16;
@@ -149,8 +151,14 @@ impl Tile {
         self.tasks.iter().position(|&t| t == TaskState::Open).map(|k| k as u32)
     }
 
-    fn is_complete(&self) -> bool {
+    /// Whether no more of its tasks are needed: all merged, or adaptive sampling stopped it.
+    pub fn is_complete(&self) -> bool {
         self.converged || self.prefix as usize == self.tasks.len()
+    }
+
+    /// Its planned tasks.
+    pub fn task_count(&self) -> u32 {
+        self.tasks.len() as u32
     }
 }
 
@@ -219,6 +227,11 @@ pub struct Job {
     pub finished_unix: Option<f64>,
     /// Its name, as the submitter gave it (`validate_job_name`).
     pub name: Option<String>,
+    /// Its estimated error against its running time since this process took it up
+    /// ([`Job::note_progress`]; not stored: a restarted coordinator starts it anew).
+    pub history: Vec<status::ErrorPoint>,
+    /// The running seconds between two points of `history` (doubled whenever it fills).
+    history_step: f64,
 }
 
 /// A job refuses more than this many tasks (absurd settings would only fill memory).
@@ -307,6 +320,8 @@ impl Job {
             evicted: false,
             finished_unix: None,
             name: None,
+            history: Vec::new(),
+            history_step: status::HISTORY_STEP_S,
         })
     }
 

@@ -3,6 +3,8 @@
 
 use std::{collections::BTreeMap, path::PathBuf};
 
+use serde::Serialize;
+
 use common::{
     film::{Rect, TileAccum},
     settings::{Integrator, RenderSettings},
@@ -266,6 +268,34 @@ impl Farm {
         })
     }
 
+    /// The tiles of frame `number` of job `id`: their progress and estimated error.
+    pub fn tile_map(&self, id: &str, number: i64) -> FarmResult<TileMap> {
+        let job = self.job(id)?;
+        let f = Self::frame_index(job, number)?;
+        let s = &job.settings;
+        let tiles = job.frames[f]
+            .tiles
+            .iter()
+            .filter(|t| !t.light)
+            .map(|t| {
+                let r = t.sums.rect;
+                TileProgress {
+                    x: r.x0,
+                    y: r.y0,
+                    width: r.width,
+                    height: r.height,
+                    tasks_done: t.prefix,
+                    tasks: t.task_count(),
+                    samples: t.prefix.saturating_mul(s.samples_per_task).min(s.spp),
+                    est_rel_error: t.rel_mse.is_finite().then(|| t.rel_mse.max(0.0).sqrt()),
+                    converged: t.converged,
+                    complete: t.is_complete(),
+                }
+            })
+            .collect();
+        Ok(TileMap { frame: number, width: s.width, height: s.height, tiles })
+    }
+
     /// A copy of the merged sums of tile `t` of frame index `f` of job `id`.
     pub fn tile_copy(&self, id: &str, f: usize, t: usize) -> FarmResult<TileCopy> {
         let frame = &self.job(id)?.frames[f];
@@ -305,6 +335,40 @@ impl Farm {
             ))
         })
     }
+}
+
+/// A frame's tiles as the dashboard's heat map shows them ([`Farm::tile_map`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct TileMap {
+    /// The frame number.
+    pub frame: i64,
+    /// The frame's width and height.
+    pub width: u32,
+    pub height: u32,
+    /// Its image tiles, row-major (bidirectional path tracing's frame-wide light tile left out).
+    pub tiles: Vec<TileProgress>,
+}
+
+/// One tile's progress and estimated error.
+#[derive(Clone, Debug, Serialize)]
+pub struct TileProgress {
+    /// Its rectangle in pixels.
+    pub x: u32,
+    pub y: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Its tasks merged in order, of `tasks` planned.
+    pub tasks_done: u32,
+    pub tasks: u32,
+    /// Samples per pixel merged in order.
+    pub samples: u32,
+    /// The estimated relative error of its pixels (the root of its relative MSE; under
+    /// bidirectional path tracing its share of the image's); `None` until it can be estimated.
+    pub est_rel_error: Option<f64>,
+    /// Adaptive sampling stopped it.
+    pub converged: bool,
+    /// No more of its tasks are needed.
+    pub complete: bool,
 }
 
 /// Where a frame's tiles are and what its files say of it ([`Farm::frame_layout`]).

@@ -36,8 +36,8 @@ pub mod workers;
 
 pub use error::{ErrorKind, FarmError, FarmResult};
 pub use jobs::{
-    validate_job_name, FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, DEFAULT_LIST_LIMIT,
-    MAX_JOB_NAME_CHARS, MAX_LIST_LIMIT,
+    validate_job_name, FrameLayout, JobPage, JobQuery, ListOrder, TileCopy, TileMap, TileProgress,
+    DEFAULT_LIST_LIMIT, MAX_JOB_NAME_CHARS, MAX_LIST_LIMIT,
 };
 pub use validate::{
     hex, is_hash, validate_job_scene, validate_upload, validate_upload_loaded, SceneInfo,
@@ -399,6 +399,7 @@ impl Farm {
         job.note_kernel(key.frame as usize, &result.kernel);
         job.merge(key, result.tile, samples, now);
         job.note_end(self.clock.unix());
+        job.note_progress(now);
         // A scratch store writes a frame when it leaves memory instead (`keep_frame`).
         let commit = self
             .config

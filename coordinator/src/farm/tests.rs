@@ -541,3 +541,53 @@ fn a_full_queue_commits_before_the_farm_goes_on() {
         commit.wait().unwrap();
     }
 }
+
+/// A job's error history: a point at its first merge, then one per step of running time (one
+/// second at first), one at the merge that finishes it; once full, every other point goes and
+/// the step doubles, so that it spans the whole run evenly within `HISTORY_POINTS`. The error
+/// falls as samples are merged.
+#[test]
+fn the_error_history_spans_the_run_evenly() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    // 8 tiles x 100 tasks, leased tile by tile as the progressive choice gives them.
+    let settings = RenderSettings {
+        width: 32,
+        height: 16,
+        tile_size: 8,
+        spp: 400,
+        samples_per_task: 4,
+        ..Default::default()
+    };
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
+    let mut merges = 0;
+    while let Some(g) = farm.lease(&w).unwrap() {
+        clock.advance(Duration::from_millis(700));
+        let v = 0.5 + 0.3 * ((merges * 7919) % 13) as f32 / 13.0;
+        farm.submit(&g.lease, &w, result_for(&g, v), 0).unwrap();
+        merges += 1;
+        if merges == 3 {
+            // The first merge, then the first one a second or more later.
+            let h = farm.status(&id).unwrap().history;
+            assert_eq!(h.len(), 2, "{h:?}");
+            assert_eq!((h[0].elapsed_s, h[1].elapsed_s), (0.7, 2.1));
+            assert_eq!(h[0].samples_done, 8 * 8 * 4);
+        }
+    }
+    assert_eq!(merges, 800);
+    let status = farm.status(&id).unwrap();
+    assert_eq!(status.state, JobState::Done);
+    let h = &status.history;
+    assert!(h.len() < job::HISTORY_POINTS && h.len() > job::HISTORY_POINTS / 4, "{}", h.len());
+    let last = h.last().unwrap();
+    assert_eq!((last.elapsed_s, last.samples_done), (status.elapsed_s, status.samples_done));
+    assert_eq!(h[0].elapsed_s, 0.7);
+    // 560 s of running time, a merge each 0.7 s: thinned once, to steps of 2 s, so that no gap
+    // is longer than two merges' time past the last step before the thinning (2.8 s).
+    let steps: Vec<f64> = h.windows(2).map(|p| p[1].elapsed_s - p[0].elapsed_s).collect();
+    assert!(steps.iter().all(|&s| s > 0.0 && s < 2.8 + 1e-9), "{steps:?}");
+    let errors: Vec<f64> = h.iter().filter_map(|p| p.est_rel_error).collect();
+    assert!(errors.len() > h.len() / 2, "{h:?}");
+    assert!(errors.last().unwrap() < &(errors[0] * 0.5), "{errors:?}");
+}

@@ -1,4 +1,6 @@
-//! `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`): a frame's image, also while its job runs.
+//! `GET /api/v1/jobs/{id}/frames/{n}.exr` (or `.png`, with `?exposure=STOPS&tonemap=NAME`): a
+//! frame's image, also while its job runs; `GET /api/v1/jobs/{id}/frames/{n}/tiles`: its tiles'
+//! samples and estimated error (the dashboard's heat map).
 //!
 //! A frame is read a tile at a time, from memory under the farm's lock for one tile's copy at a
 //! time, or, once its job finished and its sums left memory, from the database on a connection
@@ -15,15 +17,54 @@ use axum::{
 };
 use common::film::TileAccum;
 
-use super::{blocking, file_chunks, ApiResult, AppState};
+use super::{
+    blocking, file_chunks,
+    jobs::{query_pairs, QueryPairs},
+    ApiResult, AppState,
+};
 use crate::{
     farm::{store::TileReader, FarmError, FrameLayout, TileCopy},
-    output::{write_exr_in_bands, ExrTotals, FrameImage, Preview},
+    output::{write_exr_in_bands, ExrTotals, FrameImage, Preview, ToneMap},
 };
+
+/// The most stops a preview's exposure may take either way.
+const MAX_EXPOSURE: f32 = 20.0;
+
+/// A PNG preview's `exposure` (stops, default 0) and `tonemap` (default `clamp`); other keys
+/// (a cache buster) are ignored.
+fn preview_options(pairs: Vec<(String, String)>) -> ApiResult<(f32, ToneMap)> {
+    let (mut exposure, mut tone) = (0.0, ToneMap::Clamp);
+    for (key, value) in pairs {
+        match key.as_str() {
+            "exposure" => {
+                exposure = value
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|e| e.abs() <= MAX_EXPOSURE)
+                    .ok_or_else(|| {
+                        FarmError::malformed(format!(
+                            "exposure: '{value}' is not a number of stops from -{MAX_EXPOSURE} to {MAX_EXPOSURE}"
+                        ))
+                    })?;
+            }
+            "tonemap" => {
+                tone = ToneMap::parse(&value).ok_or_else(|| {
+                    FarmError::malformed(format!(
+                        "tonemap: '{value}' is not one of {}",
+                        ToneMap::NAMES.join(", ")
+                    ))
+                })?;
+            }
+            _ => {}
+        }
+    }
+    Ok((exposure, tone))
+}
 
 pub(super) async fn frame_image(
     State(state): State<AppState>,
     Path((id, file)): Path<(String, String)>,
+    query: QueryPairs,
 ) -> ApiResult<Response> {
     let (number, ext) = file
         .rsplit_once('.')
@@ -35,7 +76,8 @@ pub(super) async fn frame_image(
         })?;
     match ext.as_str() {
         "png" => {
-            let png = blocking(move || preview(&state, &id, number)).await?;
+            let options = preview_options(query_pairs(query)?)?;
+            let png = blocking(move || preview(&state, &id, number, options)).await?;
             Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("image/png"))], png)
                 .into_response())
         }
@@ -107,7 +149,12 @@ impl<'a> FrameTiles<'a> {
 }
 
 /// The PNG preview of a frame, built a tile at a time.
-fn preview(state: &AppState, id: &str, number: i64) -> ApiResult<Vec<u8>> {
+fn preview(
+    state: &AppState,
+    id: &str,
+    number: i64,
+    (exposure, tone): (f32, ToneMap),
+) -> ApiResult<Vec<u8>> {
     let mut tiles = FrameTiles::open(state, id, number)?;
     let (width, height) = tiles.layout.size;
     let mut preview = Preview::new(width, height);
@@ -116,7 +163,20 @@ fn preview(state: &AppState, id: &str, number: i64) -> ApiResult<Vec<u8>> {
             preview.add_tile(&tile);
         }
     }
-    Ok(preview.png(0.0)?)
+    Ok(preview.png_mapped(exposure, tone)?)
+}
+
+/// `GET /api/v1/jobs/{id}/frames/{n}/tiles`: each tile's rectangle, tasks merged, samples per
+/// pixel and estimated relative error.
+pub(super) async fn frame_tiles(
+    State(state): State<AppState>,
+    Path((id, number)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let number = number
+        .parse::<i64>()
+        .map_err(|_| FarmError::not_found(format!("'{number}' is not a frame number")))?;
+    let map = state.lock().tile_map(&id, number)?;
+    Ok(axum::Json(map).into_response())
 }
 
 /// The EXR of a frame, written a row of tiles at a time into an unnamed file (gone when it is

@@ -2,7 +2,8 @@
 //! at a time (`?state=&order=&after=&limit=`), `GET /api/v1/jobs/{id}` shows one,
 //! `POST /api/v1/jobs/{id}/cancel` cancels one (and so does `DELETE /api/v1/jobs/{id}`, as it
 //! always did), and `DELETE /api/v1/jobs/{id}?purge=true` removes one entirely. A frame's
-//! image, `GET /api/v1/jobs/{id}/frames/{n}.exr|png`, is served by `frames.rs`.
+//! image, `GET /api/v1/jobs/{id}/frames/{n}.exr|png`, and its tiles' progress and error,
+//! `GET /api/v1/jobs/{id}/frames/{n}/tiles`, are served by `frames.rs`.
 
 use std::sync::Mutex;
 
@@ -30,6 +31,7 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/api/v1/jobs/{id}", get(job_status).delete(delete_job))
         .route("/api/v1/jobs/{id}/cancel", post(cancel_job))
         .route("/api/v1/jobs/{id}/frames/{file}", get(super::frames::frame_image))
+        .route("/api/v1/jobs/{id}/frames/{n}/tiles", get(super::frames::frame_tiles))
 }
 
 /// `POST /jobs` after the body is parsed: checks the settings against the farm and the stored
@@ -97,9 +99,9 @@ async fn create_job(
 
 /// A query string's pairs, decoded; an undecodable one is a 400 with a JSON body like every
 /// other refusal.
-type QueryPairs = Result<Query<Vec<(String, String)>>, QueryRejection>;
+pub(super) type QueryPairs = Result<Query<Vec<(String, String)>>, QueryRejection>;
 
-fn query_pairs(query: QueryPairs) -> ApiResult<Vec<(String, String)>> {
+pub(super) fn query_pairs(query: QueryPairs) -> ApiResult<Vec<(String, String)>> {
     query.map(|Query(pairs)| pairs).map_err(|e| FarmError::malformed(format!("query: {e}")))
 }
 

@@ -8,6 +8,23 @@ use serde::Serialize;
 use super::{Job, JobState, Tile};
 use crate::farm::clock::Moment;
 
+/// The running seconds between the first points of a job's error history.
+pub const HISTORY_STEP_S: f64 = 1.0;
+/// The most points a job's error history keeps: once full, every other point goes and the
+/// step doubles, so that it spans the whole run at an even spacing.
+pub const HISTORY_POINTS: usize = 256;
+
+/// A point of a job's estimated error against time (`JobStatus::history`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ErrorPoint {
+    /// Running seconds.
+    pub elapsed_s: f64,
+    /// Pixel samples merged by then.
+    pub samples_done: u64,
+    /// The estimated relative error then (`None` while some tile has too few samples to say).
+    pub est_rel_error: Option<f64>,
+}
+
 /// A job's public status.
 #[derive(Clone, Debug, Serialize)]
 pub struct JobStatus {
@@ -49,6 +66,12 @@ pub struct JobStatus {
     pub created_unix: f64,
     /// When it ended (done, failed or cancelled), seconds since the Unix epoch.
     pub finished_unix: Option<f64>,
+    /// Its estimated error against its running time, oldest first: a point at its first merge,
+    /// then one per [`HISTORY_STEP_S`] running seconds or more, and one at the merge that
+    /// finishes it; at most
+    /// [`HISTORY_POINTS`], evenly thinned. Kept in memory: a restarted coordinator starts it
+    /// anew.
+    pub history: Vec<ErrorPoint>,
 }
 
 /// A job in a list: [`JobStatus`] without what grows with the frames (their numbers and
@@ -201,6 +224,38 @@ impl Job {
             settings: self.settings.clone(),
             created_unix: self.created_unix,
             finished_unix: self.finished_unix,
+            history: self.history.clone(),
+        }
+    }
+
+    /// Adds a point to the error history where one is due: at the first merge, once
+    /// `history_step` running seconds passed since the last point, and at the merge that
+    /// finishes the job (call it after each merge).
+    pub fn note_progress(&mut self, now: Moment) {
+        let elapsed = self.elapsed(now);
+        let due = match self.history.last() {
+            None => true,
+            Some(last) => self.state.is_final() || elapsed - last.elapsed_s >= self.history_step,
+        };
+        if !due {
+            return;
+        }
+        let point = ErrorPoint {
+            elapsed_s: elapsed,
+            samples_done: self.samples_done,
+            est_rel_error: self.totals(now).est_rel_error,
+        };
+        self.history.push(point);
+        if self.history.len() >= HISTORY_POINTS {
+            // Every other point, the first and the newest kept.
+            let newest = self.history.pop();
+            let mut i = 0;
+            self.history.retain(|_| {
+                i += 1;
+                i % 2 == 1
+            });
+            self.history.extend(newest);
+            self.history_step *= 2.0;
         }
     }
 
