@@ -438,12 +438,8 @@ fn rows_in(dir: &std::path::Path, table: &str) -> i64 {
 fn merges_commit_in_groups_in_the_order_they_were_made() {
     let dir = tempfile::tempdir().unwrap();
     let settings = RenderSettings { width: 16, height: 16, ..one_tile(8) };
-    let hash = "cd".repeat(32);
-    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
-    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let (mut farm, hash, w) = farm_on(&ManualClock::new(), FarmConfig::new(dir.path().into()));
     let id = farm.create_job(&hash, settings, 0).unwrap().id;
-    let w =
-        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
     let mut grants = Vec::new();
     while let Some(g) = farm.lease(&w).unwrap() {
         grants.push(g);
@@ -489,12 +485,8 @@ fn merges_commit_in_groups_in_the_order_they_were_made() {
 fn a_failed_group_commit_fails_every_merge_in_it() {
     let dir = tempfile::tempdir().unwrap();
     let settings = RenderSettings { width: 16, height: 16, ..one_tile(8) };
-    let hash = "cd".repeat(32);
-    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
-    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let (mut farm, hash, w) = farm_on(&ManualClock::new(), FarmConfig::new(dir.path().into()));
     farm.create_job(&hash, settings, 0).unwrap();
-    let w =
-        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
     let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
     let db = rusqlite::Connection::open(dir.path().join("farm.sqlite")).unwrap();
     db.execute_batch(
@@ -522,12 +514,8 @@ fn a_failed_group_commit_fails_every_merge_in_it() {
 fn a_full_queue_commits_before_the_farm_goes_on() {
     let dir = tempfile::tempdir().unwrap();
     let settings = RenderSettings { width: 16, height: 16, spp: 64, ..one_tile(64) };
-    let hash = "cd".repeat(32);
-    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
-    farm.store.put_scene(&hash, "glb", b"scene").unwrap();
+    let (mut farm, hash, w) = farm_on(&ManualClock::new(), FarmConfig::new(dir.path().into()));
     farm.create_job(&hash, settings, 0).unwrap();
-    let w =
-        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
     let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
     assert_eq!(grants.len(), store::MAX_QUEUED);
     let mut commits = Vec::new();
