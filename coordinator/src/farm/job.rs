@@ -459,7 +459,8 @@ impl Job {
         self.frames[f].tiles.iter().all(Tile::is_complete)
     }
 
-    /// Drops a complete frame's sums from memory (call once they are committed).
+    /// Drops a complete frame's sums from memory (call once they are committed, or queued for a
+    /// commit that every later read of the database waits for).
     pub fn evict_frame(&mut self, f: usize) {
         let frame = &mut self.frames[f];
         for tile in &mut frame.tiles {

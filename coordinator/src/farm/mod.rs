@@ -565,8 +565,9 @@ impl Farm {
 }
 
 /// Makes sure frame `f` of `job` is in the database before it leaves memory: a durable store
-/// committed every result already; a scratch store writes the frame now. False when that write
-/// failed (the frame then stays in memory).
+/// has queued every result already (committed before the database is next read, or never read
+/// again: a failed commit stops the database); a scratch store writes the frame now. False when
+/// that write failed (the frame then stays in memory).
 fn keep_frame(store: &mut Store, durable: bool, job: &Job, f: usize, now: Moment) -> bool {
     if durable {
         return true;

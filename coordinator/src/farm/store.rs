@@ -12,7 +12,10 @@
 //! and whichever waiter takes the database first writes every write queued so far in one
 //! transaction (one tile row for several results of a tile, one job row per job). Every other
 //! use of the database first commits what is queued, so the database always holds a prefix of
-//! the farm's changes in the order the farm made them.
+//! the farm's changes in the order the farm made them; a group that fails to commit stops all
+//! later commits (`commit_queue`), so that it stays a prefix. Between a merge and its commit,
+//! the farm's answers to users (status, images of frames still in memory) already show the
+//! merge; a worker hears "merged" only after the commit.
 
 use std::{
     collections::{HashMap, HashSet},
@@ -42,7 +45,9 @@ pub struct Store {
     pilots_queued: HashSet<(String, u32)>,
 }
 
-/// The most merges queued for a commit: the next one commits them all before the farm goes on.
+/// The most merges queued for a commit: the merge that fills the queue commits it before the
+/// farm goes on (so that at most this many wait in the queue, and as many again in a group
+/// being committed).
 pub(crate) const MAX_QUEUED: usize = 64;
 
 /// What the farm and the requests waiting for their commits share.
@@ -66,6 +71,8 @@ struct Queue {
     /// Transactions of queued writes, and the seconds they took (for `/metrics`).
     groups: u64,
     group_seconds: f64,
+    /// The error of the group that failed, once one has: nothing is committed after it.
+    broken: Option<String>,
 }
 
 /// What accepting one result changed, copied out of its job under the farm lock and encoded by
@@ -163,20 +170,48 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 /// Writes every queued write in one transaction (the caller holds the connection, so queued
 /// writes are taken and committed in the order they were queued).
+///
+/// A failure is for good: the database then holds the farm's merges up to the failed group, and
+/// committing any later one would leave a gap (a tile's sums, a frame's pilot image) behind
+/// what it records. Every later commit and use of the database returns the same error, and the
+/// coordinator must be restarted: it resumes from what was committed, the rest leased again.
 fn commit_queue(shared: &Shared, db: &mut Connection) -> Result<()> {
-    let writes = std::mem::take(&mut lock(&shared.queue).writes);
+    let writes = {
+        let mut queue = lock(&shared.queue);
+        if let Some(e) = &queue.broken {
+            let e = e.clone();
+            // Nothing more reaches the database: what is queued fails with the first error.
+            let writes = std::mem::take(&mut queue.writes);
+            if let Some(last) = writes.last() {
+                queue.settled = last.seq + 1;
+                for w in &writes {
+                    queue.failed.insert(w.seq, e.clone());
+                }
+            }
+            return Err(anyhow::anyhow!("{e}"));
+        }
+        std::mem::take(&mut queue.writes)
+    };
     let Some(last) = writes.last().map(|w| w.seq) else { return Ok(()) };
     let start = std::time::Instant::now();
-    let outcome = write_batch(db, &writes);
+    // A panic while writing fails the group like an error, so that no waiter is left to take
+    // a later group's commit for its own.
+    let outcome =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| write_batch(db, &writes)))
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("writing the group panicked")));
     let mut queue = lock(&shared.queue);
     queue.settled = last + 1;
     queue.groups += 1;
     queue.group_seconds += start.elapsed().as_secs_f64();
     if let Err(e) = &outcome {
-        let e = format!("{e:#}");
+        let e = format!(
+            "committing merged results failed ({e:#}): the farm's database stops here; restart the coordinator to resume from what it holds"
+        );
+        tracing::error!("{e}");
         for w in &writes {
             queue.failed.insert(w.seq, e.clone());
         }
+        queue.broken = Some(e);
     }
     outcome
 }
@@ -527,7 +562,8 @@ impl Store {
         (queue.groups, queue.group_seconds)
     }
 
-    /// [`Store::queue_task`] and [`Commit::wait`] in one (tests).
+    /// [`Store::queue_task`] and [`Commit::wait`] in one (tests; the farm waits for its commits
+    /// outside its lock).
     #[cfg(test)]
     pub fn commit_task(
         &mut self,

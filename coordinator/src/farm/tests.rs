@@ -430,37 +430,61 @@ fn rows_in(dir: &std::path::Path, table: &str) -> i64 {
     db.query_row(&format!("SELECT COUNT(*) FROM {table}"), [], |r| r.get(0)).unwrap()
 }
 
+/// The film of `results` merged as the farm merges them, whatever their arrival: each tile's
+/// results in task order (sample ranges), the first taken as it is.
+fn merged_in_task_order(width: u32, height: u32, results: &[TaskResult]) -> common::film::Film {
+    let mut tiles: BTreeMap<(u32, u32), Vec<&TaskResult>> = BTreeMap::new();
+    for r in results {
+        tiles.entry((r.spec.rect.y0, r.spec.rect.x0)).or_default().push(r);
+    }
+    let mut film = common::film::Film::new(width, height);
+    for mut rs in tiles.into_values() {
+        rs.sort_by_key(|r| r.spec.samples.start);
+        let mut sums = rs[0].tile.clone();
+        for r in &rs[1..] {
+            sums.merge(&r.tile);
+        }
+        film.merge_tile(&sums);
+    }
+    film
+}
+
 /// Group commit: merges queue their writes under the farm lock and commit outside it, all that
 /// is queued in one transaction, in the order they were merged. Nothing is in the database
 /// until a commit is waited for; waiting for the last commits the others with it; a use of the
-/// database commits what is queued first; and the database reopens to the same bits.
+/// database commits what is queued first; and the database reopens to the film of the results
+/// merged in task order, bit for bit.
 #[test]
 fn merges_commit_in_groups_in_the_order_they_were_made() {
     let dir = tempfile::tempdir().unwrap();
-    let settings = RenderSettings { width: 16, height: 16, ..one_tile(8) };
+    let settings = RenderSettings { width: 16, height: 16, spp: 12, ..one_tile(12) };
     let (mut farm, hash, w) = farm_on(&ManualClock::new(), FarmConfig::new(dir.path().into()));
     let id = farm.create_job(&hash, settings, 0).unwrap().id;
-    let mut grants = Vec::new();
-    while let Some(g) = farm.lease(&w).unwrap() {
-        grants.push(g);
-    }
-    assert_eq!(grants.len(), 8, "4 tiles x 2 sample ranges");
-    // Later sample ranges first: each tile's second task waits as pending, then its first
-    // absorbs it, all inside one group.
+    let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
+    assert_eq!(grants.len(), 12, "4 tiles x 3 sample ranges");
+    // Ranges out of order in one group: the third waits as pending, the first is the tile's
+    // sums, the second absorbs the third (two new sums of the tile in the group, the last
+    // written).
+    let mut order: Vec<usize> = (0..12).collect();
+    order.sort_by_key(|&i| (grants[i].task.samples.start != 8, grants[i].task.samples.start, i));
+    let results: Vec<TaskResult> =
+        order.iter().map(|&i| result_for(&grants[i], 0.1 + i as f32 * 0.07)).collect();
     let mut commits = Vec::new();
-    for (i, g) in grants.iter().enumerate().rev() {
-        let commit = farm.submit_queued(&g.lease, &w, result_for(g, i as f32 * 0.1), 0).unwrap();
+    for (&i, r) in order.iter().zip(&results) {
+        let commit = farm.submit_queued(&grants[i].lease, &w, r.clone(), 0).unwrap();
         commits.push(commit.expect("a durable store commits each merge"));
     }
     assert_eq!(farm.status(&id).unwrap().state, JobState::Done);
     assert_eq!((rows_in(dir.path(), "tiles"), rows_in(dir.path(), "pending")), (0, 0));
-    // The last merge's commit takes the seven before it along.
+    // The last merge's commit takes the eleven before it along.
     commits.pop().unwrap().wait().unwrap();
     assert_eq!((rows_in(dir.path(), "tiles"), rows_in(dir.path(), "pending")), (4, 0));
+    assert_eq!(farm.commit_groups().0, 1);
     for commit in commits {
         commit.wait().unwrap();
     }
-    let (film, _) = farm.film(&id, 0).unwrap();
+    let expected = merged_in_task_order(16, 16, &results);
+    assert_eq!(farm.film(&id, 0).unwrap().0, expected);
 
     // A merge queued and never waited for is committed before the database is next used.
     let id2 = farm.create_job(&hash, RenderSettings { spp: 4, ..one_tile(4) }, 0).unwrap().id;
@@ -476,25 +500,32 @@ fn merges_commit_in_groups_in_the_order_they_were_made() {
 
     let farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
     assert_eq!(farm.status(&id).unwrap().state, JobState::Done);
-    assert_eq!(farm.film(&id, 0).unwrap().0, film);
+    assert_eq!(farm.film(&id, 0).unwrap().0, expected);
 }
 
-/// A group whose transaction fails fails every merge in it, each waiter told why; the merges
-/// queued after it commit as usual.
+/// A group whose transaction fails fails every merge in it, each waiter told why, and stops the
+/// database there: later merges fail with the same error rather than commit behind a gap. A
+/// restarted coordinator resumes from what was committed, leases the rest again, and finishes
+/// with the film of the results merged in task order.
 #[test]
-fn a_failed_group_commit_fails_every_merge_in_it() {
+fn a_failed_group_commit_stops_the_database_until_a_restart() {
     let dir = tempfile::tempdir().unwrap();
     let settings = RenderSettings { width: 16, height: 16, ..one_tile(8) };
     let (mut farm, hash, w) = farm_on(&ManualClock::new(), FarmConfig::new(dir.path().into()));
-    farm.create_job(&hash, settings, 0).unwrap();
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
     let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
+    assert_eq!(grants.len(), 8);
+    // Two merges commit; then the disk fails under the next group of two.
+    for g in &grants[..2] {
+        farm.submit(&g.lease, &w, result_for(g, 0.5), 0).unwrap();
+    }
     let db = rusqlite::Connection::open(dir.path().join("farm.sqlite")).unwrap();
     db.execute_batch(
-        "CREATE TRIGGER full BEFORE INSERT ON tiles BEGIN SELECT RAISE(ABORT, 'disk full'); END;",
+        "CREATE TRIGGER full BEFORE INSERT ON tiles BEGIN SELECT RAISE(ABORT, 'disk full'); END;
+         CREATE TRIGGER full_pending BEFORE INSERT ON pending BEGIN SELECT RAISE(ABORT, 'disk full'); END;",
     )
     .unwrap();
-    // The first range of two tiles, in one group.
-    let failing: Vec<_> = grants[..2]
+    let failing: Vec<_> = grants[2..4]
         .iter()
         .map(|g| farm.submit_queued(&g.lease, &w, result_for(g, 0.5), 0).unwrap().unwrap())
         .collect();
@@ -502,32 +533,58 @@ fn a_failed_group_commit_fails_every_merge_in_it() {
         let e = commit.wait().unwrap_err();
         assert!(format!("{e:#}").contains("disk full"), "{e:#}");
     }
-    db.execute_batch("DROP TRIGGER full").unwrap();
-    let g = &grants[2];
-    farm.submit(&g.lease, &w, result_for(g, 0.5), 0).unwrap();
-    assert_eq!(rows_in(dir.path(), "tiles"), 1);
+    // The disk is fine again, but nothing more is committed: the next merge fails with the
+    // first error, and so does any use of the database.
+    db.execute_batch("DROP TRIGGER full; DROP TRIGGER full_pending").unwrap();
+    let e = farm.submit(&grants[4].lease, &w, result_for(&grants[4], 0.5), 0).unwrap_err();
+    assert!(e.message.contains("disk full") && e.message.contains("restart"), "{}", e.message);
+    assert!(farm.store.scene_format(&hash).is_err());
+    assert_eq!(rows_in(dir.path(), "tiles") + rows_in(dir.path(), "pending"), 2);
+    drop(farm);
+
+    // The restart resumes from the two committed merges.
+    let mut farm = Farm::open(FarmConfig::new(dir.path().into())).unwrap();
+    assert_eq!(farm.status(&id).unwrap().samples_done, 2 * 64 * 4);
+    let w =
+        farm.join(JoinRequest { name: "w".into(), threads: 1, version: String::new() }).unwrap().id;
+    let mut results: Vec<TaskResult> = grants[..2].iter().map(|g| result_for(g, 0.5)).collect();
+    while let Some(g) = farm.lease(&w).unwrap() {
+        let r = result_for(&g, 0.5);
+        farm.submit(&g.lease, &w, r.clone(), 0).unwrap();
+        results.push(r);
+    }
+    assert_eq!(results.len(), 8, "the six tasks not committed are leased again");
+    assert_eq!(farm.status(&id).unwrap().state, JobState::Done);
+    assert_eq!(farm.film(&id, 0).unwrap().0, merged_in_task_order(16, 16, &results));
 }
 
 /// What waits for a commit is bounded: the merge that fills the queue commits it, so that a
-/// farm outrunning its disk holds at most `MAX_QUEUED` copies of tile sums.
+/// farm outrunning its disk holds at most `MAX_QUEUED` copies of tile sums queued. Sixteen new
+/// sums of each tile in one group: the last of each is what is stored.
 #[test]
 fn a_full_queue_commits_before_the_farm_goes_on() {
     let dir = tempfile::tempdir().unwrap();
     let settings = RenderSettings { width: 16, height: 16, spp: 64, ..one_tile(64) };
     let (mut farm, hash, w) = farm_on(&ManualClock::new(), FarmConfig::new(dir.path().into()));
-    farm.create_job(&hash, settings, 0).unwrap();
+    let id = farm.create_job(&hash, settings, 0).unwrap().id;
     let grants: Vec<_> = std::iter::from_fn(|| farm.lease(&w).unwrap()).collect();
     assert_eq!(grants.len(), store::MAX_QUEUED);
     let mut commits = Vec::new();
+    let mut results = Vec::new();
     for (i, g) in grants.iter().enumerate() {
         assert_eq!(rows_in(dir.path(), "tiles"), 0, "committed before the queue was full ({i})");
-        commits.push(farm.submit_queued(&g.lease, &w, result_for(g, 0.5), 0).unwrap().unwrap());
+        let r = result_for(g, 0.5 + (i % 5) as f32 * 0.1);
+        commits.push(farm.submit_queued(&g.lease, &w, r.clone(), 0).unwrap().unwrap());
+        results.push(r);
     }
     assert_eq!(rows_in(dir.path(), "tiles"), 4, "4 tiles");
     assert_eq!(farm.commit_groups().0, 1);
     for commit in commits {
         commit.wait().unwrap();
     }
+    let stored = farm.store.tiles(&id).unwrap();
+    assert!(stored.iter().all(|t| t.prefix == 16 && t.pending.is_empty()), "16 tasks a tile");
+    assert_eq!(farm.film(&id, 0).unwrap().0, merged_in_task_order(16, 16, &results));
 }
 
 /// A job's error history: a point at its first merge, then one per step of running time (one
