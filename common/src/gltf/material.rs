@@ -7,6 +7,7 @@
 
 use std::collections::HashMap;
 use std::io::Cursor;
+use std::sync::Arc;
 
 use ::gltf::json;
 use glam::{Vec2, Vec3, Vec4};
@@ -620,32 +621,74 @@ fn decode(
             return Ok(Texels::Rgba8(texels.into()));
         }
     };
+    use image::{
+        ColorType::{La16, La8, Rgb16, Rgb8, Rgba16, Rgba8, L16, L8},
+        ImageDecoder,
+    };
+    let cannot = |e: image::ImageError| SceneError(format!("cannot decode {format:?}: {e}"));
     let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(width);
     limits.max_image_height = Some(height);
-    // The decoded image at up to 16 bytes a texel (16-bit RGBA), and its RGBA8 copy.
+    // What a decoder allocates of its own (rows, tables; a whole image for some formats).
     limits.max_alloc = Some(width as u64 * height as u64 * 20 + (1 << 20));
     reader.limits(limits);
-    let decoded =
-        reader.decode().map_err(|e| SceneError(format!("cannot decode {format:?}: {e}")))?;
-    if (decoded.width(), decoded.height()) != (width, height) {
-        return fail(format!(
-            "decoded to {}x{}, not the {width}x{height} of its header",
-            decoded.width(),
-            decoded.height()
-        ));
+    let decoder = reader.into_decoder().map_err(cannot)?;
+    if decoder.dimensions() != (width, height) {
+        let (w, h) = decoder.dimensions();
+        return fail(format!("decoded to {w}x{h}, not the {width}x{height} of its header"));
     }
-    // 16 bits a channel kept (a 16-bit PNG), else RGBA8; either as decoded when RGBA, else
-    // converted (RGB, grey).
-    use image::ColorType::{La16, Rgb16, Rgba16, L16};
-    if matches!(decoded.color(), L16 | La16 | Rgb16 | Rgba16) {
-        let rgba = decoded.into_rgba16();
-        let texels = bytemuck::cast_slice::<u16, [u16; 4]>(rgba.as_raw());
-        return Ok(Texels::Rgba16(texels.into()));
+    // Decoded into the texels' own buffer (RGBA, 8 or 16 bits a channel, as the image has), then
+    // spread in place where the image has fewer channels (grey, grey and alpha, RGB): one
+    // buffer of the decoded size, where decoding, converting and sharing took three.
+    let n = width as usize * height as usize;
+    let channels = decoder.color_type().channel_count() as usize;
+    match decoder.color_type() {
+        L8 | La8 | Rgb8 | Rgba8 => {
+            // Allocated once, in place (an exact-length iterator collects straight into an
+            // `Arc<[_]>`), and written through the one reference there is.
+            let mut texels: Arc<[[u8; 4]]> = std::iter::repeat_n([0u8; 4], n).collect();
+            let only = Arc::get_mut(&mut texels).expect("a new Arc has one owner");
+            let bytes = bytemuck::cast_slice_mut::<[u8; 4], u8>(only);
+            decoder.read_image(&mut bytes[..n * channels]).map_err(cannot)?;
+            spread_to_rgba(bytes, channels, u8::MAX);
+            Ok(Texels::Rgba8(texels))
+        }
+        L16 | La16 | Rgb16 | Rgba16 => {
+            // 16 bits a channel kept (a 16-bit PNG): native-endian u16s.
+            let mut texels: Arc<[[u16; 4]]> = std::iter::repeat_n([0u16; 4], n).collect();
+            let only = Arc::get_mut(&mut texels).expect("a new Arc has one owner");
+            let bytes = bytemuck::cast_slice_mut::<[u16; 4], u8>(only);
+            decoder.read_image(&mut bytes[..n * channels * 2]).map_err(cannot)?;
+            spread_to_rgba(bytemuck::cast_slice_mut(only), channels, u16::MAX);
+            Ok(Texels::Rgba16(texels))
+        }
+        // Anything else (floating point: no glTF image format gives it) through `image`'s
+        // conversion.
+        _ => {
+            let rgba = image::DynamicImage::from_decoder(decoder).map_err(cannot)?.into_rgba8();
+            Ok(Texels::Rgba8(bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw()).into()))
+        }
     }
-    let rgba = decoded.into_rgba8();
-    Ok(Texels::Rgba8(bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw()).into()))
+}
+
+/// Spreads the first `channels` (1: grey, 2: grey and alpha, 3: RGB, 4: RGBA) values of each
+/// texel, packed at the start of `data`, to four a texel over the whole of it, in place: grey
+/// to its three colours, an absent alpha to `opaque` (as `image`'s conversions to RGBA do).
+/// From the last texel down, so that no texel is written over before it is read.
+fn spread_to_rgba<T: Copy>(data: &mut [T], channels: usize, opaque: T) {
+    if channels == 4 {
+        return;
+    }
+    for i in (0..data.len() / 4).rev() {
+        let s = &data[i * channels..i * channels + channels];
+        let rgba = match channels {
+            1 => [s[0], s[0], s[0], opaque],
+            2 => [s[0], s[0], s[0], s[1]],
+            _ => [s[0], s[1], s[2], opaque],
+        };
+        data[i * 4..i * 4 + 4].copy_from_slice(&rgba);
+    }
 }
 
 /// Wrap modes, nearest magnification and mipmapped minification of sampler `index`.
@@ -844,4 +887,89 @@ fn diffuse_transmission(
         ext_texture(v, "diffuseTransmissionColorTexture")?,
     );
     Ok((factor as f32, color, textures))
+}
+
+#[cfg(test)]
+mod decode_tests {
+    use image::{ColorType, ExtendedColorType, ImageEncoder};
+
+    use super::*;
+
+    /// What `image`'s own conversion gives (the decoder's image, then to RGBA 8 or 16 bits):
+    /// the reference for decoding into one buffer.
+    fn by_conversion(bytes: &[u8], format: image::ImageFormat) -> Texels {
+        let decoded = image::load_from_memory_with_format(bytes, format).unwrap();
+        if matches!(
+            decoded.color(),
+            ColorType::L16 | ColorType::La16 | ColorType::Rgb16 | ColorType::Rgba16
+        ) {
+            let rgba = decoded.into_rgba16();
+            return Texels::Rgba16(bytemuck::cast_slice::<u16, [u16; 4]>(rgba.as_raw()).into());
+        }
+        let rgba = decoded.into_rgba8();
+        bytemuck::cast_slice::<u8, [u8; 4]>(rgba.as_raw()).to_vec().into()
+    }
+
+    /// Decoding straight into the texels' buffer and spreading grey, grey and alpha, and RGB to
+    /// RGBA in place gives exactly `image`'s conversion, for every channel layout and depth a
+    /// PNG has, for JPEG (colour and grey) and for lossless WebP (colour and alpha), on images
+    /// of odd sizes.
+    #[test]
+    fn one_buffer_decodes_to_the_texels_of_the_conversion() {
+        let (w, h) = (37u32, 23u32);
+        let value = |i: usize, k: usize| ((i * 131 + k * 71 + (i / 7) * 17) % 256) as u8;
+        let mut cases: Vec<(String, Vec<u8>, image::ImageFormat)> = Vec::new();
+        for (color, channels, wide) in [
+            (ExtendedColorType::L8, 1, false),
+            (ExtendedColorType::La8, 2, false),
+            (ExtendedColorType::Rgb8, 3, false),
+            (ExtendedColorType::Rgba8, 4, false),
+            (ExtendedColorType::L16, 1, true),
+            (ExtendedColorType::La16, 2, true),
+            (ExtendedColorType::Rgb16, 3, true),
+            (ExtendedColorType::Rgba16, 4, true),
+        ] {
+            let n = (w * h) as usize * channels;
+            let raw: Vec<u8> = if wide {
+                let words: Vec<u16> =
+                    (0..n).map(|i| value(i, 1) as u16 * 257 + (i % 3) as u16).collect();
+                // `write_image` takes 16-bit samples in native byte order.
+                bytemuck::cast_slice(&words).to_vec()
+            } else {
+                (0..n).map(|i| value(i, 0)).collect()
+            };
+            let mut png = Vec::new();
+            image::codecs::png::PngEncoder::new(&mut png).write_image(&raw, w, h, color).unwrap();
+            cases.push((format!("PNG {color:?}"), png, image::ImageFormat::Png));
+            if !wide && channels != 2 && channels != 4 {
+                let mut jpeg = Vec::new();
+                image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+                    .write_image(&raw, w, h, color)
+                    .unwrap();
+                cases.push((format!("JPEG {color:?}"), jpeg, image::ImageFormat::Jpeg));
+            }
+            if !wide && channels >= 3 {
+                let mut webp = Vec::new();
+                image::codecs::webp::WebPEncoder::new_lossless(&mut webp)
+                    .write_image(&raw, w, h, color)
+                    .unwrap();
+                cases.push((format!("WebP {color:?}"), webp, image::ImageFormat::WebP));
+            }
+        }
+        assert_eq!(cases.len(), 8 + 2 + 2);
+        for (what, bytes, format) in &cases {
+            let ours = decode(bytes, ImageFormat::Image(*format), (w, h)).unwrap();
+            let theirs = by_conversion(bytes, *format);
+            assert_eq!(ours.len(), (w * h) as usize, "{what}");
+            match (&ours, &theirs) {
+                (Texels::Rgba8(a), Texels::Rgba8(b)) => assert_eq!(a, b, "{what}"),
+                (Texels::Rgba16(a), Texels::Rgba16(b)) => assert_eq!(a, b, "{what}"),
+                _ => panic!("{what}: different depths"),
+            }
+        }
+        // A header that lies about the size is refused.
+        let (_, png, _) = &cases[0];
+        let e = decode(png, ImageFormat::Image(image::ImageFormat::Png), (w + 1, h)).unwrap_err();
+        assert!(e.0.contains("not the 38x23 of its header"), "{}", e.0);
+    }
 }
