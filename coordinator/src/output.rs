@@ -361,12 +361,13 @@ impl ToneMap {
     fn apply(self, v: f32) -> f32 {
         match self {
             ToneMap::Clamp => v,
+            // Below 0 (and NaN) black; past a million white (so that infinity is not NaN).
             ToneMap::Reinhard => {
-                let v = v.max(0.0);
+                let v = v.max(0.0).min(1e6);
                 v / (1.0 + v)
             }
             ToneMap::Aces => {
-                let v = v.max(0.0);
+                let v = v.max(0.0).min(1e6);
                 (v * (2.51 * v + 0.03)) / (v * (2.43 * v + 0.59) + 0.14)
             }
         }
@@ -769,6 +770,8 @@ mod tests {
         assert!((ToneMap::Aces.apply(8.0) - 1.0).abs() < 0.01);
         for tone in [ToneMap::Reinhard, ToneMap::Aces] {
             assert_eq!(tone.apply(0.0), 0.0);
+            assert_eq!(tone.apply(f32::NAN), 0.0);
+            assert!((tone.apply(f32::INFINITY) - 1.0).abs() < 0.04, "{tone:?}");
             assert_eq!(tone.apply(-1.0), 0.0, "{tone:?}");
             let mut last = 0.0;
             for i in 1..1000 {

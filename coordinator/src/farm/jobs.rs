@@ -363,7 +363,8 @@ pub struct TileProgress {
     /// Samples per pixel merged in order.
     pub samples: u32,
     /// The estimated relative error of its pixels (the root of its relative MSE; under
-    /// bidirectional path tracing its share of the image's); `None` until it can be estimated.
+    /// bidirectional path tracing the camera part of its share of the image's, without the
+    /// light tracing's); `None` until it can be estimated.
     pub est_rel_error: Option<f64>,
     /// Adaptive sampling stopped it.
     pub converged: bool,

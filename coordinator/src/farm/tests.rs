@@ -636,3 +636,24 @@ fn the_error_history_spans_the_run_evenly() {
     assert!(errors.len() > h.len() / 2, "{h:?}");
     assert!(errors.last().unwrap() < &(errors[0] * 0.5), "{errors:?}");
 }
+
+/// A job that ends without a merge noting it (here cancelled, a while after its last merge)
+/// shows a last point at its end.
+#[test]
+fn the_error_history_ends_where_a_cancelled_job_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let clock = ManualClock::new();
+    let (mut farm, hash, w) = farm_on(&clock, FarmConfig::new(dir.path().into()));
+    let id = farm.create_job(&hash, one_tile(64), 0).unwrap().id;
+    let g = farm.lease(&w).unwrap().unwrap();
+    clock.advance(Duration::from_millis(500));
+    farm.submit(&g.lease, &w, result_for(&g, 0.5), 0).unwrap();
+    clock.advance(Duration::from_secs(3));
+    farm.cancel(&id).unwrap();
+    let status = farm.status(&id).unwrap();
+    let h = &status.history;
+    assert_eq!(h.len(), 2, "{h:?}");
+    assert_eq!((h[0].elapsed_s, h[1].elapsed_s), (0.5, status.elapsed_s));
+    assert!(status.elapsed_s >= 3.5, "{}", status.elapsed_s);
+    assert_eq!(h[1].samples_done, status.samples_done);
+}

@@ -67,8 +67,8 @@ pub struct JobStatus {
     /// When it ended (done, failed or cancelled), seconds since the Unix epoch.
     pub finished_unix: Option<f64>,
     /// Its estimated error against its running time, oldest first: a point at its first merge,
-    /// then one per [`HISTORY_STEP_S`] running seconds or more, and one at the merge that
-    /// finishes it; at most
+    /// then one per [`HISTORY_STEP_S`] running seconds or more, and one at its end (the merge
+    /// that finishes it, or its cancelling, failure or time limit); at most
     /// [`HISTORY_POINTS`], evenly thinned. Kept in memory: a restarted coordinator starts it
     /// anew.
     pub history: Vec<ErrorPoint>,
@@ -224,8 +224,23 @@ impl Job {
             settings: self.settings.clone(),
             created_unix: self.created_unix,
             finished_unix: self.finished_unix,
-            history: self.history.clone(),
+            history: self.history_to(&t),
         }
+    }
+
+    /// The error history, with a point at the job's end where it ended after its last point
+    /// (cancelled, failed, stopped by its time limit: no merge noted it).
+    fn history_to(&self, t: &Totals) -> Vec<ErrorPoint> {
+        let mut history = self.history.clone();
+        let ended_later = history.last().is_some_and(|p| p.elapsed_s < t.elapsed);
+        if self.state.is_final() && ended_later {
+            history.push(ErrorPoint {
+                elapsed_s: t.elapsed,
+                samples_done: self.samples_done,
+                est_rel_error: t.est_rel_error,
+            });
+        }
+        history
     }
 
     /// Adds a point to the error history where one is due: at the first merge, once
