@@ -18,19 +18,33 @@ fn chromium() -> Option<String> {
         .find(|b| Command::new(b).arg("--version").output().is_ok_and(|o| o.status.success()))
 }
 
-#[test]
-fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
-    let Some(browser) = chromium() else {
+/// The browser, or `None` (the test then passes, saying it was skipped) where there is none and
+/// none is required (`RENDERFARM_BROWSER_TEST=required` fails the test instead).
+fn browser() -> Option<String> {
+    let found = chromium();
+    if found.is_none() {
         let required = std::env::var("RENDERFARM_BROWSER_TEST").is_ok_and(|v| v == "required");
         assert!(!required, "no chromium found, but RENDERFARM_BROWSER_TEST=required");
         eprintln!("SKIPPED: no chromium on this machine (apt-get install chromium)");
-        return;
-    };
-    let dir = temp_dir("dashboard");
+    }
+    found
+}
+
+/// A coordinator in a fresh folder named after `name` and one worker: the folder, the
+/// coordinator's address, and both processes (stopped when dropped).
+fn farm_with_a_worker(name: &str) -> (std::path::PathBuf, String, (Proc, Proc)) {
+    let dir = temp_dir(name);
     let port = free_port();
     let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
-    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let coordinator = start_coordinator(&dir.join("data"), port, &[]);
+    let worker = start_worker(&url, 1, dir.join("worker.log"));
+    (dir, url, (coordinator, worker))
+}
+
+#[test]
+fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
+    let Some(browser) = browser() else { return };
+    let (dir, url, _farm) = farm_with_a_worker("dashboard");
     let scene = upload(&url, &cornell_zip());
     let id = create_job(&url, &scene, &json!({"width": 32, "height": 32, "spp": 8}), 3);
     wait_done(&url, &id, Duration::from_secs(120));
@@ -107,17 +121,8 @@ fn jobs_table(dom: &str) -> String {
 /// with one cell per tile, the error-against-time plot, and the frame browser.
 #[test]
 fn the_frame_view_shows_a_frame_its_tiles_and_its_error_in_a_real_browser() {
-    let Some(browser) = chromium() else {
-        let required = std::env::var("RENDERFARM_BROWSER_TEST").is_ok_and(|v| v == "required");
-        assert!(!required, "no chromium found, but RENDERFARM_BROWSER_TEST=required");
-        eprintln!("SKIPPED: no chromium on this machine (apt-get install chromium)");
-        return;
-    };
-    let dir = temp_dir("dashboard-frame-view");
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
-    let _worker = start_worker(&url, 1, dir.join("worker.log"));
+    let Some(browser) = browser() else { return };
+    let (dir, url, _farm) = farm_with_a_worker("dashboard-frame-view");
     let scene = upload(&url, &cornell_zip());
     let s = json!({"width": 32, "height": 32, "tile_size": 16, "spp": 16, "samples_per_task": 4,
                    "frames": {"start": 0, "end": 1, "fps": 24}});
