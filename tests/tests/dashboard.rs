@@ -30,22 +30,12 @@ fn browser() -> Option<String> {
     found
 }
 
-/// A coordinator in a fresh folder named after `name` and one worker: the folder, the
-/// coordinator's address, and both processes (stopped when dropped).
-fn farm_with_a_worker(name: &str) -> (std::path::PathBuf, String, (Proc, Proc)) {
-    let dir = temp_dir(name);
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let coordinator = start_coordinator(&dir.join("data"), port, &[]);
-    let worker = start_worker(&url, 1, dir.join("worker.log"));
-    (dir, url, (coordinator, worker))
-}
-
 #[test]
 fn the_dashboard_shows_jobs_and_workers_in_a_real_browser() {
     let Some(browser) = browser() else { return };
-    let (dir, url, _farm) = farm_with_a_worker("dashboard");
-    let scene = upload(&url, &cornell_zip());
+    let dir = temp_dir("dashboard");
+    let farm = Cluster::start(&dir, 1, &[]);
+    let (url, scene) = (farm.url.clone(), farm.scene.clone());
     let id = create_job(&url, &scene, &json!({"width": 32, "height": 32, "spp": 8}), 3);
     wait_done(&url, &id, Duration::from_secs(120));
     let dom = dump(&browser, &dir, &url);
@@ -122,8 +112,9 @@ fn jobs_table(dom: &str) -> String {
 #[test]
 fn the_frame_view_shows_a_frame_its_tiles_and_its_error_in_a_real_browser() {
     let Some(browser) = browser() else { return };
-    let (dir, url, _farm) = farm_with_a_worker("dashboard-frame-view");
-    let scene = upload(&url, &cornell_zip());
+    let dir = temp_dir("dashboard-frame-view");
+    let farm = Cluster::start(&dir, 1, &[]);
+    let (url, scene) = (farm.url.clone(), farm.scene.clone());
     let s = json!({"width": 32, "height": 32, "tile_size": 16, "spp": 16, "samples_per_task": 4,
                    "frames": {"start": 0, "end": 1, "fps": 24}});
     let id = create_job(&url, &scene, &s, 0);

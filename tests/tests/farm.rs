@@ -774,12 +774,8 @@ fn finished_jobs_are_removed_after_the_retention_time() {
 /// naming what is allowed).
 #[test]
 fn a_frame_shows_its_tiles_its_error_history_and_tone_mapped_previews() {
-    let dir = temp_dir("frame-view");
-    let port = free_port();
-    let url = format!("http://127.0.0.1:{port}");
-    let _coordinator = start_coordinator(&dir.join("data"), port, &[]);
-    let _worker = start_worker(&url, 1, dir.join("worker.log"));
-    let scene = upload(&url, &cornell_zip());
+    let farm = Cluster::start(&temp_dir("frame-view"), 1, &[]);
+    let (url, scene) = (&farm.url, &farm.scene);
     let s = json!({"width": 32, "height": 24, "tile_size": 16, "spp": 16, "samples_per_task": 4,
                    "frames": {"start": 0, "end": 1, "fps": 24}});
     let id = create_job(&url, &scene, &s, 0);

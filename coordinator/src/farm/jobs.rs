@@ -286,7 +286,7 @@ impl Farm {
                     height: r.height,
                     tasks_done: t.prefix,
                     tasks: t.task_count(),
-                    samples: t.prefix.saturating_mul(s.samples_per_task).min(s.spp),
+                    samples: job.samples_summed(t),
                     est_rel_error: t.rel_mse.is_finite().then(|| t.rel_mse.max(0.0).sqrt()),
                     converged: t.converged,
                     complete: t.is_complete(),

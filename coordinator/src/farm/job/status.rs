@@ -149,8 +149,7 @@ impl Job {
             for tile in &frame.tiles {
                 let area = tile.sums.rect.area() as u64;
                 if tile.converged {
-                    let taken: u64 = (tile.prefix * self.settings.samples_per_task)
-                        .min(self.settings.spp) as u64;
+                    let taken = self.samples_summed(tile) as u64;
                     // A light tile's samples are light samples, not the pixel samples planned.
                     let left = area * (self.settings.spp as u64 - taken);
                     if tile.light {
@@ -241,6 +240,11 @@ impl Job {
             });
         }
         history
+    }
+
+    /// The samples per pixel of `tile`'s tasks summed in order.
+    pub fn samples_summed(&self, tile: &Tile) -> u32 {
+        tile.prefix.saturating_mul(self.settings.samples_per_task).min(self.settings.spp)
     }
 
     /// Adds a point to the error history where one is due: at the first merge, once
