@@ -478,8 +478,8 @@ fn generated_tangents_render_as_the_same_tangents_given_in_the_file() {
 /// parts lights sampled by the scalar routine; BoxTextured; VertexColorTest), with vertex
 /// colours on an untextured material, with vertex normals, with point, spot and directional
 /// lights, in uniform environments, the furnaces included, with cut-outs (alpha-blended, a light
-/// among them), and with glass, layered and thin-walled materials, whose paths the wavefront
-/// hands to the scalar path tracer; each with
+/// among them), and with glass (a refractive, absorbing volume), layered and thin-walled
+/// materials, all kept on the vectors; each with
 /// its lights chosen by the mixture and by the light tree (whose probabilities depend on the
 /// point).
 #[test]
@@ -557,8 +557,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             json["meshes"][mesh]["primitives"][0]["attributes"]["COLOR_0"] = json!(accessor);
         }
     });
-    // Materials the wavefront hands to the scalar path tracer beside ones it shades: a glass
-    // tall block (a refractive, absorbing volume); layered ones it shades lane by lane, a short
+    // Materials the wavefront shades lane by lane beside ones it shades on vectors: a glass
+    // tall block (a refractive, absorbing volume); layered ones, a short
     // block under a clear coat and sheen and white walls with a thin film and anisotropy; and
     // thin-walled walls, a glossy green one under a clear coat that passes half its light
     // through and a red one that diffuses some through.
@@ -686,12 +686,9 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 bend(&mut scalar);
             }
             assert!(wavefront.wavefront().is_some(), "{name}: the wavefront applies");
+            // Glass and layers stay on the vectors: no material hands its paths over.
             let hands_over = wavefront.wavefront().and_then(|t| t.note.as_deref());
-            assert_eq!(hands_over.is_some(), *name == "glass and layers", "{name}: {hands_over:?}");
-            if let Some(note) = hands_over {
-                // The layered materials stay on the wavefront; only the glass hands over.
-                assert!(note.ends_with("materials 'glass' (a volume)"), "{note}");
-            }
+            assert_eq!(hands_over, None, "{name}");
             assert_eq!(wavefront.alpha_tested, *name == "cut-outs", "{name}");
             if *name == "punctual lights" {
                 let punctual = wavefront

@@ -800,9 +800,6 @@ fn prepare_inner(
         // The camera sits at the origin of the camera-relative world (an orthographic camera's
         // rays start across its film plane: taken to lie in the same volumes as its centre).
         prepared.camera_media = media_at(&prepared, Vec3::ZERO, askew(), NONE, None);
-        if prepared.camera_media.current().is_some() {
-            prepared.drop_wavefront();
-        }
     }
     Ok(prepared)
 }

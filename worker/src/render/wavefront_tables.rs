@@ -1,7 +1,8 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
 //! prepared: the BSDF (Lambert, the glTF metal-rough BSDF, or per point for a textured or
-//! layered one) and emission of each material,
-//! which materials hand their paths to the scalar path tracer, and the emissive triangles (with
+//! layered one, or at a volume's boundary) and emission of each material,
+//! which materials hand their paths to the scalar path tracer, whether paths track the volumes
+//! they are inside, and the emissive triangles (with
 //! the mixture's probabilities where the scene chooses by it).
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
 //! one way: `scene` does not depend on the renderers.
@@ -46,6 +47,10 @@ pub struct Tables {
     pub(super) scalar: Vec<bool>,
     /// The materials that hand paths over and why, for the log (`None` when none does).
     pub note: Option<String>,
+    /// Whether a material bounds a medium (a refractive or absorbing volume): each path then
+    /// tracks the volumes it is inside, as `path::li` does (`media::MediumStack`); a scene
+    /// without volumes does none of it.
+    pub(super) media: bool,
     /// Every light, indexed like `LightSampler::lights`: the emissive triangles (the others
     /// are sampled by `Light::sample_li`, one lane at a time).
     pub(super) lights: Vec<Option<LightRec>>,
@@ -90,7 +95,7 @@ impl Tables {
                 Shade::Lambert(_) | Shade::Glossy(_) if per_point => Shade::Textured,
                 other => other,
             };
-            textured.push(matches!(bsdf, Shade::Textured | Shade::Layered));
+            textured.push(matches!(bsdf, Shade::Textured | Shade::Layered | Shade::Boundary));
             match bsdf {
                 Shade::Lambert(a) => {
                     albedo.push(a);
@@ -100,7 +105,7 @@ impl Tables {
                     albedo.push(Vec3::ZERO);
                     glossy.push(Some(b));
                 }
-                Shade::Textured | Shade::Layered | Shade::Scalar(_) => {
+                Shade::Textured | Shade::Layered | Shade::Boundary | Shade::Scalar(_) => {
                     albedo.push(Vec3::ZERO);
                     glossy.push(None);
                 }
@@ -139,7 +144,8 @@ impl Tables {
                 handed_over.join(", ")
             )
         });
-        Ok(Tables { albedo, glossy, textured, emission, scalar, note, lights })
+        let media = materials.iter().any(|m| m.volume.is_some() && m.bounds_medium());
+        Ok(Tables { albedo, glossy, textured, emission, scalar, note, media, lights })
     }
 }
 
@@ -155,6 +161,10 @@ enum Shade {
     /// The layered glTF BSDF (clear coat, sheen, anisotropy, iridescence), textured or not:
     /// found at each point, as a textured material's BSDF is.
     Layered,
+    /// The boundary of a volume (refractive glass, or a medium entered by diffuse
+    /// transmission): found at each point with the indices of the media on its two sides, a
+    /// dielectric evaluated and sampled one lane at a time by the scalar `Bsdf`.
+    Boundary,
     /// Shaded by the scalar path tracer, which takes over the paths that meet it, for the
     /// reason given.
     Scalar(&'static str),
@@ -219,16 +229,13 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         || specular_texture.is_some()
         || specular_color_texture.is_some()
         || glossiness_texture.is_some();
-    if volume.is_some() && m.bounds_medium() {
-        return Err("a volume");
-    }
     if *unlit {
         return Err("KHR_materials_unlit");
     }
-    // What textures do not change: whether the surface is a refractive boundary, and whether
-    // light passes through it (only the factors can make it; textures scale them).
-    if m.extended() && m.refracts() {
-        return Err("a refractive boundary");
+    // What textures do not change: whether the surface bounds a medium (only the factors can
+    // make it; textures scale them).
+    if volume.is_some() && m.bounds_medium() {
+        return Ok(Shade::Boundary);
     }
     if clearcoat.is_some() || sheen.is_some() || anisotropy.is_some() || iridescence.is_some() {
         // The layered BSDF, found at each point as a textured material's is.
@@ -242,7 +249,7 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         Bsdf::MetalRough(b) => Ok(Shade::Glossy(b)),
         // A layered or refracting BSDF comes only from the extensions checked above.
         Bsdf::Layered(_) => Ok(Shade::Layered),
-        Bsdf::Dielectric(_) => Err("a refractive boundary"),
+        Bsdf::Dielectric(_) => Ok(Shade::Boundary),
     }
 }
 
@@ -257,9 +264,9 @@ mod tests {
     }
 
     /// Lambertian, reflecting metal-rough and layered materials pass, textured or not (a textured
-    /// or layered one is shaded per point); refraction, volumes and unlit hand their paths to the
-    /// scalar path tracer (with the reason), and what the whole scene needs of it keeps the
-    /// wavefront off.
+    /// or layered one is shaded per point), and so do the boundaries of volumes (per point, the
+    /// paths tracking their media); unlit hands its paths to the scalar path tracer (with the
+    /// reason), and what the whole scene needs of it keeps the wavefront off.
     #[test]
     fn the_wavefront_takes_only_what_it_renders() {
         assert!(matches!(wavefront_shade(&[], &lambert()), Ok(Shade::Lambert(_))));
@@ -331,17 +338,34 @@ mod tests {
             let shade = wavefront_shade(&[], &thin);
             assert!(matches!(shade, Ok(Shade::Glossy(b)) if b.transmits()), "{shade:?}");
         }
-        // A refractive boundary (a volume) goes to the scalar path tracer.
-        let glass = Material {
-            transmission: 1.0,
-            volume: Some(common::scene::Volume {
-                extinction: Vec3::ZERO,
-                albedo: Vec3::ZERO,
-                anisotropy: 0.0,
-            }),
-            ..lambert()
-        };
-        assert_eq!(wavefront_shade(&[], &glass), Err("a volume"));
+        // A volume's boundary, refractive or entered by diffuse transmission, is shaded per
+        // point, and makes the paths track their media; a volume that bounds no medium
+        // (thin-walled: its transmission only partial) is an ordinary surface.
+        let volume = Some(common::scene::Volume {
+            extinction: Vec3::new(0.5, 1.0, 0.0),
+            albedo: Vec3::ZERO,
+            anisotropy: 0.0,
+        });
+        let glass = Material { transmission: 1.0, volume, ..lambert() };
+        let wax = Material { diffuse_transmission: 0.5, volume, ..lambert() };
+        let thin = Material { transmission: 0.5, volume, ..lambert() };
+        assert_eq!(wavefront_shade(&[], &glass), Ok(Shade::Boundary));
+        assert_eq!(wavefront_shade(&[], &wax), Ok(Shade::Boundary));
+        assert!(matches!(wavefront_shade(&[], &thin), Ok(Shade::Glossy(_))));
+        for (m, media) in [(&glass, true), (&wax, true), (&thin, false)] {
+            let tables = Tables::new(
+                &[lambert(), m.clone()],
+                &[],
+                &LightSampler::default(),
+                None,
+                false,
+                (false, &|_| 0),
+            )
+            .unwrap();
+            assert_eq!(tables.media, media, "{m:?}");
+            assert_eq!((&tables.scalar[..], &tables.note), (&[false, false][..], &None));
+            assert_eq!(tables.textured[1], media, "a boundary is shaded per point");
+        }
         let m = Material { name: "flat".into(), unlit: true, ..lambert() };
         let tables = Tables::new(
             &[lambert(), m],

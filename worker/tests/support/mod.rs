@@ -1012,26 +1012,58 @@ pub fn push_water(j: &mut serde_json::Value) -> usize {
 /// through the medium.
 pub fn cornell_under_water() -> Scene {
     let path = edited_scene("cornell-box", "water", |j| {
-        let material = push_water(j);
-        let block = j["meshes"][3]["primitives"][0].clone();
-        let (lo, hi) = {
-            let a = &j["accessors"][block["attributes"]["POSITION"].as_u64().unwrap() as usize];
-            let v = |k: &str| -> [f64; 3] { std::array::from_fn(|i| a[k][i].as_f64().unwrap()) };
-            (v("min"), v("max"))
-        };
-        let mut primitive = block;
-        primitive["material"] = serde_json::json!(material);
-        let meshes = j["meshes"].as_array_mut().unwrap();
-        meshes.push(serde_json::json!({"name": "water", "primitives": [primitive]}));
-        let mesh = meshes.len() - 1;
-        let s = 1.8;
-        let t: Vec<f64> = (0..3).map(|i| 0.5 * (lo[i] + hi[i]) * (1.0 - s)).collect();
+        push_water_round_the_block(j);
+    });
+    common::gltf::load_path(&path).unwrap()
+}
+
+/// `cornell_under_water` with the water rough (roughness 0.3) and a point light in it, above the
+/// short block, so that shadow rays run through the medium: from the surfaces inside and from
+/// the rough surface into it.
+pub fn cornell_under_rough_water_with_a_lamp() -> Scene {
+    let path = edited_scene("cornell-box", "water-lamp", |j| {
+        let (material, lo, hi) = push_water_round_the_block(j);
+        j["materials"][material]["pbrMetallicRoughness"]["roughnessFactor"] =
+            serde_json::json!(0.3);
+        let at: Vec<f64> = (0..3)
+            .map(|i| if i == 1 { hi[1] + 0.2 * (hi[1] - lo[1]) } else { 0.5 * (lo[i] + hi[i]) })
+            .collect();
+        j["extensionsUsed"].as_array_mut().unwrap().push(serde_json::json!("KHR_lights_punctual"));
+        j["extensions"] = serde_json::json!({"KHR_lights_punctual": {"lights": [
+            {"type": "point", "intensity": 0.5, "color": [1.0, 0.9, 0.8]}
+        ]}});
         let nodes = j["nodes"].as_array_mut().unwrap();
-        nodes.push(serde_json::json!({"name": "water", "mesh": mesh, "translation": t, "scale": [s, s, s]}));
+        nodes.push(serde_json::json!({"translation": at, "extensions": {"KHR_lights_punctual": {"light": 0}}}));
         let node = nodes.len() - 1;
         j["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(node));
     });
     common::gltf::load_path(&path).unwrap()
+}
+
+/// Puts the water of `cornell_under_water` round the Cornell box's short block; returns its
+/// material and the block's corners.
+fn push_water_round_the_block(j: &mut serde_json::Value) -> (usize, [f64; 3], [f64; 3]) {
+    let material = push_water(j);
+    let block = j["meshes"][3]["primitives"][0].clone();
+    let (lo, hi) = {
+        let a = &j["accessors"][block["attributes"]["POSITION"].as_u64().unwrap() as usize];
+        let v = |k: &str| -> [f64; 3] { std::array::from_fn(|i| a[k][i].as_f64().unwrap()) };
+        (v("min"), v("max"))
+    };
+    let mut primitive = block;
+    primitive["material"] = serde_json::json!(material);
+    let meshes = j["meshes"].as_array_mut().unwrap();
+    meshes.push(serde_json::json!({"name": "water", "primitives": [primitive]}));
+    let mesh = meshes.len() - 1;
+    let s = 1.8;
+    let t: Vec<f64> = (0..3).map(|i| 0.5 * (lo[i] + hi[i]) * (1.0 - s)).collect();
+    let nodes = j["nodes"].as_array_mut().unwrap();
+    nodes.push(
+        serde_json::json!({"name": "water", "mesh": mesh, "translation": t, "scale": [s, s, s]}),
+    );
+    let node = nodes.len() - 1;
+    j["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(node));
+    (material, lo, hi)
 }
 
 /// Appends to a glTF document an axis-aligned box from `lo` to `hi` of material `material`, a
@@ -1246,4 +1278,49 @@ pub fn square_geometry(half: f32) -> serde_json::Value {
         ],
         "buffers": [{"byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&bytes))}]
     })
+}
+
+/// Asserts that the wavefront renders `scene` under `settings` exactly as the scalar path tracer
+/// does: the same sums bit for bit and the same ray count, on the whole frame and on an offset
+/// tile with an offset sample range, at this CPU's lane count and at 4, 8 and 16 lanes emulated
+/// (every other row, as the second of two threads renders them). Panics if the wavefront does
+/// not take the scene.
+pub fn assert_wavefront_renders_the_scalar_paths(
+    name: &str,
+    scene: &Scene,
+    settings: &RenderSettings,
+) {
+    use worker::render::{integrators::wavefront, render_rows_scalar};
+    let wavefront_scene = prepare(scene, settings).expect("prepare");
+    let mut scalar = prepare(scene, settings).expect("prepare");
+    scalar.drop_wavefront();
+    let tables = wavefront_scene
+        .wavefront()
+        .unwrap_or_else(|| panic!("{name}: the wavefront does not take the scene"));
+    assert_eq!(tables.note, None, "{name}: no material hands its paths over");
+    let (w, h) = (settings.width, settings.height);
+    let spp = settings.spp;
+    for (rect, samples) in [
+        (Rect { x0: 0, y0: 0, width: w, height: h }, SampleRange { start: 0, end: spp }),
+        (
+            Rect { x0: w / 4, y0: h / 5, width: w / 2, height: h / 2 },
+            SampleRange { start: spp / 2, end: spp + spp / 2 },
+        ),
+    ] {
+        let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
+        let (a, b) = (render_task(&wavefront_scene, 11, &task), render_task(&scalar, 11, &task));
+        assert!(a.rays > 0);
+        assert_eq!(a.rays, b.rays, "{name} {rect:?}: rays");
+        for (i, (pa, pb)) in a.tile.pixels.iter().zip(&b.tile.pixels).enumerate() {
+            assert_eq!(pa, pb, "{name} {rect:?}: pixel {i}");
+        }
+        let (want, want_stats) = render_rows_scalar(&scalar, 11, &task, 1, 2);
+        for lanes in [4, 8, 16] {
+            let (got, stats) =
+                wavefront::render_rows_portable(&wavefront_scene, tables, 11, &task, (1, 2), lanes)
+                    .expect("a lane count it has");
+            assert_eq!(stats.rays, want_stats.rays, "{name} {rect:?} {lanes} lanes: rays");
+            assert!(got == want, "{name} {rect:?}: {lanes} lanes differ");
+        }
+    }
 }

@@ -2,19 +2,24 @@
 //! (AVX-512) paths at once, its shading arithmetic in SIMD across the paths.
 //!
 //! For the scenes `wavefront_tables::Tables::new` accepts (nothing moving, no dispersion, no
-//! scattering medium, the camera in no volume; the others render on the scalar path tracer,
-//! and `prepare` logs why once), it shades diffuse and glTF metal-rough materials (the lobes of
+//! scattering medium; the others render on the scalar path tracer, and `prepare` logs why
+//! once), it shades diffuse and glTF metal-rough materials (the lobes of
 //! `bsdf::metal_rough`, thin-walled transmission included), textured, normal-mapped,
 //! vertex-coloured and alpha-tested or not, under any lights and environment, chosen by the
 //! mixture or the light tree (the Cornell box, the furnaces, Veach's glossy plates and the
 //! damaged helmet among them). A layered material keeps its paths: a clear coat and a sheen
 //! over the (anisotropic or isotropic) metal-rough base are shaded on the vectors
-//! (`bsdf::layered::generic::Coated`); with a thin film the BSDF at the point is
-//! evaluated, weighed and sampled one lane at a time by the scalar `Bsdf`
-//! (`shared::surface_bsdf`), and the rest of the bounce runs on the vectors. A path that meets any other material (glass, volumes, unlit:
+//! (`bsdf::layered::generic::Coated`); with a thin film, or at a dielectric boundary (glass,
+//! smooth or rough), the BSDF at the point is evaluated, weighed and sampled one lane at a time
+//! by the scalar `Bsdf` (`shared::surface_bsdf`), and the rest of the bounce runs on the
+//! vectors. In a scene with volumes (`Tables::media`) each lane tracks the media its path is
+//! inside, from those the camera lies in, as `path::li` does: Beer-Lambert along each segment,
+//! false interfaces passed without a bounce (`shared::meet_surface`), the relative index of the
+//! two media at a boundary, the refracting frame, the far side's medium for a shadow ray, and
+//! eta² in Russian roulette. A path that meets a material the wavefront does not shade (unlit:
 //! `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
 //! continues it on the scalar path tracer from that hit, with the lane's throughput, radiance,
-//! depth, MIS state and sampler dimension, so its sum is the one `path::li` makes, and the lane
+//! depth, MIS state, media and sampler dimension, so its sum is the one `path::li` makes, and the lane
 //! takes the next sample. At a textured (or vertex-coloured) material, the point's
 //! emission, shading frame and BSDF parameters are found one lane at a time by the scalar
 //! renderer's calls (`material`, `shared::shading_frame`, `shared::hit_weight`), and a
@@ -49,8 +54,9 @@ use super::{
             Bsdf, MetalRough,
         },
         geometry::{
+            self,
             generic::{frame_from_z, interpolation_error, offset_ray_origin},
-            Ray,
+            Frame, Ray,
         },
         lanes::{F, M, V3},
         light::{
@@ -58,6 +64,7 @@ use super::{
             Light, ShadingContext, CHOOSE_BATCH,
         },
         material,
+        media::{self, transmittance, MediumStack},
         sampler::{LaneSampler, Sampler},
         sampling::generic::{Aniso, Iso},
         scene::PreparedScene,
@@ -67,8 +74,8 @@ use super::{
     shared::{
         environment_hit,
         generic::{power_heuristic, roulette_end, same_side},
-        hit_weight, light_radiance, mis_pdf, shading_frame, surface_bsdf, Stats, RR_MIN_DEPTH,
-        SHADOW_T_MAX, UNWEIGHTED,
+        hit_error, hit_weight, light_radiance, meet_surface, mis_pdf, shading_frame, surface_bsdf,
+        Meeting, Stats, RR_MIN_DEPTH, SHADOW_T_MAX, UNWEIGHTED,
     },
 };
 
@@ -259,6 +266,12 @@ struct Paths<S: Simd> {
     sampler: [Sampler; MAX_LANES],
     /// The same samplers as vectors, for the numbers every bounce draws in all lanes at once.
     draws: LaneSampler<S>,
+    /// In a scene with volumes (`Tables::media`): the volumes each path is inside, the false
+    /// interfaces it has passed, and the product of eta² over its refractions (`path::li`'s
+    /// `media`, `passed` and `eta_scale`; 1 elsewhere).
+    media: [MediumStack; MAX_LANES],
+    passed: [u32; MAX_LANES],
+    eta_scale: F<S>,
 }
 
 impl<S: Simd> Paths<S> {
@@ -295,6 +308,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         alive: [false; MAX_LANES],
         sampler: std::array::from_fn(|_| sampler.clone()),
         draws: LaneSampler::new(s),
+        media: [scene.camera_media; MAX_LANES],
+        passed: [0; MAX_LANES],
+        eta_scale: one,
     };
     // Per-bounce data gathered lane by lane.
     let (mut t, mut b1, mut b2) = (zero, zero, zero);
@@ -322,6 +338,15 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     // lane at a time by the scalar renderer's `Bsdf`.
     let mut layered = [false; MAX_LANES];
     let mut layers = [None::<Bsdf>; MAX_LANES];
+    // In a scene with volumes, the lanes at a volume's boundary (`shared::meet_surface`), those
+    // of them that refract, the side each lane's ray meets, the geometric normal on that side,
+    // the material hit and the medium beyond.
+    let mut boundary = [false; MAX_LANES];
+    let mut refracting = [false; MAX_LANES];
+    let mut faces = [false; MAX_LANES];
+    let mut ng_front = [Vec3::ZERO; MAX_LANES];
+    let mut mats = [0u32; MAX_LANES];
+    let mut beyond = [None::<u32>; MAX_LANES];
     let mut lobes = Lobes {
         base: z3,
         metallic: zero,
@@ -383,6 +408,11 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 paths.depth[i] = 0;
                 paths.item[i] = k;
                 paths.alive[i] = true;
+                if tables.media {
+                    paths.media[i] = scene.camera_media;
+                    paths.passed[i] = 0;
+                    paths.eta_scale.set_lane(i, 1.0);
+                }
             }
             // Closest hits, and what shading needs of the triangles hit.
             let mut cast = false;
@@ -401,6 +431,48 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 } else {
                     scene.accel.intersect_inlined(&ray, f32::INFINITY)
                 };
+                if let Some(hit) = found {
+                    let shading = scene.shading[hit.prim as usize];
+                    if tables.scalar[shading.material as usize] {
+                        // A surface the wavefront does not shade: the scalar path tracer takes
+                        // the path on from this hit, with the lane's sampler where the lane
+                        // stands.
+                        let first = paths.depth[i] == 0;
+                        let start = Resume {
+                            ray,
+                            hit: Some(hit),
+                            radiance: paths.radiance.lane(i),
+                            beta: paths.beta.lane(i),
+                            depth: paths.depth[i],
+                            prev_bsdf_pdf: paths.prev_bsdf_pdf.lane(i),
+                            prev_ctx: if first {
+                                ShadingContext::default()
+                            } else {
+                                paths.prev_ctx(i)
+                            },
+                            media: paths.media[i],
+                            passed: paths.passed[i],
+                            eta_scale: paths.eta_scale.lane(i),
+                        };
+                        let sm = &mut paths.sampler[i];
+                        sm.set_dimension(paths.draws.dimension_of(i));
+                        let radiance = li_resumed(scene, start, sm, &mut stats);
+                        paths.alive[i] = false;
+                        stream.finish(paths.item[i], radiance.to_array(), &mut tile);
+                        continue;
+                    }
+                }
+                if tables.media {
+                    // Beer-Lambert along the segment inside the volume the path is in (an
+                    // escape is endless).
+                    let medium = paths.media[i].current();
+                    if let Some(v) =
+                        medium.and_then(|m| scene.materials[m as usize].volume.as_ref())
+                    {
+                        let distance = found.map_or(f32::INFINITY, |h| h.t * ray.dir.length());
+                        paths.beta.set_lane(i, paths.beta.lane(i) * transmittance(v, distance));
+                    }
+                }
                 let Some(hit) = found else {
                     // What the escaping ray sees (the path tracer's miss, one lane).
                     let seen = paths.depth[i] > 0 || scene.environment_visible;
@@ -419,25 +491,44 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     continue;
                 };
                 let shading = scene.shading[hit.prim as usize];
-                if tables.scalar[shading.material as usize] {
-                    // A surface the wavefront does not shade: the scalar path tracer takes the
-                    // path on from this hit, with the lane's sampler where the lane stands.
-                    let first = paths.depth[i] == 0;
-                    let start = Resume {
-                        ray,
-                        hit: Some(hit),
-                        radiance: paths.radiance.lane(i),
-                        beta: paths.beta.lane(i),
-                        depth: paths.depth[i],
-                        prev_bsdf_pdf: paths.prev_bsdf_pdf.lane(i),
-                        prev_ctx: if first { ShadingContext::default() } else { paths.prev_ctx(i) },
-                    };
-                    let sm = &mut paths.sampler[i];
-                    sm.set_dimension(paths.draws.dimension_of(i));
-                    let radiance = li_resumed(scene, start, sm, &mut stats);
-                    paths.alive[i] = false;
-                    stream.finish(paths.item[i], radiance.to_array(), &mut tile);
-                    continue;
+                boundary[i] = false;
+                refracting[i] = false;
+                if tables.media {
+                    // What the path meets as to its volumes: a false interface is passed
+                    // without a bounce (the lane casts on from it), and a real boundary is
+                    // shaded with the media on its two sides.
+                    let (q, _) = scene.triangle(hit.prim, None);
+                    // A degenerate triangle ends the path below, as the path tracer's does.
+                    if let Some(ng) = (q[1] - q[0]).cross(q[2] - q[0]).try_normalize() {
+                        let facing = ng.dot(-ray.dir) > 0.0;
+                        let material = shading.material;
+                        let (media, passed) = (&mut paths.media[i], &mut paths.passed[i]);
+                        match meet_surface(scene, material, shading.extended, facing, media, passed)
+                        {
+                            Meeting::Surface { boundary: b, beyond: far } => {
+                                boundary[i] = b;
+                                faces[i] = facing;
+                                ng_front[i] = if facing { ng } else { -ng };
+                                mats[i] = material;
+                                beyond[i] = far;
+                                refracting[i] = b && scene.materials[material as usize].refracts();
+                            }
+                            Meeting::Passed => {
+                                let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+                                let at = q[0] * b[0] + q[1] * b[1] + q[2] * b[2];
+                                let error = hit_error(q, b, false);
+                                let origin = geometry::offset_ray_origin(at, error, ng, ray.dir);
+                                paths.origin.set_lane(i, origin);
+                                continue;
+                            }
+                            Meeting::Stuck => {
+                                paths.alive[i] = false;
+                                let rgb = paths.radiance.lane(i).to_array();
+                                stream.finish(paths.item[i], rgb, &mut tile);
+                                continue;
+                            }
+                        }
+                    }
                 }
                 live[i] = true;
                 first_bounce[i] = paths.depth[i] == 0;
@@ -562,12 +653,24 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 }
             }
             let ng_i = if front { ng_i } else { -ng_i };
-            let (frame, ns_surface) = shading_frame(scene, prim, corners, b, ng_i, wo_i, &sp, None);
+            let (mut frame, ns_surface) =
+                shading_frame(scene, prim, corners, b, ng_i, wo_i, &sp, None);
+            let mut iors = [1.0; 2];
+            if boundary[i] {
+                // `path::li`'s refracting frame (the facet's where the interpolated normal
+                // turns away from wo) and the relative index of the media on the two sides.
+                if refracting[i] && frame.to_local(wo_i).z <= 0.0 {
+                    frame = Frame::from_z(ng_i);
+                }
+                let other = if front { paths.media[i].current() } else { beyond[i] };
+                let ior = |m| media::ior(&scene.materials, m, None);
+                iors = [ior(Some(mats[i])), ior(other)];
+            }
             fx.set_lane(i, frame.x);
             fy.set_lane(i, frame.y);
             ns.set_lane(i, frame.z);
             let at = (prim, corners, b);
-            match surface_bsdf(scene, at, (&sp, front, [1.0; 2]), (&frame, ns_surface), None) {
+            match surface_bsdf(scene, at, (&sp, front, iors), (&frame, ns_surface), None) {
                 Bsdf::Diffuse(d) => albedo.set_lane(i, d.albedo),
                 Bsdf::MetalRough(b) => {
                     glossy[i] = true;
@@ -591,14 +694,13 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     sheen.color.set_lane(i, color);
                     sheen.alpha.set_lane(i, sheen_alpha);
                 }
-                bsdf @ Bsdf::Layered(_) => {
+                // A thin film, or a dielectric boundary: one lane at a time.
+                bsdf @ (Bsdf::Layered(_) | Bsdf::Dielectric(_)) => {
                     layered[i] = true;
                     transmits[i] = bsdf.transmits();
                     albedo.set_lane(i, Vec3::ZERO);
                     layers[i] = Some(bsdf);
                 }
-                // `Tables::new` takes no material that refracts.
-                Bsdf::Dielectric(_) => unreachable!("a refractive boundary on the wavefront"),
             }
         }
         let wo_z = wo.dot(ns);
@@ -725,11 +827,12 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let two_sided = M::from_bools(s, &nee_two_sided);
         let ts = triangle_sample_li(lp, ln, la, lem, two_sided, p, (ul_x, ul_y));
         let TriangleSample { wi, li, pdf: light_pdf, ok: sampled, point, point_error, .. } = ts;
+        let mut li = li;
         // The lanes that sampled another kind of light take its sample.
         let other = M::from_bools(s, &other_light);
         let sampled = other.select_m(M::from_bools(s, &other_ok), sampled);
         let wi = other.select3(o_wi, wi);
-        let li = other.select3(o_li, li);
+        li = other.select3(o_li, li);
         let light_pdf = other.select(o_pdf, light_pdf);
         let point = other.select3(o_point, point);
         let point_error = other.select3(o_point_error, point_error);
@@ -782,6 +885,26 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 };
             }
         }
+        if tables.media {
+            // The light through the volume the shadow ray travels in: the far side's when it
+            // crosses into a medium, else the path's.
+            for i in (0..lanes).filter(|&i| unblocked[i]) {
+                let through = if wi_z.lane(i) < 0.0 && boundary[i] {
+                    if faces[i] {
+                        Some(mats[i])
+                    } else {
+                        beyond[i]
+                    }
+                } else {
+                    paths.media[i].current()
+                };
+                if let Some(v) = through.and_then(|m| scene.materials[m as usize].volume.as_ref()) {
+                    let distance =
+                        if far[i] { f32::INFINITY } else { (point.lane(i) - p.lane(i)).length() };
+                    li.set_lane(i, li.lane(i) * transmittance(v, distance));
+                }
+            }
+        }
         let nee_pdf = light_pdf * choice_pdf;
         let bsdf_pdf = lambert::pdf(wo_z, wi_z);
         let mut bsdf_pdf = if any_glossy {
@@ -820,6 +943,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         // The density MIS weighs the next hit by (`shared::mis_pdf`: no lobe here is a delta).
         let mut mis = pdf;
         let (mut local, mut f, mut pdf, mut sampled) = (local, f, pdf, sampled);
+        // The product of eta² as it stands after this bounce's refractions.
+        let mut eta_scale = paths.eta_scale;
         if any_layered {
             let mut ok = [false; MAX_LANES];
             sampled.to_bools(&mut ok);
@@ -833,19 +958,22 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     f.set_lane(i, bs.f);
                     pdf.set_lane(i, bs.pdf);
                     mis.set_lane(i, mis_pdf(&bs));
+                    if bs.lobe.enters_far_side() {
+                        eta_scale.set_lane(i, eta_scale.lane(i) * (bs.eta * bs.eta));
+                    }
                 }
             }
             sampled = M::from_bools(s, &ok);
         }
         let wi = fx.scale(local.x) + fy.scale(local.y) + ns.scale(local.z);
         let beta = paths.beta.mul(f.scale(local.z.abs() / pdf));
-        let ok = contm
-            & sampled
-            & same_side(local.z, wi.dot(ng), transm)
-            & beta.is_finite()
-            & !beta.is_zero();
+        // At a refractive boundary the facet, not the shading frame, says which side the ray
+        // leaves by (`path::li`).
+        let side = same_side(local.z, wi.dot(ng), transm);
+        let side = if tables.media { side | M::from_bools(s, &refracting) } else { side };
+        let ok = contm & sampled & side & beta.is_finite() & !beta.is_zero();
         let origin = offset_ray_origin(p, p_error, ng, wi);
-        let q = roulette_end(beta, one);
+        let q = roulette_end(beta, eta_scale);
         let rr = M::from_bools(s, &roulette);
         let ended = rr & u_rr.lt(q);
         let beta = rr.select3(beta.div(one - q), beta);
@@ -854,6 +982,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.origin = go_on.select3(origin, paths.origin);
         paths.dir = go_on.select3(wi, paths.dir);
         paths.prev_bsdf_pdf = go_on.select(mis, paths.prev_bsdf_pdf);
+        paths.eta_scale = eta_scale;
         if mixture.is_none() {
             paths.prev_p = go_on.select3(p, paths.prev_p);
             paths.prev_n = go_on.select3(ns, paths.prev_n);
@@ -865,6 +994,17 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             }
             if survive[i] {
                 paths.depth[i] += 1;
+                if boundary[i] {
+                    // Crossing into the far side's medium or out of the volume.
+                    let crosses = if refracting[i] {
+                        wi.lane(i).dot(ng_front[i]) < 0.0
+                    } else {
+                        local.lane(i).z < 0.0
+                    };
+                    if crosses {
+                        paths.media[i].cross(mats[i], faces[i]);
+                    }
+                }
             } else {
                 paths.alive[i] = false;
                 stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
