@@ -493,7 +493,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 let shading = scene.shading[hit.prim as usize];
                 boundary[i] = false;
                 refracting[i] = false;
-                if tables.media {
+                // A material without volumes, layers or unlit is no boundary (one test).
+                if tables.media && shading.extended {
                     // What the path meets as to its volumes: a false interface is passed
                     // without a bounce (the lane casts on from it), and a real boundary is
                     // shaded with the media on its two sides.
