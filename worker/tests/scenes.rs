@@ -478,7 +478,7 @@ fn generated_tangents_render_as_the_same_tangents_given_in_the_file() {
 /// parts lights sampled by the scalar routine; BoxTextured; VertexColorTest), with vertex
 /// colours on an untextured material, with vertex normals, with point, spot and directional
 /// lights, in uniform environments, the furnaces included, with cut-outs (alpha-blended, a light
-/// among them), and with glass (a refractive, absorbing volume), layered and thin-walled
+/// among them), and with glass (a refractive, absorbing volume), layered, thin-walled and unlit
 /// materials, all kept on the vectors; each with
 /// its lights chosen by the mixture and by the light tree (whose probabilities depend on the
 /// point).
@@ -562,7 +562,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     // block under a clear coat and sheen and white walls with a thin film and anisotropy; and
     // thin-walled walls, a glossy green one under a clear coat that passes half its light
     // through and a red one that diffuses some through.
-    let handed_over = edited_scene("cornell-box", "glass-and-layers", |json| {
+    let glass_and_layers = edited_scene("cornell-box", "glass-and-layers", |json| {
         let materials = json["materials"].as_array_mut().unwrap();
         materials.push(json!({
             "name": "glass",
@@ -613,6 +613,16 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             json["extensionsUsed"].as_array_mut().unwrap().push(json!(ext));
         }
     });
+    // An unlit short block (`KHR_materials_unlit`: its base colour, and no path goes on).
+    let unlit = edited_scene("cornell-box", "unlit", |json| {
+        json["materials"].as_array_mut().unwrap().push(json!({
+            "name": "flat",
+            "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.4, 0.1, 1.0]},
+            "extensions": {"KHR_materials_unlit": {}}
+        }));
+        json["meshes"][3]["primitives"][0]["material"] = json!(4);
+        json["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_materials_unlit"));
+    });
     // Cut-outs: the short block and the light half there (alpha blending, stochastic), so
     // rays pass through them at random and the light's samples are weighed by its coverage.
     let cut_outs = edited_scene("cornell-box", "cut-outs", |json| {
@@ -630,7 +640,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let scenes = [
         ("cornell-box", load("cornell-box.gltf")),
         ("cut-outs", common::gltf::load_path(&cut_outs).expect("edited scene")),
-        ("glass and layers", common::gltf::load_path(&handed_over).expect("edited scene")),
+        ("glass and layers", common::gltf::load_path(&glass_and_layers).expect("edited scene")),
+        ("unlit", common::gltf::load_path(&unlit).expect("edited scene")),
         ("vertex colours", common::gltf::load_path(&coloured).expect("edited scene")),
         ("glossy walls", common::gltf::load_path(&glossy).expect("edited scene")),
         ("veach-mis", load("veach-mis.gltf")),
@@ -686,9 +697,6 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 bend(&mut scalar);
             }
             assert!(wavefront.wavefront().is_some(), "{name}: the wavefront applies");
-            // Glass and layers stay on the vectors: no material hands its paths over.
-            let hands_over = wavefront.wavefront().and_then(|t| t.note.as_deref());
-            assert_eq!(hands_over, None, "{name}");
             assert_eq!(wavefront.alpha_tested, *name == "cut-outs", "{name}");
             if *name == "punctual lights" {
                 let punctual = wavefront

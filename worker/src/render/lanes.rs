@@ -214,8 +214,8 @@ impl<S: Simd> U<S> {
         (low.to_f32() - F::splat(s, 8_388_608.0)) + high.to_f32()
     }
 
-    /// Lane `i`.
-    #[inline(always)]
+    /// Lane `i` (for tests).
+    #[cfg(test)]
     pub(crate) fn lane(&self, i: usize) -> u32 {
         bytemuck::cast_slice::<S::u32s, u32>(std::slice::from_ref(&self.v))[i]
     }

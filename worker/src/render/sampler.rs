@@ -326,12 +326,6 @@ impl<S: Simd> LaneSampler<S> {
         self.dimension.set_lane(i, sampler.dimension);
     }
 
-    /// Lane `i`'s next dimension (where its `Sampler` would stand).
-    #[inline(always)]
-    pub(crate) fn dimension_of(&self, i: usize) -> u32 {
-        self.dimension.lane(i)
-    }
-
     /// Dimension `dimension + offset`'s hash (`Sampler::dimension_hash`).
     #[inline(always)]
     fn hash(&self, offset: u32) -> U64<S> {

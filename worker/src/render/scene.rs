@@ -747,7 +747,6 @@ fn prepare_inner(
             // Once per prepared scene: which kernel renders it, and why.
             match &tables {
                 Err(why) => tracing::info!("the path tracer runs scalar on this scene: {why}"),
-                Ok(Tables { note: Some(note), .. }) => tracing::info!("{note}"),
                 Ok(_) => {}
             }
             Transport::Path { wavefront: tables.ok() }

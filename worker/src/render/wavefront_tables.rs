@@ -1,8 +1,7 @@
 //! What the wavefront renderer reads of a scene it can render, built once when the scene is
 //! prepared: the BSDF (Lambert, the glTF metal-rough BSDF, or per point for a textured or
-//! layered one, or at a volume's boundary) and emission of each material,
-//! which materials hand their paths to the scalar path tracer, whether paths track the volumes
-//! they are inside, and the emissive triangles (with
+//! layered one, or at a volume's boundary) and emission of each material, whether paths track
+//! the volumes they are inside, and the emissive triangles (with
 //! the mixture's probabilities where the scene chooses by it).
 //! Below `scene` (which keeps the tables) and `wavefront` (which reads them), so that data flows
 //! one way: `scene` does not depend on the renderers.
@@ -42,11 +41,6 @@ pub struct Tables {
     pub(super) textured: Vec<bool>,
     /// Emitted radiance per material.
     pub(super) emission: Vec<Vec3>,
-    /// Per material, whether the wavefront hands a path that meets it to the scalar path
-    /// tracer, which continues it (`path::li_resumed`).
-    pub(super) scalar: Vec<bool>,
-    /// The materials that hand paths over and why, for the log (`None` when none does).
-    pub note: Option<String>,
     /// Whether a material bounds a medium (a refractive or absorbing volume): each path then
     /// tracks the volumes it is inside, as `path::li` does (`media::MediumStack`); a scene
     /// without volumes does none of it.
@@ -60,9 +54,7 @@ impl Tables {
     /// The tables of a scene being prepared, or why the wavefront does not take it (the scalar
     /// renderer then renders it, with the same estimator): `scalar_only` names what the scene
     /// as a whole needs of the scalar renderer (something moving within the shutter,
-    /// dispersion, scattering media). A material the wavefront does not shade
-    /// (`wavefront_bsdf`, an allow-list) hands the paths that meet it to the scalar path
-    /// tracer. `per_point`: the scene has vertex colours, so every material is shaded per
+    /// dispersion, scattering media); every material is shaded (`wavefront_bsdf`). `per_point`: the scene has vertex colours, so every material is shaded per
     /// point, as textured ones are. `alpha_tested`: the scene has cut-outs, so an emitter whose
     /// material is not opaque (`material_of` a triangle) is sampled with its coverage
     /// (`shared::light_radiance`) and its emission found where a path hits it, one lane at a
@@ -83,14 +75,8 @@ impl Tables {
         let mut glossy = Vec::with_capacity(materials.len());
         let mut textured = Vec::with_capacity(materials.len());
         let mut emission = Vec::with_capacity(materials.len());
-        let mut scalar = Vec::with_capacity(materials.len());
-        let mut handed_over = Vec::new();
         for m in materials {
             let bsdf = wavefront_bsdf(textures, m);
-            scalar.push(matches!(bsdf, Shade::Scalar(_)));
-            if let Shade::Scalar(why) = bsdf {
-                handed_over.push(format!("'{}' ({why})", m.name));
-            }
             let bsdf = match bsdf {
                 Shade::Lambert(_) | Shade::Glossy(_) if per_point => Shade::Textured,
                 other => other,
@@ -105,7 +91,7 @@ impl Tables {
                     albedo.push(Vec3::ZERO);
                     glossy.push(Some(b));
                 }
-                Shade::Textured | Shade::Layered | Shade::Boundary | Shade::Scalar(_) => {
+                Shade::Textured | Shade::Layered | Shade::Boundary | Shade::Unlit => {
                     albedo.push(Vec3::ZERO);
                     glossy.push(None);
                 }
@@ -138,14 +124,8 @@ impl Tables {
                 probability: mixture.map_or(0.0, |m| m.probability(i as u32)),
             }));
         }
-        let note = (!handed_over.is_empty()).then(|| {
-            format!(
-                "the wavefront hands paths to the scalar path tracer at the materials {}",
-                handed_over.join(", ")
-            )
-        });
         let media = materials.iter().any(|m| m.volume.is_some() && m.bounds_medium());
-        Ok(Tables { albedo, glossy, textured, emission, scalar, note, media, lights })
+        Ok(Tables { albedo, glossy, textured, emission, media, lights })
     }
 }
 
@@ -165,24 +145,16 @@ enum Shade {
     /// transmission): found at each point with the indices of the media on its two sides, a
     /// dielectric evaluated and sampled one lane at a time by the scalar `Bsdf`.
     Boundary,
-    /// Shaded by the scalar path tracer, which takes over the paths that meet it, for the
-    /// reason given.
-    Scalar(&'static str),
+    /// `KHR_materials_unlit`: its base colour, seen as it is, where a path meets it (one lane
+    /// at a time); no path goes on from it.
+    Unlit,
 }
 
-/// The BSDF of a material the wavefront takes, or what it has that the wavefront does not
-/// (`Shade::Scalar`). An allow-list: every field of `Material` is named here (a field added to
-/// it does not compile until it is decided), the textures and extensions the wavefront does not
-/// read hand the material to the scalar path tracer, and so do factors that do not make the
-/// glTF BSDF a Lambertian one or a metal-rough one (thin-walled where it transmits).
+/// How the wavefront shades a material. Every field of `Material` is named here, so that a
+/// field added to it does not compile until the wavefront's handling of it is decided: what
+/// varies over the surface (textures) is shaded per point, and the factors decide whether the
+/// glTF BSDF is a Lambertian one or a metal-rough one (thin-walled where it transmits).
 fn wavefront_bsdf(textures: &[Texture], m: &Material) -> Shade {
-    match wavefront_shade(textures, m) {
-        Ok(shade) => shade,
-        Err(why) => Shade::Scalar(why),
-    }
-}
-
-fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static str> {
     let Material {
         // What the wavefront reads, through the BSDF and the emission below.
         name: _,
@@ -230,26 +202,26 @@ fn wavefront_shade(textures: &[Texture], m: &Material) -> Result<Shade, &'static
         || specular_color_texture.is_some()
         || glossiness_texture.is_some();
     if *unlit {
-        return Err("KHR_materials_unlit");
+        return Shade::Unlit;
     }
     // What textures do not change: whether the surface bounds a medium (only the factors can
     // make it; textures scale them).
     if volume.is_some() && m.bounds_medium() {
-        return Ok(Shade::Boundary);
+        return Shade::Boundary;
     }
     if clearcoat.is_some() || sheen.is_some() || anisotropy.is_some() || iridescence.is_some() {
         // The layered BSDF, found at each point as a textured material's is.
-        return Ok(Shade::Layered);
+        return Shade::Layered;
     }
     if textured {
-        return Ok(Shade::Textured);
+        return Shade::Textured;
     }
     match material::bsdf(textures, m, &SurfacePoint::PLAIN, true, [1.0; 2], m.extended()) {
-        Bsdf::Diffuse(d) => Ok(Shade::Lambert(d.albedo)),
-        Bsdf::MetalRough(b) => Ok(Shade::Glossy(b)),
+        Bsdf::Diffuse(d) => Shade::Lambert(d.albedo),
+        Bsdf::MetalRough(b) => Shade::Glossy(b),
         // A layered or refracting BSDF comes only from the extensions checked above.
-        Bsdf::Layered(_) => Ok(Shade::Layered),
-        Bsdf::Dielectric(_) => Ok(Shade::Boundary),
+        Bsdf::Layered(_) => Shade::Layered,
+        Bsdf::Dielectric(_) => Shade::Boundary,
     }
 }
 
@@ -265,11 +237,11 @@ mod tests {
 
     /// Lambertian, reflecting metal-rough and layered materials pass, textured or not (a textured
     /// or layered one is shaded per point), and so do the boundaries of volumes (per point, the
-    /// paths tracking their media); unlit hands its paths to the scalar path tracer (with the
-    /// reason), and what the whole scene needs of it keeps the wavefront off.
+    /// paths tracking their media), and unlit; what the whole scene needs of the scalar renderer
+    /// keeps the wavefront off.
     #[test]
-    fn the_wavefront_takes_only_what_it_renders() {
-        assert!(matches!(wavefront_shade(&[], &lambert()), Ok(Shade::Lambert(_))));
+    fn the_wavefront_takes_every_material() {
+        assert!(matches!(wavefront_bsdf(&[], &lambert()), Shade::Lambert(_)));
         let texture = Some(TextureRef { texture: 0, tex_coord: 0, transform: None });
         let textured = [
             Material { base_color_texture: texture, ..lambert() },
@@ -283,18 +255,18 @@ mod tests {
             Material { diffuse_transmission_color_texture: texture, ..lambert() },
         ];
         for m in &textured[..6] {
-            assert_eq!(wavefront_shade(&[], m), Ok(Shade::Textured), "{m:?}");
+            assert_eq!(wavefront_bsdf(&[], m), Shade::Textured, "{m:?}");
         }
         // Textured transmission factors (thin-walled transmission) are shaded per point too.
         for m in &textured[6..] {
-            assert_eq!(wavefront_shade(&[], m), Ok(Shade::Textured), "{m:?}");
+            assert_eq!(wavefront_bsdf(&[], m), Shade::Textured, "{m:?}");
             let thin = Material { transmission: 0.5, diffuse_transmission: 0.5, ..m.clone() };
-            assert_eq!(wavefront_shade(&[], &thin), Ok(Shade::Textured), "{m:?}");
+            assert_eq!(wavefront_bsdf(&[], &thin), Shade::Textured, "{m:?}");
         }
-        assert!(matches!(wavefront_shade(&[], &Material::default()), Ok(Shade::Glossy(_))));
+        assert!(matches!(wavefront_bsdf(&[], &Material::default()), Shade::Glossy(_)));
         // A full metal passes no light through, whatever its transmission factor.
         let metal = Material { transmission: 0.5, ..Material::default() };
-        assert!(matches!(wavefront_shade(&[], &metal), Ok(Shade::Glossy(_))));
+        assert!(matches!(wavefront_bsdf(&[], &metal), Shade::Glossy(_)));
         // Layers, textured or not, are shaded per point.
         use common::scene::{Anisotropy, Clearcoat, Iridescence, Sheen};
         let coat = Clearcoat {
@@ -326,17 +298,17 @@ mod tests {
             Material { iridescence: Some(film), base_color_texture: texture, ..lambert() },
         ];
         for m in &layered {
-            assert_eq!(wavefront_shade(&[], m), Ok(Shade::Layered), "{m:?}");
+            assert_eq!(wavefront_bsdf(&[], m), Shade::Layered, "{m:?}");
         }
         let unlit = Material { unlit: true, ..lambert() };
-        assert_eq!(wavefront_shade(&[], &unlit), Err("KHR_materials_unlit"));
+        assert_eq!(wavefront_bsdf(&[], &unlit), Shade::Unlit);
         // Thin-walled transmission: the metal-rough BSDF's far side.
         for thin in [
             Material { transmission: 0.5, ..lambert() },
             Material { diffuse_transmission: 0.3, ..lambert() },
         ] {
-            let shade = wavefront_shade(&[], &thin);
-            assert!(matches!(shade, Ok(Shade::Glossy(b)) if b.transmits()), "{shade:?}");
+            let shade = wavefront_bsdf(&[], &thin);
+            assert!(matches!(shade, Shade::Glossy(b) if b.transmits()), "{shade:?}");
         }
         // A volume's boundary, refractive or entered by diffuse transmission, is shaded per
         // point, and makes the paths track their media; a volume that bounds no medium
@@ -349,9 +321,9 @@ mod tests {
         let glass = Material { transmission: 1.0, volume, ..lambert() };
         let wax = Material { diffuse_transmission: 0.5, volume, ..lambert() };
         let thin = Material { transmission: 0.5, volume, ..lambert() };
-        assert_eq!(wavefront_shade(&[], &glass), Ok(Shade::Boundary));
-        assert_eq!(wavefront_shade(&[], &wax), Ok(Shade::Boundary));
-        assert!(matches!(wavefront_shade(&[], &thin), Ok(Shade::Glossy(_))));
+        assert_eq!(wavefront_bsdf(&[], &glass), Shade::Boundary);
+        assert_eq!(wavefront_bsdf(&[], &wax), Shade::Boundary);
+        assert!(matches!(wavefront_bsdf(&[], &thin), Shade::Glossy(_)));
         for (m, media) in [(&glass, true), (&wax, true), (&thin, false)] {
             let tables = Tables::new(
                 &[lambert(), m.clone()],
@@ -363,26 +335,8 @@ mod tests {
             )
             .unwrap();
             assert_eq!(tables.media, media, "{m:?}");
-            assert_eq!((&tables.scalar[..], &tables.note), (&[false, false][..], &None));
             assert_eq!(tables.textured[1], media, "a boundary is shaded per point");
         }
-        let m = Material { name: "flat".into(), unlit: true, ..lambert() };
-        let tables = Tables::new(
-            &[lambert(), m],
-            &[],
-            &LightSampler::default(),
-            None,
-            false,
-            (false, &|_| 0),
-        )
-        .unwrap();
-        assert_eq!(tables.scalar, [false, true]);
-        let note = tables.note.expect("a material hands paths over");
-        assert!(note.ends_with("materials 'flat' (KHR_materials_unlit)"), "{note}");
-        let plain =
-            Tables::new(&[lambert()], &[], &LightSampler::default(), None, false, (false, &|_| 0))
-                .unwrap();
-        assert_eq!((plain.scalar, plain.note), (vec![false], None));
         let why = Tables::new(
             &[lambert()],
             &[],

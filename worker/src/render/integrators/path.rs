@@ -23,11 +23,10 @@ use glam::{Vec2, Vec3};
 
 use super::{
     super::{
-        accel::Hit,
         geometry::{offset_ray_origin, Frame, Ray},
         light::ShadingContext,
         material,
-        media::{self, free_flight, transmittance, MediumStack},
+        media::{self, free_flight, transmittance},
         motion::Pose,
         sampler::Sampler,
         sampling::sample_henyey_greenstein,
@@ -53,83 +52,24 @@ pub fn li(
     // In a scene with dispersion, the number for the wavelength the path takes on at its first
     // dispersive boundary (drawn first, whether used or not).
     let u_wavelength = if scene.dispersive { sampler.next_1d() } else { 0.0 };
-    let start = Resume {
-        ray,
-        hit: None,
-        radiance: Vec3::ZERO,
-        beta: Vec3::ONE,
-        depth: 0,
-        prev_bsdf_pdf: UNWEIGHTED,
-        prev_ctx: ShadingContext::default(),
-        media: scene.camera_media,
-        passed: 0,
-        eta_scale: 1.0,
-    };
-    trace(scene, start, u_wavelength, sampler, stats, pose)
-}
-
-/// A path as the wavefront hands it over (`li_resumed`), in a scene whose paths take no
-/// wavelength and meet no scattering medium: it has found what its next ray hits.
-#[derive(Clone, Copy, Debug)]
-pub struct Resume {
-    /// The path's next ray.
-    pub ray: Ray,
-    /// What `ray` hits, when already found (`None`: cast it first).
-    pub hit: Option<Hit>,
-    /// The radiance gathered so far.
-    pub radiance: Vec3,
-    /// The path's throughput.
-    pub beta: Vec3,
-    /// Bounces so far.
-    pub depth: u32,
-    /// Density of the BSDF sample that produced `ray` (`UNWEIGHTED` for a camera ray).
-    pub prev_bsdf_pdf: f32,
-    /// Where that sample was taken.
-    pub prev_ctx: ShadingContext,
-    /// The volumes the path is inside (at first those the camera lies inside).
-    pub media: MediumStack,
-    /// False interfaces passed so far.
-    pub passed: u32,
-    /// The product of eta² over the refractions so far.
-    pub eta_scale: f32,
-}
-
-/// The radiance of a path the wavefront hands over at a surface it does not shade (`Resume`),
-/// continued exactly as `li` would have: the same numbers from `sampler` (standing at the
-/// path's next dimension), the same sum. Only for a static scene without dispersion or
-/// scattering media (where `Tables::new` lets the wavefront run).
-pub fn li_resumed(
-    scene: &PreparedScene,
-    start: Resume,
-    sampler: &mut Sampler,
-    stats: &mut Stats,
-) -> Vec3 {
-    debug_assert!(!scene.dispersive && !scene.scattering_media);
-    trace(scene, start, 0.0, sampler, stats, None)
-}
-
-/// `li` from `start` on.
-fn trace(
-    scene: &PreparedScene,
-    start: Resume,
-    u_wavelength: f32,
-    sampler: &mut Sampler,
-    stats: &mut Stats,
-    pose: Option<&Pose<'_>>,
-) -> Vec3 {
-    let Resume { mut ray, hit: mut found, mut radiance, mut beta, mut depth, .. } = start;
-    let Resume { mut media, mut passed, mut eta_scale, .. } = start;
+    let mut ray = ray;
+    let mut radiance = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    let mut depth = 0u32;
     // Density of the BSDF sample that produced `ray` (`UNWEIGHTED` for camera rays and after a
     // delta lobe or a scattering, whose directions no light sample could have chosen).
-    let mut prev_bsdf_pdf = start.prev_bsdf_pdf;
+    let mut prev_bsdf_pdf = UNWEIGHTED;
     // Where that BSDF sample was taken (its point and shading normal): the light choice's
     // probability there is what light sampling would have given the light it hits.
-    let mut prev_ctx = start.prev_ctx;
-    // `eta_scale`, the product of eta² over the refractions so far: radiance scaled by 1 / eta²
-    // crossing into a denser medium comes back leaving it, so Russian roulette looks past the
-    // scale. `media`, the volumes the path is inside (each by its boundary's material), the
-    // current one on top. `passed`, the false interfaces passed (bounded, so that no geometry
-    // can hold a path forever).
+    let mut prev_ctx = ShadingContext::default();
+    // The product of eta² over the refractions so far: radiance scaled by 1 / eta² crossing
+    // into a denser medium comes back leaving it, so Russian roulette looks past the scale.
+    let mut eta_scale = 1.0f32;
+    // The volumes the path is inside (each by its boundary's material), the current one on top:
+    // at first those the camera lies inside.
+    let mut media = scene.camera_media;
+    // False interfaces passed (bounded, so that no geometry can hold a path forever).
+    let mut passed = 0u32;
     // The wavelength, once a dispersive boundary has given the path one (from `u_wavelength`).
     let mut wavelength: Option<f32> = None;
     // In a scene with scattering media, the channel the path draws its free flights by (from its
@@ -139,13 +79,8 @@ fn trace(
     let mut ratios = Vec3::ONE;
     let lights = &scene.lights;
     loop {
-        let hit = match found.take() {
-            Some(hit) => Some(hit),
-            None => {
-                stats.rays += 1;
-                scene.intersect(&ray, f32::INFINITY, pose)
-            }
-        };
+        stats.rays += 1;
+        let hit = scene.intersect(&ray, f32::INFINITY, pose);
         let medium = media.current();
         // In a scene with scattering media every bounce starts with two numbers for the free
         // flight, drawn in a scattering medium and skipped elsewhere; other scenes take none.

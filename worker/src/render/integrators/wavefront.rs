@@ -16,11 +16,9 @@
 //! inside, from those the camera lies in, as `path::li` does: Beer-Lambert along each segment,
 //! false interfaces passed without a bounce (`shared::meet_surface`), the relative index of the
 //! two media at a boundary, the refracting frame, the far side's medium for a shadow ray, and
-//! eta² in Russian roulette. A path that meets a material the wavefront does not shade (unlit:
-//! `wavefront_bsdf`'s allow-list decides) leaves the vectors there: `path::li_resumed`
-//! continues it on the scalar path tracer from that hit, with the lane's throughput, radiance,
-//! depth, MIS state, media and sampler dimension, so its sum is the one `path::li` makes, and the lane
-//! takes the next sample. At a textured (or vertex-coloured) material, the point's
+//! eta² in Russian roulette. An unlit material ends its paths with its base colour, one lane at
+//! a time. Every material is shaded here (`wavefront_tables::wavefront_bsdf` names every field
+//! of `Material`, so a new one is decided before it compiles). At a textured (or vertex-coloured) material, the point's
 //! emission, shading frame and BSDF parameters are found one lane at a time by the scalar
 //! renderer's calls (`material`, `shared::shading_frame`, `shared::hit_weight`), and a
 //! textured emitter is sampled by `Light::sample_li` and `shared::light_radiance`. Each lane holds one
@@ -70,7 +68,6 @@ use super::{
         scene::PreparedScene,
         wavefront_tables::Tables,
     },
-    path::{li_resumed, Resume},
     shared::{
         environment_hit,
         generic::{power_heuristic, roulette_end, same_side},
@@ -431,37 +428,6 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 } else {
                     scene.accel.intersect_inlined(&ray, f32::INFINITY)
                 };
-                if let Some(hit) = found {
-                    let shading = scene.shading[hit.prim as usize];
-                    if tables.scalar[shading.material as usize] {
-                        // A surface the wavefront does not shade: the scalar path tracer takes
-                        // the path on from this hit, with the lane's sampler where the lane
-                        // stands.
-                        let first = paths.depth[i] == 0;
-                        let start = Resume {
-                            ray,
-                            hit: Some(hit),
-                            radiance: paths.radiance.lane(i),
-                            beta: paths.beta.lane(i),
-                            depth: paths.depth[i],
-                            prev_bsdf_pdf: paths.prev_bsdf_pdf.lane(i),
-                            prev_ctx: if first {
-                                ShadingContext::default()
-                            } else {
-                                paths.prev_ctx(i)
-                            },
-                            media: paths.media[i],
-                            passed: paths.passed[i],
-                            eta_scale: paths.eta_scale.lane(i),
-                        };
-                        let sm = &mut paths.sampler[i];
-                        sm.set_dimension(paths.draws.dimension_of(i));
-                        let radiance = li_resumed(scene, start, sm, &mut stats);
-                        paths.alive[i] = false;
-                        stream.finish(paths.item[i], radiance.to_array(), &mut tile);
-                        continue;
-                    }
-                }
                 if tables.media {
                     // Beer-Lambert along the segment inside the volume the path is in (an
                     // escape is endless).
@@ -530,6 +496,22 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                             }
                         }
                     }
+                }
+                let material = &scene.materials[shading.material as usize];
+                if shading.extended && material.unlit {
+                    // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on
+                    // from it (a degenerate triangle shows nothing, as in `path::li`).
+                    let (q, _) = scene.triangle(hit.prim, None);
+                    if (q[1] - q[0]).cross(q[2] - q[0]).try_normalize().is_some() {
+                        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+                        let sp = scene.shading_point(hit.prim, q, b);
+                        let base = material::base_color(&scene.textures, material, &sp).truncate();
+                        let radiance = paths.beta.lane(i) * base.clamp(Vec3::ZERO, Vec3::ONE);
+                        paths.radiance.set_lane(i, paths.radiance.lane(i) + radiance);
+                    }
+                    paths.alive[i] = false;
+                    stream.finish(paths.item[i], paths.radiance.lane(i).to_array(), &mut tile);
+                    continue;
                 }
                 live[i] = true;
                 first_bounce[i] = paths.depth[i] == 0;
