@@ -497,8 +497,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                         }
                     }
                 }
-                let material = &scene.materials[shading.material as usize];
-                if shading.extended && material.unlit {
+                if shading.extended && scene.materials[shading.material as usize].unlit {
+                    let material = &scene.materials[shading.material as usize];
                     // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on
                     // from it (a degenerate triangle shows nothing, as in `path::li`).
                     let (q, _) = scene.triangle(hit.prim, None);
@@ -956,7 +956,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let side = if tables.media { side | M::from_bools(s, &refracting) } else { side };
         let ok = contm & sampled & side & beta.is_finite() & !beta.is_zero();
         let origin = offset_ray_origin(p, p_error, ng, wi);
-        let q = roulette_end(beta, eta_scale);
+        // eta² is 1 on every path of a scene without volumes.
+        let q = if tables.media { roulette_end(beta, eta_scale) } else { roulette_end(beta, one) };
         let rr = M::from_bools(s, &roulette);
         let ended = rr & u_rr.lt(q);
         let beta = rr.select3(beta.div(one - q), beta);
@@ -965,7 +966,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         paths.origin = go_on.select3(origin, paths.origin);
         paths.dir = go_on.select3(wi, paths.dir);
         paths.prev_bsdf_pdf = go_on.select(mis, paths.prev_bsdf_pdf);
-        paths.eta_scale = eta_scale;
+        if tables.media {
+            paths.eta_scale = eta_scale;
+        }
         if mixture.is_none() {
             paths.prev_p = go_on.select3(p, paths.prev_p);
             paths.prev_n = go_on.select3(ns, paths.prev_n);
