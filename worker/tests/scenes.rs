@@ -15,7 +15,7 @@ use support::*;
 use worker::render::{
     integrators::wavefront,
     light::{Light, LightChoice},
-    render_rows_scalar, render_task,
+    render_task,
     scene::{prepare, prepare_with_light_choice, PreparedScene},
 };
 
@@ -715,29 +715,13 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
                 (Rect { x0: 13, y0: 7, width: 21, height: 17 }, SampleRange { start: 5, end: 11 }),
             ] {
                 let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
-                let (a, b) = (render_task(&wavefront, 11, &task), render_task(&scalar, 11, &task));
-                assert!(a.rays > 0);
-                assert_eq!(a.rays, b.rays, "{name} {json} {rect:?}: rays");
-                for (i, (pa, pb)) in a.tile.pixels.iter().zip(&b.tile.pixels).enumerate() {
-                    assert_eq!(pa, pb, "{name} {json} {rect:?}: pixel {i}");
-                }
-                // Every lane count, emulated (so that 16 lanes are checked on any CPU), and on
-                // every other row as the second of two threads renders them.
-                let tables = wavefront.wavefront().expect("tables");
-                let (want, want_stats) = render_rows_scalar(&scalar, 11, &task, 1, 2);
-                for lanes in [4, 8, 16] {
-                    let (got, stats) = wavefront::render_rows_portable(
-                        &wavefront,
-                        tables,
-                        11,
-                        &task,
-                        (1, 2),
-                        lanes,
-                    )
-                    .expect("a lane count it has");
-                    assert_eq!(stats.rays, want_stats.rays, "{name} {json} {lanes} lanes: rays");
-                    assert!(got == want, "{name} {json} {rect:?}: {lanes} lanes differ");
-                }
+                assert_same_sums(
+                    &format!("{name} {json}"),
+                    &wavefront,
+                    &scalar,
+                    &task,
+                    &[4, 8, 16],
+                );
             }
         }
     }
@@ -790,29 +774,15 @@ fn wavefront_renders_every_shipped_scene_and_real_asset_under_a_map_bit_for_bit(
                 .unwrap_or_else(|e| panic!("{name}: {e}"))
         };
         let (wavefront, mut scalar) = (prepare(), prepare());
-        let Some(tables) = wavefront.wavefront() else {
+        if wavefront.wavefront().is_none() {
             scalar_only.push(path.file_name().unwrap().to_string_lossy().into_owned());
             continue;
-        };
+        }
         scalar.drop_wavefront();
         let rect = Rect { x0: 0, y0: 0, width: 24, height: 16 };
-        let task = TaskSpec {
-            frame: 0,
-            rect,
-            samples: SampleRange { start: 0, end: 4 },
-            kind: TaskKind::Camera,
-        };
-        let (a, b) = (render_task(&wavefront, 5, &task), render_task(&scalar, 5, &task));
-        assert_eq!(a.rays, b.rays, "{name}: rays");
-        assert!(a.tile.pixels == b.tile.pixels, "{name}: the wavefront's sums differ");
-        let (want, want_stats) = render_rows_scalar(&scalar, 5, &task, 0, 1);
-        for lanes in [8, 16] {
-            let (got, stats) =
-                wavefront::render_rows_portable(&wavefront, tables, 5, &task, (0, 1), lanes)
-                    .expect("a lane count it has");
-            assert_eq!(stats.rays, want_stats.rays, "{name} {lanes} lanes: rays");
-            assert!(got == want, "{name}: {lanes} lanes differ");
-        }
+        let samples = SampleRange { start: 0, end: 4 };
+        let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
+        assert_same_sums(&name.to_string(), &wavefront, &scalar, &task, &[8, 16]);
     }
     assert!(files.len() >= 30, "only {} scenes found", files.len());
     assert_eq!(scalar_only, ["subsurface-matched.gltf", "subsurface.gltf"], "scenes kept scalar");

@@ -1282,23 +1282,17 @@ pub fn square_geometry(half: f32) -> serde_json::Value {
 
 /// Asserts that the wavefront renders `scene` under `settings` exactly as the scalar path tracer
 /// does: the same sums bit for bit and the same ray count, on the whole frame and on an offset
-/// tile with an offset sample range, at this CPU's lane count and at 4, 8 and 16 lanes emulated
-/// (every other row, as the second of two threads renders them). Panics if the wavefront does
-/// not take the scene.
+/// tile with an offset sample range (`assert_same_sums`). Panics if the wavefront does not take
+/// the scene.
 pub fn assert_wavefront_renders_the_scalar_paths(
     name: &str,
     scene: &Scene,
     settings: &RenderSettings,
 ) {
-    use worker::render::{integrators::wavefront, render_rows_scalar};
     let wavefront_scene = prepare(scene, settings).expect("prepare");
     let mut scalar = prepare(scene, settings).expect("prepare");
     scalar.drop_wavefront();
-    let tables = wavefront_scene
-        .wavefront()
-        .unwrap_or_else(|| panic!("{name}: the wavefront does not take the scene"));
-    let (w, h) = (settings.width, settings.height);
-    let spp = settings.spp;
+    let (w, h, spp) = (settings.width, settings.height, settings.spp);
     for (rect, samples) in [
         (Rect { x0: 0, y0: 0, width: w, height: h }, SampleRange { start: 0, end: spp }),
         (
@@ -1307,19 +1301,36 @@ pub fn assert_wavefront_renders_the_scalar_paths(
         ),
     ] {
         let task = TaskSpec { frame: 0, rect, samples, kind: TaskKind::Camera };
-        let (a, b) = (render_task(&wavefront_scene, 11, &task), render_task(&scalar, 11, &task));
-        assert!(a.rays > 0);
-        assert_eq!(a.rays, b.rays, "{name} {rect:?}: rays");
-        for (i, (pa, pb)) in a.tile.pixels.iter().zip(&b.tile.pixels).enumerate() {
-            assert_eq!(pa, pb, "{name} {rect:?}: pixel {i}");
-        }
-        let (want, want_stats) = render_rows_scalar(&scalar, 11, &task, 1, 2);
-        for lanes in [4, 8, 16] {
-            let (got, stats) =
-                wavefront::render_rows_portable(&wavefront_scene, tables, 11, &task, (1, 2), lanes)
-                    .expect("a lane count it has");
-            assert_eq!(stats.rays, want_stats.rays, "{name} {rect:?} {lanes} lanes: rays");
-            assert!(got == want, "{name} {rect:?}: {lanes} lanes differ");
-        }
+        assert_same_sums(name, &wavefront_scene, &scalar, &task, &[4, 8, 16]);
+    }
+}
+
+/// Asserts that `wavefront` (a preparation the wavefront takes) renders `task` as `scalar` (the
+/// same scene without the wavefront's tables) does: the same sums bit for bit and the same ray
+/// count at this CPU's lane count, and at each of `lanes` emulated (so that 16 lanes are checked
+/// on any CPU) on every other row, as the second of two threads renders them.
+pub fn assert_same_sums(
+    name: &str,
+    wavefront: &PreparedScene,
+    scalar: &PreparedScene,
+    task: &TaskSpec,
+    lanes: &[usize],
+) {
+    use worker::render::{integrators::wavefront as kernel, render_rows_scalar};
+    let tables =
+        wavefront.wavefront().unwrap_or_else(|| panic!("{name}: the wavefront does not apply"));
+    let rect = task.rect;
+    let (a, b) = (render_task(wavefront, 11, task), render_task(scalar, 11, task));
+    assert!(a.rays > 0);
+    assert_eq!(a.rays, b.rays, "{name} {rect:?}: rays");
+    for (i, (pa, pb)) in a.tile.pixels.iter().zip(&b.tile.pixels).enumerate() {
+        assert_eq!(pa, pb, "{name} {rect:?}: pixel {i}");
+    }
+    let (want, want_stats) = render_rows_scalar(scalar, 11, task, 1, 2);
+    for &n in lanes {
+        let (got, stats) = kernel::render_rows_portable(wavefront, tables, 11, task, (1, 2), n)
+            .expect("a lane count it has");
+        assert_eq!(stats.rays, want_stats.rays, "{name} {rect:?} {n} lanes: rays");
+        assert!(got == want, "{name} {rect:?}: {n} lanes differ");
     }
 }
