@@ -491,24 +491,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
     let two_sided = edited_scene("cornell-box", "two-sided-light", |json| {
         json["materials"][3]["doubleSided"] = json!(true);
     });
-    let punctual = edited_scene("cornell-box", "punctual-lights", |json| {
-        let lights = json!([
-            {"type": "point", "intensity": 0.8, "color": [1.0, 0.9, 0.8]},
-            {"type": "spot", "intensity": 3.0, "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.6}},
-            {"type": "directional", "intensity": 2.0, "color": [0.6, 0.7, 1.0]}
-        ]);
-        json["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_lights_punctual"));
-        json["extensions"] = json!({"KHR_lights_punctual": {"lights": lights}});
-        let nodes = json["nodes"].as_array_mut().unwrap();
-        let first = nodes.len();
-        for (k, t) in [[0.2, 0.3, 0.1], [-0.3, 0.6, 0.2], [0.0, 0.0, 3.0]].iter().enumerate() {
-            nodes.push(
-                json!({"translation": t, "extensions": {"KHR_lights_punctual": {"light": k}}}),
-            );
-        }
-        let roots = json["scenes"][0]["nodes"].as_array_mut().unwrap();
-        roots.extend((first..first + 3).map(|n| json!(n)));
-    });
+    let punctual = edited_scene("cornell-box", "punctual-lights", add_punctual_lights);
     // The walls glossy: a rough dielectric (specular layer over the diffuse base, the glTF
     // default), a smooth metal, a half-metal of another roughness, and a dielectric with a tinted
     // specular colour and another index: the metal-rough BSDF in every lane.
@@ -557,8 +540,8 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             json["meshes"][mesh]["primitives"][0]["attributes"]["COLOR_0"] = json!(accessor);
         }
     });
-    // Materials the wavefront shades lane by lane beside ones it shades on vectors: a glass
-    // tall block (a refractive, absorbing volume); layered ones, a short
+    // Materials the wavefront shades lane by lane beside ones it shades on vectors: a rough
+    // glass tall block (a refractive, absorbing volume); layered ones, a short
     // block under a clear coat and sheen and white walls with a thin film and anisotropy; and
     // thin-walled walls, a glossy green one under a clear coat that passes half its light
     // through and a red one that diffuses some through.
@@ -566,7 +549,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         let materials = json["materials"].as_array_mut().unwrap();
         materials.push(json!({
             "name": "glass",
-            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
+            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.25},
             "extensions": {
                 "KHR_materials_transmission": {"transmissionFactor": 1.0},
                 "KHR_materials_volume": {"thicknessFactor": 0.3, "attenuationDistance": 0.5, "attenuationColor": [0.9, 0.7, 0.5]}
@@ -601,6 +584,9 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         json["meshes"][4]["primitives"][0]["material"] = json!(4);
         json["meshes"][3]["primitives"][0]["material"] = json!(5);
         json["meshes"][0]["primitives"][0]["material"] = json!(6);
+        // Lights in different places, so that the light tree's choice depends on the shading
+        // normal (the refracting frame's is not the one the choice sees).
+        add_punctual_lights(json);
         for ext in [
             "KHR_materials_transmission",
             "KHR_materials_volume",
@@ -725,6 +711,24 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             }
         }
     }
+}
+
+/// Adds a point, a spot and a directional light to the Cornell box's glTF document.
+fn add_punctual_lights(json: &mut serde_json::Value) {
+    let lights = json!([
+        {"type": "point", "intensity": 0.8, "color": [1.0, 0.9, 0.8]},
+        {"type": "spot", "intensity": 3.0, "spot": {"innerConeAngle": 0.2, "outerConeAngle": 0.6}},
+        {"type": "directional", "intensity": 2.0, "color": [0.6, 0.7, 1.0]}
+    ]);
+    json["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_lights_punctual"));
+    json["extensions"] = json!({"KHR_lights_punctual": {"lights": lights}});
+    let nodes = json["nodes"].as_array_mut().unwrap();
+    let first = nodes.len();
+    for (k, t) in [[0.2, 0.3, 0.1], [-0.3, 0.6, 0.2], [0.0, 0.0, 3.0]].iter().enumerate() {
+        nodes.push(json!({"translation": t, "extensions": {"KHR_lights_punctual": {"light": k}}}));
+    }
+    let roots = json["scenes"][0]["nodes"].as_array_mut().unwrap();
+    roots.extend((first..first + 3).map(|n| json!(n)));
 }
 
 /// Every shipped scene (`scenes/`, `scenes/materials/`) and every real asset in `tests/assets`

@@ -723,9 +723,7 @@ fn prepare_inner(
     let transport = match transport {
         Transport::Path { .. } => {
             // What the wavefront's paths cannot meet: motion changes what a ray hits, and
-            // dispersion and scattering media change the numbers a path draws from its start
-            // (the wavefront hands a path to the scalar path tracer only where neither has
-            // changed anything yet).
+            // dispersion and scattering media change the numbers a path draws from its start.
             let scalar_only = if motion.is_some() {
                 Some("something moves within the shutter")
             } else if dispersive {

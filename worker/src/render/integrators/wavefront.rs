@@ -335,6 +335,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
     // lane at a time by the scalar renderer's `Bsdf`.
     let mut layered = [false; MAX_LANES];
     let mut layers = [None::<Bsdf>; MAX_LANES];
+    // The shading normal of the lanes whose refracting frame replaced it (the facet's): the
+    // light choice and the next hit's weight see the point by it, as in `path::li`.
+    let mut unbent = [None::<Vec3>; MAX_LANES];
     // In a scene with volumes, the lanes at a volume's boundary (`shared::meet_surface`), those
     // of them that refract, the side each lane's ray meets, the geometric normal on that side,
     // the material hit and the medium beyond.
@@ -610,6 +613,9 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
         let ns = (use_n & n_dot.lt(zero)).select3(-n, ns);
         let (fx, fy) = frame_from_z(ns);
         let (mut fx, mut fy, mut ns) = (fx, fy, ns);
+        if tables.media {
+            unbent[..lanes].fill(None);
+        }
         // Textured materials, one lane at a time through the scalar renderer's calls: the
         // emission of the point, the shading frame (normal map) and the BSDF there.
         for i in (0..lanes).filter(|&i| live[i] && textured[i]) {
@@ -643,6 +649,7 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 // `path::li`'s refracting frame (the facet's where the interpolated normal
                 // turns away from wo) and the relative index of the media on the two sides.
                 if refracting[i] && frame.to_local(wo_i).z <= 0.0 {
+                    unbent[i] = Some(frame.z);
                     frame = Frame::from_z(ng_i);
                 }
                 let other = if front { paths.media[i].current() } else { beyond[i] };
@@ -756,8 +763,11 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                 ([ShadingContext::default(); MAX_LANES], [0.0; MAX_LANES], [0; MAX_LANES]);
             let mut n = 0;
             for i in (0..lanes).filter(|&i| live[i] && cont[i]) {
-                (ctx[n], u[n], asked[n]) =
-                    (ShadingContext { p: p.lane(i), n: ns.lane(i) }, u_light_x.lane(i), i);
+                (ctx[n], u[n], asked[n]) = (
+                    ShadingContext { p: p.lane(i), n: unbent[i].unwrap_or(ns.lane(i)) },
+                    u_light_x.lane(i),
+                    i,
+                );
                 n += 1;
             }
             let mut chosen = [None; MAX_LANES];
@@ -974,6 +984,13 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
             paths.prev_n = go_on.select3(ns, paths.prev_n);
         }
         go_on.to_bools(&mut survive);
+        if tables.media && mixture.is_none() {
+            for i in (0..lanes).filter(|&i| survive[i]) {
+                if let Some(n) = unbent[i] {
+                    paths.prev_n.set_lane(i, n);
+                }
+            }
+        }
         for i in 0..lanes {
             if !cont[i] {
                 continue;
