@@ -478,8 +478,8 @@ fn generated_tangents_render_as_the_same_tangents_given_in_the_file() {
 /// parts lights sampled by the scalar routine; BoxTextured; VertexColorTest), with vertex
 /// colours on an untextured material, with vertex normals, with point, spot and directional
 /// lights, in uniform environments, the furnaces included, with cut-outs (alpha-blended, a light
-/// among them), and with glass (a refractive, absorbing volume), layered, thin-walled and unlit
-/// materials, all kept on the vectors; each with
+/// among them), and with smooth and rough glass (a refractive, absorbing volume), layered,
+/// thin-walled and unlit materials, all kept on the vectors; each with
 /// its lights chosen by the mixture and by the light tree (whose probabilities depend on the
 /// point).
 #[test]
@@ -599,6 +599,22 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
             json["extensionsUsed"].as_array_mut().unwrap().push(json!(ext));
         }
     });
+    // A smooth, clear glass tall block under the punctual lights: all its lobes are deltas.
+    let smooth_glass = edited_scene("cornell-box", "smooth-glass", |json| {
+        json["materials"].as_array_mut().unwrap().push(json!({
+            "name": "clear glass",
+            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.0},
+            "extensions": {
+                "KHR_materials_transmission": {"transmissionFactor": 1.0},
+                "KHR_materials_volume": {"thicknessFactor": 0.3}
+            }
+        }));
+        json["meshes"][4]["primitives"][0]["material"] = json!(4);
+        for ext in ["KHR_materials_transmission", "KHR_materials_volume"] {
+            json["extensionsUsed"].as_array_mut().unwrap().push(json!(ext));
+        }
+        add_punctual_lights(json);
+    });
     // An unlit short block (`KHR_materials_unlit`: its base colour, and no path goes on).
     let unlit = edited_scene("cornell-box", "unlit", |json| {
         json["materials"].as_array_mut().unwrap().push(json!({
@@ -627,6 +643,7 @@ fn wavefront_renders_the_scalar_paths_bit_for_bit() {
         ("cornell-box", load("cornell-box.gltf")),
         ("cut-outs", common::gltf::load_path(&cut_outs).expect("edited scene")),
         ("glass and layers", common::gltf::load_path(&glass_and_layers).expect("edited scene")),
+        ("smooth glass", common::gltf::load_path(&smooth_glass).expect("edited scene")),
         ("unlit", common::gltf::load_path(&unlit).expect("edited scene")),
         ("vertex colours", common::gltf::load_path(&coloured).expect("edited scene")),
         ("glossy walls", common::gltf::load_path(&glossy).expect("edited scene")),
