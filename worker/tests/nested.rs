@@ -262,7 +262,9 @@ fn a_camera_inside_nested_volumes_sees_through_their_media() {
 /// liquid rough, the glass smooth), a wax-like volume entered by diffuse transmission, and the
 /// Cornell box with water around the short block, around its light, and rough round the block
 /// with a point light inside (shadow rays through the medium, from the surfaces in it and from
-/// its rough surface into it), under a perspective camera and an environment.
+/// its rough surface into it), under a perspective camera and an environment; paths ended by
+/// too many false interfaces (150 nested shells of one medium), and a textured unlit block
+/// inside a medium.
 #[test]
 fn the_wavefront_traces_paths_through_nested_volumes_bit_for_bit() {
     let (glass, liquid) = glass_with_liquid(0.3, 0.15, 1e-3);
@@ -304,6 +306,31 @@ fn the_wavefront_traces_paths_through_nested_volumes_bit_for_bit() {
             ),
         ),
         ("wax", shells_scene("wavefront-wax", vec![(bubble, wax)], 2.0, 0.4)),
+        // 150 slabs of one medium, each overlapping the next: a path down through them
+        // meets two false interfaces a slab (into the next while inside one, out of the one
+        // before while inside the next), more than it may pass (`MAX_FALSE_INTERFACES`), and
+        // ends inside; paths past their side pass through fewer.
+        (
+            "too many false interfaces",
+            shells_scene(
+                "wavefront-stuck",
+                vec![(
+                    (0..150)
+                        .map(|k| {
+                            let y = -0.9 + 0.012 * k as f32;
+                            Shell {
+                                min: [-0.5, y, -0.5],
+                                max: [0.5, y + 0.018, 0.5],
+                                inward: false,
+                            }
+                        })
+                        .collect(),
+                    dielectric_material(1.0, 1.0, tint([0.98, 0.99, 1.0])),
+                )],
+                2.0,
+                0.2,
+            ),
+        ),
     ];
     let sky = RenderSettings {
         environment: Some(common::settings::Environment::Color { color: [0.8, 0.9, 1.0] }),
@@ -318,6 +345,7 @@ fn the_wavefront_traces_paths_through_nested_volumes_bit_for_bit() {
         ("water round the block", cornell_under_water()),
         ("a light in water", cornell_light_in_water()),
         ("a lamp in rough water", cornell_under_rough_water_with_a_lamp()),
+        ("a textured unlit block in water", cornell_with_a_textured_unlit_block_under_water()),
     ] {
         assert_wavefront_renders_the_scalar_paths(name, &scene, &cornell);
         let with_sky = RenderSettings { width: 24, height: 20, max_depth: 4, ..sky.clone() };

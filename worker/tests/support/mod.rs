@@ -1040,6 +1040,46 @@ pub fn cornell_under_rough_water_with_a_lamp() -> Scene {
     common::gltf::load_path(&path).unwrap()
 }
 
+/// `cornell_under_water` with the short block, inside the water, unlit and textured: a 4 x 4
+/// texture of colours over coordinates that differ at each of the block's corners, so that the
+/// colour a path ends with inside the medium comes from the texture.
+pub fn cornell_with_a_textured_unlit_block_under_water() -> Scene {
+    let path = edited_scene("cornell-box", "water-unlit", |j| {
+        push_water_round_the_block(j);
+        let texels: Vec<u8> = (0..48u32).map(|k| (k * 37 % 251) as u8).collect();
+        let png = rgb_png(4, 4, &texels);
+        j["images"] =
+            serde_json::json!([{"uri": format!("data:image/png;base64,{}", base64(&png))}]);
+        j["textures"] = serde_json::json!([{"source": 0}]);
+        let materials = j["materials"].as_array_mut().unwrap();
+        materials.push(serde_json::json!({
+            "name": "flat, textured",
+            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 0.8, 0.6, 1.0], "baseColorTexture": {"index": 0}},
+            "extensions": {"KHR_materials_unlit": {}}
+        }));
+        let material = materials.len() - 1;
+        // Each of the block's 20 corners its own coordinates, in a buffer of their own.
+        let uv: Vec<u8> = (0..20u32)
+            .flat_map(|k| [(k % 5) as f32 / 4.0, (k / 5) as f32 / 3.0])
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let buffers = j["buffers"].as_array_mut().unwrap();
+        buffers.push(serde_json::json!({"byteLength": uv.len(), "uri": format!("data:application/octet-stream;base64,{}", base64(&uv))}));
+        let buffer = buffers.len() - 1;
+        let views = j["bufferViews"].as_array_mut().unwrap();
+        views.push(serde_json::json!({"buffer": buffer, "byteLength": uv.len()}));
+        let view = views.len() - 1;
+        let accessors = j["accessors"].as_array_mut().unwrap();
+        accessors.push(serde_json::json!({"bufferView": view, "componentType": 5126, "count": 20, "type": "VEC2"}));
+        let accessor = accessors.len() - 1;
+        let block = &mut j["meshes"][3]["primitives"][0];
+        block["attributes"]["TEXCOORD_0"] = serde_json::json!(accessor);
+        block["material"] = serde_json::json!(material);
+        j["extensionsUsed"].as_array_mut().unwrap().push(serde_json::json!("KHR_materials_unlit"));
+    });
+    common::gltf::load_path(&path).unwrap()
+}
+
 /// Puts the water of `cornell_under_water` round the Cornell box's short block; returns its
 /// material and the block's corners.
 fn push_water_round_the_block(j: &mut serde_json::Value) -> (usize, [f64; 3], [f64; 3]) {
