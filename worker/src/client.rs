@@ -31,8 +31,9 @@ use common::{
 use crate::{
     link::{CallError, HttpLink, Link},
     render::{
+        bvh_cache::BvhCache,
         render_task_threads,
-        scene::{prepare_frame, PreparedScene},
+        scene::{prepare_frame_cached, PreparedScene},
     },
 };
 
@@ -65,6 +66,8 @@ pub struct JoinConfig {
     pub token: Option<String>,
     /// How the worker works.
     pub options: WorkerOptions,
+    /// The most bytes of built BVHs the worker keeps for later jobs (`BvhCache`).
+    pub bvh_cache_bytes: usize,
 }
 
 /// The default of [`WorkerOptions::prefetch_below`]: far above a round trip, so that what a
@@ -114,6 +117,9 @@ struct Seed {
 #[derive(Default)]
 pub struct SceneCache {
     entries: Mutex<Vec<(String, Arc<PreparedScene>)>>,
+    /// The BVHs built so far, by their triangles: a job whose settings differ from an earlier
+    /// one's (samples, size, seed, integrator, lights) is prepared again but builds no BVH.
+    bvh: BvhCache,
     loaded: Mutex<Option<Arc<Loaded>>>,
     seed: Option<Seed>,
     /// Scenes prepared so far (readable while one is being prepared).
@@ -131,6 +137,16 @@ impl SceneCache {
     pub fn seeded(hash: String, scene: Scene, env: Option<(String, EnvMap)>) -> Self {
         let env = env.map(|(name, map)| (name, Arc::new(map)));
         SceneCache { seed: Some(Seed { hash, scene: Arc::new(scene), env }), ..Default::default() }
+    }
+
+    /// A cache that keeps at most `bytes` of built BVHs for later jobs.
+    pub fn with_bvh_cache(bytes: usize) -> Self {
+        SceneCache { bvh: BvhCache::new(bytes), ..Default::default() }
+    }
+
+    /// BVHs built so far, and those taken from the cache instead.
+    pub fn bvh_builds_and_hits(&self) -> (usize, usize) {
+        (self.bvh.builds(), self.bvh.hits())
     }
 
     /// How many scenes (or frames of an animated one) this cache has prepared so far.
@@ -214,9 +230,14 @@ impl SceneCache {
         // An animated scene is posed and prepared per frame; a static one once.
         let animated = loaded.scene.is_animated();
         let scene = &loaded.scene;
-        let prepared =
-            prepare_frame(scene, &grant.settings, loaded.env.as_deref(), grant.task.frame)
-                .map_err(|e| Failure::permanent(format!("preparing scene {}: {e}", grant.scene)))?;
+        let prepared = prepare_frame_cached(
+            scene,
+            &grant.settings,
+            loaded.env.as_deref(),
+            grant.task.frame,
+            &self.bvh,
+        )
+        .map_err(|e| Failure::permanent(format!("preparing scene {}: {e}", grant.scene)))?;
         let key = if animated { frame_key } else { base };
         tracing::info!(
             scene = %grant.scene,
@@ -240,7 +261,7 @@ impl SceneCache {
 pub fn run(config: &JoinConfig, stop: &Arc<AtomicBool>) -> Result<WorkerStats> {
     let link = HttpLink::new(&config.url, config.token.as_deref(), config.options.wait_s)
         .stop_waiting_on(stop.clone());
-    run_linked(&link, &config.options, stop, &SceneCache::default())
+    run_linked(&link, &config.options, stop, &SceneCache::with_bvh_cache(config.bvh_cache_bytes))
 }
 
 /// [`run`] over any link, with a scene cache shared with other workers of this process.
@@ -742,6 +763,51 @@ mod tests {
         let refused = seeded.get_or_prepare(&link, &grant("abc", sky)).err().unwrap();
         assert!(refused.message.contains("sky.hdr"), "{}", refused.message);
         assert_eq!(link.fetched.load(Ordering::Relaxed), 3);
+    }
+
+    /// Jobs of one scene with other settings (samples, size, seed, integrator) are prepared
+    /// again, but take the first job's BVH; a cache of no bytes builds it every time.
+    #[test]
+    fn jobs_of_one_scene_share_its_bvh() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.glb");
+        let bundle = std::fs::read(&path).unwrap();
+        let grant = |settings: common::settings::RenderSettings| LeaseGrant {
+            lease: "l".into(),
+            job: "j".into(),
+            scene: "abc".into(),
+            settings,
+            task: common::protocol::TaskSpec {
+                frame: 0,
+                rect: common::film::Rect { x0: 0, y0: 0, width: 4, height: 4 },
+                samples: common::protocol::SampleRange { start: 0, end: 1 },
+                kind: common::protocol::TaskKind::Camera,
+            },
+            lease_timeout_s: 30.0,
+            scene_budget: Default::default(),
+        };
+        let jobs = [
+            common::settings::RenderSettings::default(),
+            common::settings::RenderSettings { spp: 7, seed: 3, width: 40, ..Default::default() },
+            common::settings::RenderSettings {
+                integrator: common::settings::Integrator::Bdpt,
+                ..Default::default()
+            },
+        ];
+        let link = Serves { bundle, fetched: Default::default() };
+        let cache = SceneCache::default();
+        let prepared: Vec<_> = jobs
+            .iter()
+            .map(|s| cache.get_or_prepare(&link, &grant(s.clone())).ok().unwrap())
+            .collect();
+        assert_eq!(cache.scenes_prepared(), 3);
+        assert_eq!(cache.bvh_builds_and_hits(), (1, 2));
+        assert!(prepared.iter().all(|p| Arc::ptr_eq(&p.accel, &prepared[0].accel)));
+        let none = SceneCache::with_bvh_cache(0);
+        for s in &jobs {
+            none.get_or_prepare(&link, &grant(s.clone())).ok().unwrap();
+        }
+        assert_eq!(none.bvh_builds_and_hits(), (3, 0));
     }
 
     /// A panic in the worker loop ends `run_linked` (the panic reaches its caller) instead of

@@ -36,6 +36,10 @@ struct Cli {
     /// (hides the round trip to the coordinator); 0 never leases ahead.
     #[arg(long, default_value_t = worker::client::PREFETCH_BELOW.as_secs_f64())]
     prefetch_below: f64,
+    /// The most memory, in MiB, that built BVHs are kept in for later jobs of the same
+    /// geometry (least recently used dropped first); 0 keeps none.
+    #[arg(long, value_name = "MIB", default_value_t = (worker::render::bvh_cache::DEFAULT_BUDGET >> 20) as u64)]
+    bvh_cache_mib: u64,
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -106,6 +110,8 @@ fn main() -> Result<()> {
                     wait_s: cli.wait,
                     prefetch_below: std::time::Duration::from_secs_f64(cli.prefetch_below),
                 },
+                bvh_cache_bytes: usize::try_from(cli.bvh_cache_mib.saturating_mul(1 << 20))
+                    .unwrap_or(usize::MAX),
             };
             let stats = worker::client::run(&config, &stop)?;
             tracing::info!(merged = stats.merged, refused = stats.refused, "worker stopped");

@@ -8,6 +8,7 @@
 
 pub mod accel;
 pub mod bsdf;
+pub mod bvh_cache;
 pub mod camera;
 pub mod geometry;
 pub mod integrators;

@@ -17,6 +17,7 @@ use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 use super::{
     accel::KeyedAccel,
     accel::{Accel, Hit},
+    bvh_cache::BvhCache,
     camera::{Camera, CameraModel, PixelSpread},
     geometry::{interpolation_error, offset_ray_origin, Ray},
     light::{
@@ -139,8 +140,8 @@ pub struct PreparedScene {
     pub origin: DVec3,
     /// The camera at the origin.
     pub camera: Camera,
-    /// Triangles and BVH.
-    pub accel: Accel,
+    /// Triangles and BVH (shared with the worker's `BvhCache`, where it came from one).
+    pub accel: Arc<Accel>,
     /// Per-triangle shading data, indexed like `Hit::prim`.
     pub shading: Vec<TriShading>,
     /// World-space vertex normals (zero when the mesh has none).
@@ -325,7 +326,7 @@ pub fn prepare_with_environment(
     settings: &RenderSettings,
     env_map: Option<&EnvMap>,
 ) -> Result<PreparedScene, PrepareError> {
-    prepare_inner(scene, settings, env_map, None, LightChoice::Auto)
+    prepare_inner(scene, settings, env_map, None, LightChoice::Auto, None)
 }
 
 /// `prepare` with the light choice given, for comparing the two (tests and benchmarks).
@@ -334,16 +335,19 @@ pub fn prepare_with_light_choice(
     settings: &RenderSettings,
     choice: LightChoice,
 ) -> Result<PreparedScene, PrepareError> {
-    prepare_inner(scene, settings, None, None, choice)
+    prepare_inner(scene, settings, None, None, choice, None)
 }
 
 /// Builds the render-ready scene; with a shutter (seconds), placements that move are kept apart.
+/// The BVH over what stands still comes from `bvh` where given (built there once for the same
+/// triangles).
 fn prepare_inner(
     scene: &Scene,
     settings: &RenderSettings,
     env_map: Option<&EnvMap>,
     shutter: Option<(f64, f64)>,
     choice: LightChoice,
+    bvh: Option<&BvhCache>,
 ) -> Result<PreparedScene, PrepareError> {
     scene.check_integrator(settings).map_err(|e| PrepareError(format!("settings.{e}")))?;
     // A material variant is part of the settings: the meshes it maps take its materials.
@@ -485,7 +489,13 @@ fn prepare_inner(
     }
 
     let start = Instant::now();
-    let (accel, order) = Accel::build(&triangles);
+    let (accel, order): (Arc<Accel>, Arc<[u32]>) = match bvh {
+        Some(cache) => cache.get_or_build(&triangles),
+        None => {
+            let (accel, order) = Accel::build(&triangles);
+            (Arc::new(accel), order.into())
+        }
+    };
     let build_seconds = start.elapsed().as_secs_f64();
     drop(triangles);
     let mut shading: Vec<TriShading> = order.iter().map(|&i| shading[i as usize]).collect();
@@ -892,8 +902,31 @@ pub fn prepare_frame(
     env_map: Option<&EnvMap>,
     frame: i64,
 ) -> Result<PreparedScene, PrepareError> {
+    prepare_frame_in(scene, settings, env_map, frame, None)
+}
+
+/// `prepare_frame` with the BVH of the geometry that stands still taken from `bvh`, or built
+/// there and kept: the same preparation bit for bit, its BVH built once for every job and
+/// frame whose triangles are the same.
+pub fn prepare_frame_cached(
+    scene: &Scene,
+    settings: &RenderSettings,
+    env_map: Option<&EnvMap>,
+    frame: i64,
+    bvh: &BvhCache,
+) -> Result<PreparedScene, PrepareError> {
+    prepare_frame_in(scene, settings, env_map, frame, Some(bvh))
+}
+
+fn prepare_frame_in(
+    scene: &Scene,
+    settings: &RenderSettings,
+    env_map: Option<&EnvMap>,
+    frame: i64,
+    bvh: Option<&BvhCache>,
+) -> Result<PreparedScene, PrepareError> {
     if !scene.is_animated() {
-        return prepare_with_environment(scene, settings, env_map);
+        return prepare_inner(scene, settings, env_map, None, LightChoice::Auto, bvh);
     }
     let mut posed = scene.clone();
     posed.set_time(settings.frame_time(frame));
@@ -902,7 +935,7 @@ pub fn prepare_frame(
         let f = frame as f64;
         ((f + open) / settings.frames.fps, (f + close) / settings.frames.fps)
     });
-    prepare_inner(&posed, settings, env_map, shutter, LightChoice::Auto)
+    prepare_inner(&posed, settings, env_map, shutter, LightChoice::Auto, bvh)
 }
 
 /// Builds the render-ready scene for settings without an environment map.
