@@ -17,28 +17,10 @@ use std::{path::Path, time::Instant};
 
 use serde_json::{json, Value};
 
-/// A GLB of `json` with `bin` as its BIN chunk (padded to four bytes).
-fn glb(mut json: Value, mut bin: Vec<u8>) -> Vec<u8> {
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
+/// A GLB of `json` with `bin` as its BIN chunk (buffer 0).
+fn glb(mut json: Value, bin: Vec<u8>) -> Vec<u8> {
     json["buffers"][0]["byteLength"] = json!(bin.len());
-    let mut text = serde_json::to_vec(&json).expect("json");
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::with_capacity(total);
-    out.extend(b"glTF");
-    out.extend(2u32.to_le_bytes());
-    out.extend((total as u32).to_le_bytes());
-    out.extend((text.len() as u32).to_le_bytes());
-    out.extend(b"JSON");
-    out.extend(text);
-    out.extend((bin.len() as u32).to_le_bytes());
-    out.extend(b"BIN\0");
-    out.extend(bin);
-    out
+    common::gltf::build_glb(&serde_json::to_vec(&json).expect("json"), Some(&bin))
 }
 
 /// The grid: `side` x `side` vertices over [-1, 1]², displaced in z, with its exact normals, its
@@ -85,8 +67,11 @@ fn bytes_of<T: bytemuck::Pod>(v: &[T]) -> &[u8] {
 /// the buffer view of its own number where `views` (else none: Draco's).
 fn accessors(g: &Grid, views: bool) -> Value {
     let n = g.positions.len();
+    let (lo, hi) = g.positions.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| {
+        (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
+    });
     let mut a = vec![
-        json!({"componentType": 5126, "count": n, "type": "VEC3", "min": [-1.0, -1.0, -0.1], "max": [1.0, 1.0, 0.1]}),
+        json!({"componentType": 5126, "count": n, "type": "VEC3", "min": lo, "max": hi}),
         json!({"componentType": 5126, "count": n, "type": "VEC3"}),
         json!({"componentType": 5126, "count": n, "type": "VEC2"}),
         json!({"componentType": 5125, "count": g.indices.len(), "type": "SCALAR"}),
@@ -134,19 +119,21 @@ fn plain_mesh(g: &Grid) -> Vec<u8> {
 }
 
 /// `EXT_meshopt_compression` as gltfpack writes it: the compressed streams in the BIN chunk
-/// (buffer 0), the views over a fallback buffer without data (buffer 1).
+/// (buffer 0), the views over a fallback buffer without data (buffer 1), and the vertex codec's
+/// format version 0, the one the extension specifies (meshoptimizer's encoder defaults to 1).
 fn meshopt_mesh(g: &Grid) -> Vec<u8> {
     let n = g.positions.len();
+    let vertices = |v: &[[f32; 3]]| meshopt::encode_vertex_buffer_level(v, 2, Some(0));
     let streams: [(Vec<u8>, usize, usize, usize, &str); 4] = [
+        (vertices(&g.positions).expect("meshopt"), 12, n, n * 12, "ATTRIBUTES"),
+        (vertices(&g.normals).expect("meshopt"), 12, n, n * 12, "ATTRIBUTES"),
         (
-            meshopt::encode_vertex_buffer(&g.positions).expect("meshopt"),
-            12,
+            meshopt::encode_vertex_buffer_level(&g.uvs, 2, Some(0)).expect("meshopt"),
+            8,
             n,
-            n * 12,
+            n * 8,
             "ATTRIBUTES",
         ),
-        (meshopt::encode_vertex_buffer(&g.normals).expect("meshopt"), 12, n, n * 12, "ATTRIBUTES"),
-        (meshopt::encode_vertex_buffer(&g.uvs).expect("meshopt"), 8, n, n * 8, "ATTRIBUTES"),
         (
             meshopt::encode_index_buffer(&g.indices, n).expect("meshopt"),
             4,

@@ -39,7 +39,7 @@ fn main() {
         prepare_frame_cached(&scene, &second, None, 0, &cache).expect("prepare");
     });
     println!(
-        "{} triangles: without the cache {fresh:.3} s; with it, the first job {first_job:.3} s, a later job {second_job:.3} s ({} BVH kept, {:.1} MB)",
+        "{} triangles: without the cache {fresh:.3} s; with it, the first job {first_job:.3} s, a later job {second_job:.3} s ({} BVH built, {:.1} MB kept)",
         scene.triangle_count(),
         cache.builds(),
         cache.bytes() as f64 / 1e6

@@ -136,7 +136,12 @@ impl SceneCache {
     /// bundle. The bundle holds the same bytes, so the scene is the one they would load.
     pub fn seeded(hash: String, scene: Scene, env: Option<(String, EnvMap)>) -> Self {
         let env = env.map(|(name, map)| (name, Arc::new(map)));
-        SceneCache { seed: Some(Seed { hash, scene: Arc::new(scene), env }), ..Default::default() }
+        // One job's settings only (`coordinator render`): no BVH is worth keeping.
+        SceneCache {
+            seed: Some(Seed { hash, scene: Arc::new(scene), env }),
+            bvh: BvhCache::new(0),
+            ..Default::default()
+        }
     }
 
     /// A cache that keeps at most `bytes` of built BVHs for later jobs.
@@ -226,7 +231,13 @@ impl SceneCache {
             }
         }
         let start = Instant::now();
-        let loaded = self.load(link, grant, &base)?;
+        // The scene as loaded depends on the bundle and the environment map it names, not on
+        // the other settings: a later job with other settings takes it as it is.
+        let map = match &grant.settings.environment {
+            Some(Environment::Map { map, .. }) => Some(map.as_str()),
+            _ => None,
+        };
+        let loaded = self.load(link, grant, &format!("{}/{map:?}", grant.scene))?;
         // An animated scene is posed and prepared per frame; a static one once.
         let animated = loaded.scene.is_animated();
         let scene = &loaded.scene;
@@ -719,6 +730,24 @@ mod tests {
         }
     }
 
+    /// A lease of a one-sample 4x4 task of frame 0 of scene `hash` under `settings`.
+    fn grant_of(hash: &str, settings: common::settings::RenderSettings) -> LeaseGrant {
+        LeaseGrant {
+            lease: "l".into(),
+            job: "j".into(),
+            scene: hash.into(),
+            settings,
+            task: common::protocol::TaskSpec {
+                frame: 0,
+                rect: common::film::Rect { x0: 0, y0: 0, width: 4, height: 4 },
+                samples: common::protocol::SampleRange { start: 0, end: 1 },
+                kind: common::protocol::TaskKind::Camera,
+            },
+            lease_timeout_s: 30.0,
+            scene_budget: Default::default(),
+        }
+    }
+
     /// A seeded cache prepares the scene it holds without fetching or decoding the bundle, and
     /// the prepared scene is the one the bundle gives; a job of another scene, or one that asks
     /// for another environment map, loads from the link as before.
@@ -728,19 +757,8 @@ mod tests {
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.glb");
         let bundle = std::fs::read(&path).unwrap();
         let scene = common::gltf::load_path(&path).unwrap();
-        let grant = |hash: &str, environment| LeaseGrant {
-            lease: "l".into(),
-            job: "j".into(),
-            scene: hash.into(),
-            settings: common::settings::RenderSettings { environment, ..Default::default() },
-            task: common::protocol::TaskSpec {
-                frame: 0,
-                rect: common::film::Rect { x0: 0, y0: 0, width: 4, height: 4 },
-                samples: common::protocol::SampleRange { start: 0, end: 1 },
-                kind: common::protocol::TaskKind::Camera,
-            },
-            lease_timeout_s: 30.0,
-            scene_budget: Default::default(),
+        let grant = |hash: &str, environment| {
+            grant_of(hash, common::settings::RenderSettings { environment, ..Default::default() })
         };
         let link = Serves { bundle, fetched: Default::default() };
         let seeded = SceneCache::seeded("abc".into(), scene, None);
@@ -766,26 +784,14 @@ mod tests {
     }
 
     /// Jobs of one scene with other settings (samples, size, seed, integrator) are prepared
-    /// again, but take the first job's BVH; a cache of no bytes builds it every time.
+    /// again from the scene as first fetched and loaded, and take the first job's BVH; a cache
+    /// of no bytes builds it every time.
     #[test]
     fn jobs_of_one_scene_share_its_bvh() {
         let path =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.glb");
         let bundle = std::fs::read(&path).unwrap();
-        let grant = |settings: common::settings::RenderSettings| LeaseGrant {
-            lease: "l".into(),
-            job: "j".into(),
-            scene: "abc".into(),
-            settings,
-            task: common::protocol::TaskSpec {
-                frame: 0,
-                rect: common::film::Rect { x0: 0, y0: 0, width: 4, height: 4 },
-                samples: common::protocol::SampleRange { start: 0, end: 1 },
-                kind: common::protocol::TaskKind::Camera,
-            },
-            lease_timeout_s: 30.0,
-            scene_budget: Default::default(),
-        };
+        let grant = |settings| grant_of("abc", settings);
         let jobs = [
             common::settings::RenderSettings::default(),
             common::settings::RenderSettings { spp: 7, seed: 3, width: 40, ..Default::default() },
@@ -801,6 +807,7 @@ mod tests {
             .map(|s| cache.get_or_prepare(&link, &grant(s.clone())).ok().unwrap())
             .collect();
         assert_eq!(cache.scenes_prepared(), 3);
+        assert_eq!(link.fetched.load(Ordering::Relaxed), 1, "the scene was fetched again");
         assert_eq!(cache.bvh_builds_and_hits(), (1, 2));
         assert!(prepared.iter().all(|p| Arc::ptr_eq(&p.accel, &prepared[0].accel)));
         let none = SceneCache::with_bvh_cache(0);

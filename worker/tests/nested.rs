@@ -263,7 +263,7 @@ fn a_camera_inside_nested_volumes_sees_through_their_media() {
 /// Cornell box with water around the short block, around its light, and rough round the block
 /// with a point light inside (shadow rays through the medium, from the surfaces in it and from
 /// its rough surface into it), under a perspective camera and an environment; paths ended by
-/// too many false interfaces (150 nested shells of one medium), and a textured unlit block
+/// too many false interfaces (150 overlapping slabs of one medium), and a textured unlit block
 /// inside a medium.
 #[test]
 fn the_wavefront_traces_paths_through_nested_volumes_bit_for_bit() {

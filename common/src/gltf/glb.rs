@@ -118,8 +118,7 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Glb<'_>, SceneError> {
 }
 
 /// Builds a GLB file from a JSON text and an optional BIN payload (test helper and tooling).
-#[cfg(test)]
-pub(crate) fn build(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
+pub fn build(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
     let pad = |n: usize| (4 - n % 4) % 4;
     let json_len = json.len() + pad(json.len());
     let bin_len = bin.map(|b| b.len() + pad(b.len()));

@@ -17,6 +17,7 @@ mod basisu;
 mod deform;
 mod draco;
 mod glb;
+pub use glb::build as build_glb;
 mod json;
 mod material;
 mod mesh;

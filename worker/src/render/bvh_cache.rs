@@ -4,9 +4,10 @@
 //!
 //! The key is the SHA-256 of the triangles the BVH is built over (their corners as bits, in
 //! order), which `prepare` has already placed in the renderer's space. The build is a function of
-//! those triangles alone, so a hit gives the bits a fresh build would: correct by construction,
-//! whatever changed in the scene or the settings. A change that moves any triangle (another
-//! camera, since the renderer's origin is the camera; another frame of an animation; a material
+//! those triangles alone (`Accel::build` is deterministic and single-threaded), so a hit gives
+//! the bits a fresh build would: correct by construction, whatever changed in the scene or the
+//! settings. A change that moves any still triangle (another camera, since the renderer's origin
+//! is the camera; a frame in which a placement that is not blurred stands elsewhere; a material
 //! variant that cuts a mesh out) is another key.
 //!
 //! The cache is bounded by the bytes of the BVHs it holds (`Accel::memory_bytes` and the
@@ -60,6 +61,10 @@ impl BvhCache {
     /// The BVH over `triangles`: the one kept for the same triangles, or a new build (kept if
     /// it fits the budget).
     pub fn get_or_build(&self, triangles: &[[Vec3; 3]]) -> Built {
+        if self.budget == 0 {
+            self.builds.fetch_add(1, Ordering::Relaxed);
+            return build(triangles);
+        }
         let key = key_of(triangles);
         {
             let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
@@ -71,21 +76,23 @@ impl BvhCache {
                 return built;
             }
         }
-        // Built outside the lock: another preparation may look up meanwhile.
-        let (accel, order) = Accel::build(triangles);
+        // Built outside the lock, so that other lookups go on meanwhile.
+        let built = build(triangles);
         self.builds.fetch_add(1, Ordering::Relaxed);
-        let bytes = accel.memory_bytes() + order.len() * std::mem::size_of::<u32>();
-        let built: Built = (Arc::new(accel), order.into());
+        let bytes = built.0.memory_bytes() + built.1.len() * std::mem::size_of::<u32>();
         if bytes <= self.budget {
             let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
-            if !entries.iter().any(|(k, ..)| *k == key) {
-                entries.insert(0, (key, built.clone(), bytes));
-                let mut total = 0;
-                entries.retain(|(.., b)| {
-                    total += b;
-                    total <= self.budget
-                });
+            // Another caller built the same BVH meanwhile: share the one kept.
+            if let Some((_, kept, _)) = entries.iter().find(|(k, ..)| *k == key) {
+                return kept.clone();
             }
+            entries.insert(0, (key, built.clone(), bytes));
+            // The most recently used that fit, in order.
+            let mut total = 0;
+            entries.retain(|(.., b)| {
+                total += b;
+                total <= self.budget
+            });
         }
         built
     }
@@ -105,6 +112,12 @@ impl BvhCache {
         let entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
         entries.iter().map(|(.., b)| b).sum()
     }
+}
+
+/// The BVH over `triangles`, built (`Accel::build`), as the cache holds it.
+pub fn build(triangles: &[[Vec3; 3]]) -> Built {
+    let (accel, order) = Accel::build(triangles);
+    (Arc::new(accel), order.into())
 }
 
 /// SHA-256 of the triangles' count and corners, bit for bit.

@@ -17,7 +17,7 @@ use glam::{DMat3, DMat4, DVec3, Mat3, Vec2, Vec3, Vec4};
 use super::{
     accel::KeyedAccel,
     accel::{Accel, Hit},
-    bvh_cache::BvhCache,
+    bvh_cache::{self, BvhCache},
     camera::{Camera, CameraModel, PixelSpread},
     geometry::{interpolation_error, offset_ray_origin, Ray},
     light::{
@@ -181,7 +181,8 @@ pub struct PreparedScene {
     pub environment_visible: bool,
     /// Maximum number of bounces.
     pub max_depth: u32,
-    /// Seconds spent building the BVH.
+    /// Seconds spent building the BVH (with a `BvhCache`: hashing its triangles, and building
+    /// it where the cache holds none).
     pub build_seconds: f64,
     /// The light-transport algorithm the settings name, with what it prepared.
     pub transport: Transport,
@@ -489,12 +490,9 @@ fn prepare_inner(
     }
 
     let start = Instant::now();
-    let (accel, order): (Arc<Accel>, Arc<[u32]>) = match bvh {
+    let (accel, order) = match bvh {
         Some(cache) => cache.get_or_build(&triangles),
-        None => {
-            let (accel, order) = Accel::build(&triangles);
-            (Arc::new(accel), order.into())
-        }
+        None => bvh_cache::build(&triangles),
     };
     let build_seconds = start.elapsed().as_secs_f64();
     drop(triangles);
