@@ -136,12 +136,7 @@ impl SceneCache {
     /// bundle. The bundle holds the same bytes, so the scene is the one they would load.
     pub fn seeded(hash: String, scene: Scene, env: Option<(String, EnvMap)>) -> Self {
         let env = env.map(|(name, map)| (name, Arc::new(map)));
-        // One job's settings only (`coordinator render`): no BVH is worth keeping.
-        SceneCache {
-            seed: Some(Seed { hash, scene: Arc::new(scene), env }),
-            bvh: BvhCache::new(0),
-            ..Default::default()
-        }
+        SceneCache { seed: Some(Seed { hash, scene: Arc::new(scene), env }), ..Default::default() }
     }
 
     /// A cache that keeps at most `bytes` of built BVHs for later jobs.

@@ -123,6 +123,7 @@ pub fn build(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
     let json_len = json.len() + pad(json.len());
     let bin_len = bin.map(|b| b.len() + pad(b.len()));
     let total = 12 + 8 + json_len + bin_len.map_or(0, |l| 8 + l);
+    assert!(u32::try_from(total).is_ok(), "a GLB holds at most 4 GiB");
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&2u32.to_le_bytes());

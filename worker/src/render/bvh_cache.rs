@@ -82,12 +82,16 @@ impl BvhCache {
         let bytes = built.0.memory_bytes() + built.1.len() * std::mem::size_of::<u32>();
         if bytes <= self.budget {
             let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
-            // Another caller built the same BVH meanwhile: share the one kept.
-            if let Some((_, kept, _)) = entries.iter().find(|(k, ..)| *k == key) {
-                return kept.clone();
+            // Another caller built the same BVH meanwhile: share the one kept (now the most
+            // recently used).
+            if let Some(i) = entries.iter().position(|(k, ..)| *k == key) {
+                let entry = entries.remove(i);
+                let kept = entry.1.clone();
+                entries.insert(0, entry);
+                return kept;
             }
             entries.insert(0, (key, built.clone(), bytes));
-            // The most recently used that fit, in order.
+            // The most recently used, up to the first that would pass the budget.
             let mut total = 0;
             entries.retain(|(.., b)| {
                 total += b;
