@@ -460,9 +460,17 @@ impl Accel {
 
     /// Bytes held by the BVH nodes and the triangle vertices.
     pub fn memory_bytes(&self) -> usize {
-        self.nodes.len() * std::mem::size_of::<Node>()
-            + self.blocks.len() * std::mem::size_of::<Tri4>()
-            + self.prim_block.len() * std::mem::size_of::<u32>()
+        self.memory_parts().iter().map(|(_, bytes)| bytes).sum()
+    }
+
+    /// `memory_bytes` by structure: the nodes, the four-triangle blocks, and each triangle's
+    /// block.
+    pub fn memory_parts(&self) -> [(&'static str, usize); 3] {
+        [
+            ("BVH nodes", self.nodes.len() * std::mem::size_of::<Node>()),
+            ("triangle blocks", self.blocks.len() * std::mem::size_of::<Tri4>()),
+            ("block of each triangle", self.prim_block.len() * std::mem::size_of::<u32>()),
+        ]
     }
 
     /// Number of triangles.

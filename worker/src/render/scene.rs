@@ -944,12 +944,24 @@ pub fn prepare(scene: &Scene, settings: &RenderSettings) -> Result<PreparedScene
 impl PreparedScene {
     /// Bytes of geometry the renderer keeps per scene: BVH, triangles, shading data, vertices.
     pub fn memory_bytes(&self) -> usize {
-        self.accel.memory_bytes()
-            + self.shading.len() * std::mem::size_of::<TriShading>()
-            + self.normals.len() * std::mem::size_of::<Vec3>()
-            + self.tangents.len() * std::mem::size_of::<Vec4>()
-            + (self.uvs[0].len() + self.uvs[1].len()) * std::mem::size_of::<Vec2>()
-            + self.colors.len() * std::mem::size_of::<Vec4>()
+        self.memory_parts().iter().map(|(_, bytes)| bytes).sum()
+    }
+
+    /// `memory_bytes` by structure (the BVH's parts, then the shading data and each vertex
+    /// attribute).
+    pub fn memory_parts(&self) -> Vec<(&'static str, usize)> {
+        let mut parts = self.accel.memory_parts().to_vec();
+        parts.extend([
+            ("shading of each triangle", self.shading.len() * std::mem::size_of::<TriShading>()),
+            ("normals", self.normals.len() * std::mem::size_of::<Vec3>()),
+            ("tangents", self.tangents.len() * std::mem::size_of::<Vec4>()),
+            (
+                "texture coordinates",
+                (self.uvs[0].len() + self.uvs[1].len()) * std::mem::size_of::<Vec2>(),
+            ),
+            ("vertex colours", self.colors.len() * std::mem::size_of::<Vec4>()),
+        ]);
+        parts
     }
 }
 
