@@ -111,7 +111,10 @@ struct Seed {
 }
 
 /// The scenes a worker has prepared, most recent first (a few jobs, or a few frames of an
-/// animation, at once). Workers of one process can share one cache, so that the scene and its
+/// animation, at once), keyed by (scene, settings) and, for animated scenes, frame. Below them it
+/// keeps the last scene loaded, for later jobs of the same scene and environment map (other
+/// settings do not change what is loaded), and the BVHs built (`BvhCache`, bounded by
+/// `--bvh-cache-mib`). Workers of one process can share one cache, so that the scene and its
 /// BVH are held once however many of them run; a worker that needs a scene another is preparing
 /// waits for it instead of building twice.
 #[derive(Default)]

@@ -66,15 +66,10 @@ impl BvhCache {
             return build(triangles);
         }
         let key = key_of(triangles);
-        {
-            let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
-            if let Some(i) = entries.iter().position(|(k, ..)| *k == key) {
-                let entry = entries.remove(i);
-                let built = entry.1.clone();
-                entries.insert(0, entry);
-                self.hits.fetch_add(1, Ordering::Relaxed);
-                return built;
-            }
+        let kept = most_recent(&mut self.entries.lock().unwrap_or_else(|p| p.into_inner()), &key);
+        if let Some(kept) = kept {
+            self.hits.fetch_add(1, Ordering::Relaxed);
+            return kept;
         }
         // Built outside the lock, so that other lookups go on meanwhile.
         let built = build(triangles);
@@ -82,12 +77,8 @@ impl BvhCache {
         let bytes = built.0.memory_bytes() + built.1.len() * std::mem::size_of::<u32>();
         if bytes <= self.budget {
             let mut entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
-            // Another caller built the same BVH meanwhile: share the one kept (now the most
-            // recently used).
-            if let Some(i) = entries.iter().position(|(k, ..)| *k == key) {
-                let entry = entries.remove(i);
-                let kept = entry.1.clone();
-                entries.insert(0, entry);
+            // Another caller built the same BVH meanwhile: share the one kept.
+            if let Some(kept) = most_recent(&mut entries, &key) {
                 return kept;
             }
             entries.insert(0, (key, built.clone(), bytes));
@@ -116,6 +107,15 @@ impl BvhCache {
         let entries = self.entries.lock().unwrap_or_else(|p| p.into_inner());
         entries.iter().map(|(.., b)| b).sum()
     }
+}
+
+/// The entry of `key` in `entries`, moved to the front (the most recently used).
+fn most_recent(entries: &mut Vec<([u8; 32], Built, usize)>, key: &[u8; 32]) -> Option<Built> {
+    let i = entries.iter().position(|(k, ..)| k == key)?;
+    let entry = entries.remove(i);
+    let built = entry.1.clone();
+    entries.insert(0, entry);
+    Some(built)
 }
 
 /// The BVH over `triangles`, built (`Accel::build`), as the cache holds it.
