@@ -89,6 +89,13 @@ pub fn base_color(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec4
     c
 }
 
+/// The base colour with each channel within [0, 1]: what the BSDF takes, and what an unlit
+/// material (`KHR_materials_unlit`) shows, seen as it is.
+#[inline]
+pub fn clamped_base_color(textures: &[Texture], m: &Material, sp: &SurfacePoint) -> Vec3 {
+    base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE)
+}
+
 /// The probability that the surface is there at the point: 1 for OPAQUE, 0 or 1 for MASK (alpha
 /// against the cutoff), alpha for BLEND (alpha as coverage: the surface is composited over what
 /// lies behind it, as glTF's "over" operator says, in expectation).
@@ -123,7 +130,7 @@ pub fn bsdf(
     iors: [f32; 2],
     extended: bool,
 ) -> Bsdf {
-    let base = base_color(textures, m, sp).truncate().clamp(Vec3::ZERO, Vec3::ONE);
+    let base = clamped_base_color(textures, m, sp);
     let (mut metallic, mut roughness) = (m.metallic, m.roughness);
     if let Some(r) = &m.metallic_roughness_texture {
         let t = sample(textures, r, sp, false);

@@ -753,8 +753,7 @@ pub(super) fn surface_vertex(
             v.moving_le = material::emission_toward(&scene.textures, material, &sp, winding, wo);
         }
         if tri.extended && material.unlit {
-            let base = material::base_color(&scene.textures, material, &sp).truncate();
-            return Some((v, Some(base.clamp(Vec3::ZERO, Vec3::ONE))));
+            return Some((v, Some(material::clamped_base_color(&scene.textures, material, &sp))));
         }
         let (mut frame, ns_surface) =
             shading_frame(scene, hit.prim, [p0, p1, p2], b, ng, wo, &sp, at.pose);

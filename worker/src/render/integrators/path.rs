@@ -161,8 +161,7 @@ pub fn li(
         let sp = scene.shading_point(hit.prim, [p0, p1, p2], b);
         if extended && material.unlit {
             // `KHR_materials_unlit`: the base colour, seen as it is; nothing goes on from it.
-            let base = material::base_color(&scene.textures, material, &sp).truncate();
-            radiance += beta * base.clamp(Vec3::ZERO, Vec3::ONE);
+            radiance += beta * material::clamped_base_color(&scene.textures, material, &sp);
             break;
         }
 

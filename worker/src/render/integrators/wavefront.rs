@@ -508,8 +508,8 @@ fn run<S: Simd>(s: S, job: Job<'_>) -> (TileAccum, Stats) {
                     if (q[1] - q[0]).cross(q[2] - q[0]).try_normalize().is_some() {
                         let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
                         let sp = scene.shading_point(hit.prim, q, b);
-                        let base = material::base_color(&scene.textures, material, &sp).truncate();
-                        let radiance = paths.beta.lane(i) * base.clamp(Vec3::ZERO, Vec3::ONE);
+                        let base = material::clamped_base_color(&scene.textures, material, &sp);
+                        let radiance = paths.beta.lane(i) * base;
                         paths.radiance.set_lane(i, paths.radiance.lane(i) + radiance);
                     }
                     paths.alive[i] = false;
